@@ -1,0 +1,28 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'tpms_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/scenarios', glob('scenarios/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='Vehicle monitor maintainers',
+    maintainer_email='maintainers@vehicle-monitor.dev',
+    description='Road vehicle monitoring: indirect TPMS, tire lateral forces, road simulator.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'vehicle_simulator = tpms_ros.vehicle_simulator_node:main',
+        ],
+    },
+)

@@ -1,0 +1,15 @@
+# Source this file to get the workspace environment (the venv, the ROS 2 Jazzy wheels and the
+# colcon install space). Every command of the project runs under it.
+_VM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# colcon's setup.bash does not put the venv (the underlay holding the ROS wheels) on
+# AMENT_PREFIX_PATH, so export it before sourcing the install space.
+export AMENT_PREFIX_PATH="$_VM_ROOT/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+export CMAKE_PREFIX_PATH="$_VM_ROOT/.venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+# shellcheck disable=SC1091
+source "$_VM_ROOT/.venv/bin/activate"
+# shellcheck disable=SC1091
+source "$_VM_ROOT/install/setup.bash"
+# Run graphs on this host only, so parallel runs and other machines do not hear each other.
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+export RCUTILS_COLORIZED_OUTPUT="${RCUTILS_COLORIZED_OUTPUT:-0}"
+unset _VM_ROOT
