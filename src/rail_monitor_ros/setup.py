@@ -24,5 +24,9 @@ setup(
         'console_scripts': [
             'rail_simulator = rail_monitor_ros.rail_simulator_node:main',
         ],
+        # Node classes for the composed runner (vehicle_monitor_common.runner).
+        'vehicle_monitor.nodes': [
+            'rail_simulator = vehicle_monitor_common.player:ScenarioPlayer',
+        ],
     },
 )

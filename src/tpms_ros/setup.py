@@ -24,5 +24,9 @@ setup(
         'console_scripts': [
             'vehicle_simulator = tpms_ros.vehicle_simulator_node:main',
         ],
+        # Node classes for the composed runner (vehicle_monitor_common.runner).
+        'vehicle_monitor.nodes': [
+            'vehicle_simulator = vehicle_monitor_common.player:ScenarioPlayer',
+        ],
     },
 )

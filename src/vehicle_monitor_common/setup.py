@@ -20,5 +20,10 @@ setup(
         'console_scripts': [
             'run_graph = vehicle_monitor_common.runner:main',
         ],
+        # Node classes for the composed runner (vehicle_monitor_common.runner).
+        'vehicle_monitor.nodes': [
+            'scenario_player = vehicle_monitor_common.player:ScenarioPlayer',
+            'graph_recorder = vehicle_monitor_common.recorder:GraphRecorder',
+        ],
     },
 )

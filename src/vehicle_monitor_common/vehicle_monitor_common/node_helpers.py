@@ -1,0 +1,281 @@
+"""Node helpers shared by every node: typed parameters, diagnostics, input checks, main().
+
+Parameters are declared from a frozen dataclass whose fields carry their description and range
+(:func:`param`), so each node states its parameters once, ROS enforces the ranges (an
+out-of-range ``-p`` or ``--params-file`` value is refused with the reason, never clamped), and
+the node reads them back as one typed object.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+import dataclasses
+from dataclasses import dataclass
+import math
+import sys
+from typing import Any, Generic, TypeVar
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+P = TypeVar('P')
+
+OK = DiagnosticStatus.OK
+WARN = DiagnosticStatus.WARN
+ERROR = DiagnosticStatus.ERROR
+STALE = DiagnosticStatus.STALE
+
+# Sensor inputs: best effort, keep last (robot_localization's split); the depth is deep enough
+# for a 1 kHz stream across a scheduling hiccup. Replays that must not drop a sample override
+# reliability/depth through the standard qos_overrides parameters.
+SENSOR_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability)
+# Outputs: reliable, depth 10.
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE)
+
+
+class ConfigurationError(ValueError):
+    """A user error in a node's configuration: reported in one line, exit code 2."""
+
+
+def param(default: Any, description: str, *, low: float | None = None,
+          high: float | None = None, choices: Sequence[str] | None = None,
+          read_only: bool = False) -> Any:
+    """A dataclass field that is also a ROS parameter.
+
+    Args:
+        default: default value (its type is the parameter type; use a tuple for arrays).
+        description: what the parameter means, with its unit.
+        low, high: inclusive range enforced by ROS (numbers only).
+        choices: allowed values of a string parameter (checked on declare and on set).
+        read_only: the value cannot change after start (model structure, topics).
+    """
+    meta = {'description': description, 'low': low, 'high': high,
+            'choices': tuple(choices) if choices else None, 'read_only': read_only}
+    if isinstance(default, (list, tuple)):
+        return dataclasses.field(default_factory=lambda: tuple(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _descriptor(name: str, f: dataclasses.Field[Any], default: Any) -> ParameterDescriptor:
+    meta = f.metadata
+    text = meta.get('description', '')
+    if meta.get('choices'):
+        text += f" (one of: {', '.join(meta['choices'])})"
+    descriptor = ParameterDescriptor(name=name, description=text,
+                                     read_only=bool(meta.get('read_only')))
+    low, high = meta.get('low'), meta.get('high')
+    if low is not None or high is not None:
+        if isinstance(default, bool):
+            raise TypeError(f'{name}: a bool parameter has no range')
+        if isinstance(default, int):
+            descriptor.integer_range = [IntegerRange(
+                from_value=int(low if low is not None else -2**63),
+                to_value=int(high if high is not None else 2**63 - 1), step=0)]
+        else:
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=float(low if low is not None else -math.inf),
+                to_value=float(high if high is not None else math.inf), step=0.0)]
+    return descriptor
+
+
+def _default_of(f: dataclasses.Field[Any]) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    raise TypeError(f'parameter {f.name} needs a default')
+
+
+def _ros_value(default: Any) -> Any:
+    return list(default) if isinstance(default, tuple) else default
+
+
+def _check_choice(f: dataclasses.Field[Any], value: Any) -> str | None:
+    choices = f.metadata.get('choices')
+    if choices and value not in choices:
+        return f'{f.name} must be one of {", ".join(choices)}, got {value!r}'
+    return None
+
+
+def _from_ros(default: Any, value: Any) -> Any:
+    if isinstance(default, tuple):
+        return tuple(value) if value is not None else ()
+    if isinstance(default, float) and isinstance(value, int):
+        return float(value)
+    return value
+
+
+class TypedParameters(Generic[P]):
+    """Declares a node's parameters from a dataclass and keeps a validated typed copy.
+
+    The dataclass's ``__post_init__`` may raise ``ValueError`` for cross-field rules; such a
+    value is refused at start (ConfigurationError) and at runtime (the set is rejected with the
+    reason, the previous values stay).
+    """
+
+    def __init__(self, node: Node, cls: type[P], *,
+                 on_change: Callable[[P], None] | None = None) -> None:
+        self._node = node
+        self._cls = cls
+        self._fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        self._on_change = on_change
+        values: dict[str, Any] = {}
+        for name, f in self._fields.items():
+            default = _default_of(f)
+            # ROS cannot infer the type of an empty array: those are string arrays.
+            typed_empty = isinstance(default, tuple) and not default
+            try:
+                node.declare_parameter(
+                    name, Parameter.Type.STRING_ARRAY if typed_empty else _ros_value(default),
+                    _descriptor(name, f, default))
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                raise ConfigurationError(
+                    f'parameter {name}: {str(exc).splitlines()[0]}') from None
+            # An empty typed array stays unset until given: read it as empty.
+            value = node.get_parameter_or(name, Parameter(name, value=_ros_value(default))).value
+            values[name] = _from_ros(default, value)
+            problem = _check_choice(f, values[name])
+            if problem:
+                raise ConfigurationError(f'parameter {problem}')
+        try:
+            self.value: P = cls(**values)
+        except (TypeError, ValueError) as exc:
+            raise ConfigurationError(f'invalid parameters: {exc}') from None
+        node.add_on_set_parameters_callback(self._validate)
+        node.add_post_set_parameters_callback(self._apply)
+
+    def _candidate(self, parameters: list[Parameter]) -> P:
+        changes = {p.name: _from_ros(_default_of(self._fields[p.name]), p.value)
+                   for p in parameters if p.name in self._fields}
+        return dataclasses.replace(self.value, **changes)  # type: ignore[type-var]
+
+    def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
+        for p in parameters:
+            f = self._fields.get(p.name)
+            if f is not None:
+                problem = _check_choice(f, p.value)
+                if problem:
+                    return SetParametersResult(successful=False, reason=problem)
+        try:
+            self._candidate(parameters)
+        except (TypeError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply(self, parameters: list[Parameter]) -> None:
+        if not any(p.name in self._fields for p in parameters):
+            return
+        self.value = self._candidate(parameters)
+        if self._on_change is not None:
+            self._on_change(self.value)
+
+
+class Diagnostics:
+    """Publishes one DiagnosticStatus for a node on ``/diagnostics`` at a fixed period.
+
+    The status name is the node's fully qualified name, so graphs in several namespaces stay
+    apart in an aggregator. Values are replaced by each :meth:`set`.
+    """
+
+    def __init__(self, node: Node, hardware_id: str, period_s: float = 1.0) -> None:
+        self._node = node
+        self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', OUTPUT_QOS)
+        self._status = DiagnosticStatus(
+            level=STALE, name=node.get_fully_qualified_name(), hardware_id=hardware_id,
+            message='starting')
+        self._timer = node.create_timer(period_s, self.publish)
+
+    def set(self, level: bytes | int, message: str, values: dict[str, Any]) -> None:
+        """Replace the current status."""
+        self._status.level = bytes([level]) if isinstance(level, int) else level
+        self._status.message = message
+        self._status.values = [KeyValue(key=str(k), value=_format(v)) for k, v in values.items()]
+
+    def publish(self) -> None:
+        """Publish the current status now (also called by the timer)."""
+        array = DiagnosticArray()
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        array.status = [self._status]
+        self._publisher.publish(array)
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, float):
+        return f'{value:.6g}'
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return '[' + ', '.join(_format(v) for v in value) + ']'
+    return str(value)
+
+
+@dataclass
+class StampCheck:
+    """Classifies each incoming header stamp of one input stream.
+
+    Out-of-order and repeated stamps are rejected (the filters assume increasing time); a gap
+    longer than ``max_gap_s`` is accepted but flagged so the caller can reset its filters.
+    """
+
+    max_gap_s: float
+    last_ns: int | None = None
+    rejected: dict[str, int] = dataclasses.field(default_factory=dict)
+
+    def check(self, stamp_ns: int) -> str:
+        """'ok', 'gap' (accepted, filters should restart), 'repeated' or 'out_of_order'."""
+        if self.last_ns is not None:
+            if stamp_ns == self.last_ns:
+                return self._reject('repeated')
+            if stamp_ns < self.last_ns:
+                return self._reject('out_of_order')
+            gap = (stamp_ns - self.last_ns) * 1e-9 > self.max_gap_s
+            self.last_ns = stamp_ns
+            return 'gap' if gap else 'ok'
+        self.last_ns = stamp_ns
+        return 'ok'
+
+    def _reject(self, reason: str) -> str:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        return reason
+
+
+def stamp_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time -> int nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
+    """main() body shared by every executable (ros2/examples skeleton).
+
+    A ConfigurationError (bad parameter, missing file) prints one line and exits with 2; Ctrl-C
+    and external shutdown end quietly.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except ConfigurationError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,281 @@
+"""Composed runner: a set of nodes in one process on one executor, from a small YAML file.
+
+The manual-composition counterpart of ``ros2 launch`` (not available from PyPI): the demo, the
+benchmarks and the integration tests bring graphs up with it. Nodes are named by plugin,
+``<package>/<node>`` as registered under the ``vehicle_monitor.nodes`` entry-point group of the
+packages' setup.py (like rclcpp_components), or ``module:Class``. A graph file::
+
+    executor: single            # single | multi (MultiThreadedExecutor, one thread per core)
+    use_sim_time: true          # applied to every node but the players, which publish /clock
+    nodes:
+      - plugin: tpms_ros/vehicle_simulator
+        name: vehicle_simulator
+        parameters: {bag: bags/road_nominal, as_fast_as_possible: true}
+      - plugin: vehicle_monitor_common/graph_recorder
+        namespace: /car1
+        remappings: {/tpms/warning: /car1/tpms/warning}
+
+``run_graph GRAPH.yaml [-p NODE.PARAM:=VALUE ...] [--timeout S]`` runs it until every player has
+finished (or Ctrl-C / the timeout) and prints what the recorders received.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+import importlib
+from importlib.metadata import entry_points
+import os
+import sys
+import time
+from typing import Any
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+import yaml
+
+from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.player import ScenarioPlayer
+from vehicle_monitor_common.recorder import GraphRecorder
+
+NODE_GROUP = 'vehicle_monitor.nodes'
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of a graph."""
+
+    plugin: str
+    name: str | None = None
+    namespace: str = ''
+    parameters: dict[str, Any] = field(default_factory=dict)
+    remappings: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class GraphSpec:
+    """A graph: its nodes and how they are executed."""
+
+    nodes: tuple[NodeSpec, ...]
+    executor: str = 'single'
+    use_sim_time: bool = False
+
+    def __post_init__(self) -> None:
+        if self.executor not in ('single', 'multi'):
+            raise ConfigurationError(f'executor must be single or multi, got {self.executor!r}')
+        if not self.nodes:
+            raise ConfigurationError('a graph needs at least one node')
+
+
+def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
+    """Validate a graph description (the YAML's content) into a GraphSpec."""
+    if not isinstance(data, dict):
+        raise ConfigurationError(f'{source}: expected a mapping with a nodes list')
+    unknown = set(data) - {'executor', 'use_sim_time', 'nodes'}
+    if unknown:
+        raise ConfigurationError(f'{source}: unknown key {sorted(unknown)[0]!r}')
+    nodes = []
+    for index, entry in enumerate(data.get('nodes') or []):
+        where = f'{source}: nodes[{index}]'
+        if not isinstance(entry, dict) or 'plugin' not in entry:
+            raise ConfigurationError(f'{where}: needs a plugin')
+        bad = set(entry) - {'plugin', 'name', 'namespace', 'parameters', 'remappings'}
+        if bad:
+            raise ConfigurationError(f'{where}: unknown key {sorted(bad)[0]!r}')
+        nodes.append(NodeSpec(plugin=str(entry['plugin']), name=entry.get('name'),
+                              namespace=str(entry.get('namespace') or ''),
+                              parameters=dict(entry.get('parameters') or {}),
+                              remappings={str(k): str(v) for k, v in
+                                          (entry.get('remappings') or {}).items()}))
+    return GraphSpec(nodes=tuple(nodes), executor=str(data.get('executor', 'single')),
+                     use_sim_time=bool(data.get('use_sim_time', False)))
+
+
+def load_graph(path: str | os.PathLike[str]) -> GraphSpec:
+    """Read and validate a graph YAML file."""
+    try:
+        with open(path, encoding='utf-8') as stream:
+            data = yaml.safe_load(stream)
+    except OSError as exc:
+        raise ConfigurationError(f'cannot read graph file {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise ConfigurationError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    return parse_graph(data, str(path))
+
+
+def node_class(plugin: str) -> Callable[..., Node]:
+    """The Node subclass a plugin name refers to."""
+    if ':' in plugin:
+        module, _, attribute = plugin.partition(':')
+        try:
+            return getattr(importlib.import_module(module), attribute)
+        except (ImportError, AttributeError) as exc:
+            raise ConfigurationError(f'cannot load node {plugin}: {exc}') from None
+    registered = {f'{ep.dist.name if ep.dist else ""}/{ep.name}': ep
+                  for ep in entry_points(group=NODE_GROUP)}
+    if plugin not in registered:
+        raise ConfigurationError(
+            f'unknown node plugin {plugin!r} (registered: {", ".join(sorted(registered))})')
+    return registered[plugin].load()
+
+
+class Graph:
+    """Nodes of a GraphSpec on one executor; destroy() tears them down in reverse order."""
+
+    def __init__(self, spec: GraphSpec, context: Context | None = None) -> None:
+        self.spec = spec
+        self.context = context
+        self.executor: Executor = (
+            MultiThreadedExecutor(num_threads=os.cpu_count() or 2, context=context)
+            if spec.executor == 'multi' else SingleThreadedExecutor(context=context))
+        self.nodes: list[Node] = []
+        try:
+            for node_spec in spec.nodes:
+                self.nodes.append(self._create(node_spec))
+                self.executor.add_node(self.nodes[-1])
+        except Exception:
+            self.destroy()
+            raise
+
+    def _create(self, node_spec: NodeSpec) -> Node:
+        cls = node_class(node_spec.plugin)
+        parameters = dict(node_spec.parameters)
+        if self.spec.use_sim_time and not issubclass(cls, ScenarioPlayer):  # type: ignore[arg-type]
+            parameters.setdefault('use_sim_time', True)
+        cli_args = ['--ros-args']
+        for source, target in node_spec.remappings.items():
+            cli_args += ['-r', f'{source}:={target}']
+        kwargs: dict[str, Any] = {
+            'context': self.context, 'namespace': node_spec.namespace or None,
+            'parameter_overrides': [Parameter(k, value=_ros_value(v))
+                                    for k, v in parameters.items()],
+            'cli_args': cli_args if len(cli_args) > 1 else None,
+        }
+        if node_spec.name:
+            kwargs['node_name'] = node_spec.name
+        return cls(**{k: v for k, v in kwargs.items() if v is not None})
+
+    def of_type(self, cls: type[Any]) -> list[Any]:
+        """The graph's nodes that are instances of ``cls``."""
+        return [n for n in self.nodes if isinstance(n, cls)]
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float | None = None,
+                   ) -> bool:
+        """Spin until ``predicate()`` holds (True) or the timeout passes (False)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while self.context is None or self.context.ok():
+            if predicate():
+                return True
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return predicate()
+
+    def players_done(self) -> bool:
+        """Every player of the graph has finished its replay."""
+        return all(p.done.is_set() for p in self.of_type(ScenarioPlayer))
+
+    def drain(self, quiet_s: float = 0.3, timeout_s: float = 5.0) -> None:
+        """Spin until the recorders have received nothing new for ``quiet_s``."""
+        recorders = self.of_type(GraphRecorder)
+        deadline = time.monotonic() + timeout_s
+        last_total, last_change = -1, time.monotonic()
+        while time.monotonic() < deadline:
+            total = sum(s.count for r in recorders for s in r.stats.values())
+            if total != last_total:
+                last_total, last_change = total, time.monotonic()
+            elif time.monotonic() - last_change > quiet_s:
+                return
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def destroy(self) -> None:
+        """Remove and destroy the nodes, last created first."""
+        for node in reversed(self.nodes):
+            self.executor.remove_node(node)
+            node.destroy_node()
+        self.nodes.clear()
+        self.executor.shutdown()
+
+
+def _ros_value(value: Any) -> Any:
+    """YAML value -> a value rclpy can type (lists of ints mixed with floats become floats)."""
+    if isinstance(value, list) and any(isinstance(v, float) for v in value):
+        return [float(v) for v in value]
+    return value
+
+
+@contextmanager
+def running_graph(spec: GraphSpec, context: Context | None = None) -> Iterator[Graph]:
+    """Bring a graph up for a ``with`` block, tear it down after."""
+    graph = Graph(spec, context)
+    try:
+        yield graph
+    finally:
+        graph.destroy()
+
+
+def _apply_overrides(spec: GraphSpec, overrides: list[str]) -> GraphSpec:
+    by_name = {(n.name or n.plugin.split('/')[-1].split(':')[-1]): n for n in spec.nodes}
+    nodes = list(spec.nodes)
+    for text in overrides:
+        key, sep, raw = text.partition(':=')
+        node_name, dot, param_name = key.partition('.')
+        if not sep or not dot or node_name not in by_name:
+            raise ConfigurationError(
+                f'bad override {text!r}: expected NODE.PARAM:=VALUE with NODE one of '
+                f'{", ".join(sorted(by_name))}')
+        original = by_name[node_name]
+        updated = NodeSpec(original.plugin, original.name, original.namespace,
+                           {**original.parameters, param_name: yaml.safe_load(raw)},
+                           original.remappings)
+        nodes[nodes.index(original)] = updated
+        by_name[node_name] = updated
+    return GraphSpec(tuple(nodes), spec.executor, spec.use_sim_time)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``run_graph``: run a graph file until its players finish; print what was recorded."""
+    parser = argparse.ArgumentParser(prog='run_graph', description=__doc__.split('\n')[0])
+    parser.add_argument('graph', help='graph YAML file')
+    parser.add_argument('-p', '--param', action='append', default=[],
+                        metavar='NODE.PARAM:=VALUE', help='override a node parameter')
+    parser.add_argument('--timeout', type=float, default=None,
+                        help='stop after this many seconds (default: when the players finish)')
+    args = parser.parse_args(argv)
+    rclpy.init()
+    code = 0
+    graph = None
+    try:
+        spec = _apply_overrides(load_graph(args.graph), args.param)
+        graph = Graph(spec)
+        started = time.monotonic()
+        has_players = bool(graph.of_type(ScenarioPlayer))
+        graph.spin_until(graph.players_done if has_players else (lambda: False), args.timeout)
+        graph.drain()
+        for player in graph.of_type(ScenarioPlayer):
+            if player.error:
+                print(f'error: {player.get_name()}: {player.error}', file=sys.stderr)
+                code = 1
+        print(f'graph ran {time.monotonic() - started:.2f} s (wall)')
+        for recorder in graph.of_type(GraphRecorder):
+            print(recorder.summary())
+    except ConfigurationError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if graph is not None:
+            graph.destroy()
+        rclpy.try_shutdown()
+    return code
