@@ -21,6 +21,8 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.setdefault('RCUTILS_LOGGING_USE_STDOUT', '0')
+    # Mirrors tools/env.sh for runs outside it: one BLAS thread for small matrices.
+    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 
 @pytest.fixture

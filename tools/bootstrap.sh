@@ -39,7 +39,8 @@ end "$("$PYTHON" --version), $(cmake --version | head -n1)"
 begin "virtual environment"
 if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
-  "$VENV/bin/python" -m pip install --quiet --upgrade pip
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip 2>&1 \
+    | grep -v "is ignored: it is neither" || true
   end "created $VENV"
 else
   end "exists"

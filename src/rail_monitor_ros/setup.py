@@ -18,7 +18,7 @@ setup(
     zip_safe=True,
     maintainer='Vehicle monitor maintainers',
     maintainer_email='maintainers@vehicle-monitor.dev',
-    description='Rail vehicle monitoring: suspension faults (IMM), creep factor (EKF), rail simulator.',
+    description='Rail vehicle monitoring: suspension faults (IMM), creep factor, rail simulator.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

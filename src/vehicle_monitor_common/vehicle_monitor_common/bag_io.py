@@ -55,8 +55,8 @@ def msg_definition_dir() -> Path:
             share = Path(get_package_share_directory(MSG_PACKAGE)) / 'msg'
             if share.is_dir():
                 return share
-        except (PackageNotFoundError, ValueError):
-            pass
+        except (PackageNotFoundError, ValueError, OSError):
+            pass  # not built/installed, or AMENT_PREFIX_PATH unset: use the source tree
     except ImportError:
         pass
     source = Path(__file__).resolve().parents[3] / 'msg_defs' / 'msg'

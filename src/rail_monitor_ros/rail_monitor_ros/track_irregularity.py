@@ -1,0 +1,150 @@
+"""Random lateral track alignment from a published spectrum, as a seeded spatial profile.
+
+Spectrum: the German track spectra for high-speed lines (ORE B176 / DB), lateral alignment
+
+    S_a(Omega) = A_a Omega_c^2 / ((Omega^2 + Omega_r^2) (Omega^2 + Omega_c^2))   [m^2 / (rad/m)]
+
+with Omega the spatial angular frequency (rad/m), Omega_c = 0.8246 rad/m, Omega_r = 0.0206 rad/m
+and A_a = 2.119e-7 m rad ("low interference", good track) or 6.125e-7 m rad ("high
+interference"), a one-sided density (tabulated e.g. in Zhai, Vehicle-Track Coupled Dynamics,
+Springer 2020, ch. 3, and widely used in European vehicle dynamics studies).
+
+The profile is a function of distance along the track, so every wheelset sees the same track,
+delayed by its distance behind the leading wheelset over the speed. No ROS import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackSpectrum:
+    """One-sided lateral alignment PSD of the German form (module docstring).
+
+    Attributes:
+        name: key used in scenario files.
+        roughness: A_a, m rad.
+        omega_c: Omega_c, rad/m.
+        omega_r: Omega_r, rad/m.
+    """
+
+    name: str
+    roughness: float
+    omega_c: float
+    omega_r: float
+
+    def __post_init__(self) -> None:
+        for attr in ('roughness', 'omega_c', 'omega_r'):
+            value = getattr(self, attr)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'TrackSpectrum.{attr} must be finite and > 0, got {value}')
+
+    def psd(self, omega: np.ndarray) -> np.ndarray:
+        """S_a(Omega), m^2/(rad/m), at spatial angular frequencies Omega (rad/m)."""
+        w2 = np.asarray(omega, dtype=float) ** 2
+        return self.roughness * self.omega_c ** 2 / (
+            (w2 + self.omega_r ** 2) * (w2 + self.omega_c ** 2))
+
+    def variance(self, min_wavelength: float, max_wavelength: float) -> float:
+        """Alignment variance in a wavelength band, m^2 (closed-form integral of the PSD)."""
+        lo, hi = 2.0 * math.pi / max_wavelength, 2.0 * math.pi / min_wavelength
+        r, c = self.omega_r, self.omega_c
+
+        # Partial fractions: 1/((w^2+r^2)(w^2+c^2)) = (1/(w^2+r^2) - 1/(w^2+c^2)) / (c^2 - r^2)
+        def primitive(w: float) -> float:
+            return (math.atan(w / r) / r - math.atan(w / c) / c) / (c * c - r * r)
+
+        return self.roughness * c * c * (primitive(hi) - primitive(lo))
+
+
+TRACK_SPECTRA: dict[str, TrackSpectrum] = {
+    'german_low': TrackSpectrum('german_low', 2.119e-7, 0.8246, 0.0206),
+    'german_high': TrackSpectrum('german_high', 6.125e-7, 0.8246, 0.0206),
+}
+
+
+@dataclass(frozen=True)
+class TrackProfile:
+    """Lateral alignment sampled along the track.
+
+    Attributes:
+        start: position of the first sample, m.
+        spacing: sample spacing, m.
+        alignment: (N,) lateral alignment, m (y left).
+    """
+
+    start: float
+    spacing: float
+    alignment: np.ndarray
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N,) sample positions, m."""
+        return self.start + self.spacing * np.arange(self.alignment.size)
+
+    def at(self, position: np.ndarray) -> np.ndarray:
+        """Alignment at arbitrary positions (linear interpolation), m.
+
+        Raises:
+            ValueError: a position outside the generated profile.
+        """
+        s = np.asarray(position, dtype=float)
+        end = self.start + self.spacing * (self.alignment.size - 1)
+        if s.size and (np.min(s) < self.start - 1e-9 or np.max(s) > end + 1e-9):
+            raise ValueError(f'position outside the track profile [{self.start}, {end}] m')
+        return np.interp(s, self.positions, self.alignment)
+
+    def slope_at(self, position: np.ndarray) -> np.ndarray:
+        """d(alignment)/ds at positions, 1 (the rate seen at speed v is v times this)."""
+        slope = np.gradient(self.alignment, self.spacing)
+        s = np.asarray(position, dtype=float)
+        return np.interp(s, self.positions, slope)
+
+
+def generate_track_profile(spectrum: TrackSpectrum, start: float, length: float,
+                           rng: np.random.Generator, min_wavelength: float = 1.0,
+                           max_wavelength: float = 120.0, scale: float = 1.0) -> TrackProfile:
+    """Gaussian alignment profile with the given spectrum in a wavelength band.
+
+    Spectral synthesis with random complex Fourier coefficients (not random phases only, so the
+    amplitude is Gaussian as well), on a grid of min_wavelength / 10 spacing; the FFT length
+    exceeds the profile by two longest wavelengths so the periodic wrap does not correlate the
+    ends.
+
+    Args:
+        spectrum: the PSD.
+        start: first position, m (negative to cover wheelsets behind the leading one).
+        length: profile length, m, > 0.
+        rng: seeded generator; same seed, same profile.
+        min_wavelength: shortest wavelength kept, m.
+        max_wavelength: longest wavelength kept, m.
+        scale: amplitude multiplier (1 = the published spectrum).
+
+    Returns:
+        The profile.
+    """
+    if not (math.isfinite(length) and length > 0.0):
+        raise ValueError(f'length must be finite and > 0, got {length}')
+    if not (math.isfinite(start)):
+        raise ValueError(f'start must be finite, got {start}')
+    if not (0.0 < min_wavelength < max_wavelength and math.isfinite(max_wavelength)):
+        raise ValueError(
+            f'need 0 < min_wavelength < max_wavelength, got {min_wavelength}, {max_wavelength}')
+    if not (math.isfinite(scale) and scale >= 0.0):
+        raise ValueError(f'scale must be finite and >= 0, got {scale}')
+    spacing = min_wavelength / 10.0
+    n = int(math.ceil(length / spacing)) + 1
+    n_fft = 1 << int(math.ceil(math.log2(n + 2.0 * max_wavelength / spacing)))
+    omega = 2.0 * math.pi * np.fft.rfftfreq(n_fft, d=spacing)
+    d_omega = omega[1]
+    in_band = (omega >= 2.0 * math.pi / max_wavelength) & (omega <= 2.0 * math.pi / min_wavelength)
+    amplitude = np.where(in_band, np.sqrt(spectrum.psd(omega) * d_omega), 0.0)
+    coefficients = rng.standard_normal(omega.size) + 1j * rng.standard_normal(omega.size)
+    # irfft(X)[n] = (2/N) sum_k Re(X_k e^{i Omega_k s_n}) for 0 < k < N/2, so X_k = N/2 a_k z_k
+    # gives sum_k a_k (Re z cos - Im z sin) with variance sum_k S_k dOmega.
+    profile = np.fft.irfft(0.5 * n_fft * amplitude * coefficients, n=n_fft)[:n]
+    return TrackProfile(float(start), float(spacing), scale * profile)

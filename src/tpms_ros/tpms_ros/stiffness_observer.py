@@ -1,0 +1,1142 @@
+"""Tire stiffness by disturbance observer and least squares (Umeno et al. 1997): estimator core.
+
+Per wheel the chain is (paper Fig. 4, SPEC §2)::
+
+    omega_1 --band-pass--> reduced-order observer --> [th, th_dot, w] --LS/RLS--> dK, dD
+                                                                    (driven axle: wL - wR)
+
+* **Observer** (eq. 5-8). The two-inertia model of :class:`~tpms_ros.tire_model.TorsionalTire`
+  is extended by the disturbance ``w = dK th + dD th_dot - T_d`` acting on the belt equation
+  and modelled as constant (eq. 6), giving the state ``[w1 | w2, th, w]`` (eq. 7). A Gopinath
+  reduced-order observer estimates ``z = [w2, th, w]`` from ``x_a = w1``::
+
+      z_hat = v + G w1,   v' = F v + (F G + A21 - G A11) w1,   F = A22 - G A12
+
+  which is eq. 8's structure: ``w1'`` is used implicitly through ``G w1``, never differentiated.
+  ``G`` puts the eigenvalues of ``F`` on a Butterworth pattern of radius
+  ``observer_pole_factor`` x the model resonance (``scipy.signal.place_poles``). The observer is
+  LTI, so it is discretised with the **bilinear (Tustin) transform** (stable for any stable
+  continuous design, no half-sample delay on the sampled input; the 0.5 % frequency warping at
+  40 Hz / 1 kHz is common to every tire and cancels in the calibration) and run as one
+  transfer function per output (``scipy.signal.lfilter`` with carried ``zi``) on the band-passed
+  wheel speed. The drive torque on the rim is not fed to the observer: it varies far below the
+  25-60 Hz band, which the pre-filter removes; it is used for gating only.
+* **Least squares** (eq. 9-11). ``w = zeta^T [dK, dD] - T_d`` with ``zeta = [th, th_dot]``
+  (``th_dot = w1 - w2_hat``). Samples are summed in blocks of ``block_s`` seconds; one *update*
+  is one block. RLS keeps the information form ``P_k = rho P_(k-1) + sum zeta zeta^T``,
+  ``b_k = rho b_(k-1) + sum w zeta``, ``theta = P^-1 b``, algebraically the same as eq. 11's
+  covariance recursion with ``Gamma = P^-1`` but exact for a block of samples. Forgetting per
+  update ``rho`` gives a memory time constant ``tau = block_s / (1 - rho)`` (0.25 s blocks:
+  rho = 0.98 -> 12.5 s, 0.95 -> 5 s, 0.99 -> 25 s) and an averaging equivalent to
+  ``(1 + rho) / (1 - rho)`` blocks. Batch LS (eq. 10) uses the last ``batch_window_blocks``
+  valid blocks instead.
+* **Drive-wheel compensation** (eq. 12-14). On a driven axle the in-phase driveline torque
+  appears in both observers' ``w``; regressing ``wL - wR`` on ``[thL, thR, th_dotL, th_dotR]``
+  with coefficients ``[dKL, -dKR, dDL, -dDR]`` cancels it.
+* **Model-consistency correction.** The paper estimates only the belt-row disturbance (the
+  rim row also carries ``-dK th``, but with one measurement the two are not separable), and the
+  band-pass colours ``T_d`` so that it correlates with ``zeta``. Both bias the raw LS
+  coefficient: with the default design it reads about -2000 N m/rad on a nominal tire and
+  moves about 1.3x the true dK. Under the paper's own assumption (white road torque) the
+  expected raw coefficient for a true stiffness ``K`` follows from the estimator's model and
+  filters alone (frequency-domain Gram matrices); that monotone map is inverted, so
+  ``stiffness`` is an estimate of the true K and ``delta_k = stiffness - K_model``. The
+  calibration then removes what is left (road spectrum not white, sensor noise, model error).
+* **Calibration** learns each tire's nominal K and the block-to-block noise of its estimate;
+  pressure follows from ``K / K_nominal`` (see :class:`PressureRelation`).
+* **Gating**: non-finite, negative or absurd speeds, dead and stuck sensors, out-of-order
+  stamps, gaps and sample-rate mismatches reset (or hold) the affected wheel's filters and
+  mask it; speed band, acceleration, wheel slip and wheel torque gates mask samples where the
+  method is not valid. A masked wheel is reported *unknown*, never *low*.
+
+Wheel order FL, FR, RL, RR. No ROS import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+import math
+from typing import Any, Literal
+
+import numpy as np
+import scipy.signal as sig
+from scipy.special import ndtr
+
+from tpms_ros.tire_model import TorsionalTire
+
+N_WHEELS = 4
+AXLES: dict[str, tuple[int, int]] = {'front': (0, 1), 'rear': (2, 3)}
+CALIBRATION_VERSION = 1
+
+# Per-sample reason codes; a lower code wins when several apply (the most specific cause).
+OK = 0
+REASONS: tuple[str, ...] = (
+    'ok', 'invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing', 'settling',
+    'axle_partner', 'wheel_slip', 'wheel_torque', 'acceleration', 'speed_band',
+)
+_CODE = {name: code for code, name in enumerate(REASONS)}
+_NO_REASON = len(REASONS)  # sentinel above every code, for min-reductions
+
+
+@dataclass(frozen=True)
+class PressureRelation:
+    """Linear stiffness-pressure relation ``K / K0 = 1 - slope (1 - p / p0)`` (paper Fig. 3).
+
+    ``slope`` is the relative stiffness change per relative pressure change. The default comes
+    from the paper's car: 40 Hz at 200 kPa and 35 Hz at 120 kPa with ``K`` proportional to
+    ``f**2`` give ``K120 / K200 = (35 / 40)**2 = 0.765625``, so
+    ``slope = (1 - 0.765625) / (1 - 120 / 200) = 0.234375 / 0.4 = 0.5859``.
+    Inverted: ``p = p0 (1 - (1 - K / K0) / slope)``.
+    """
+
+    slope: float = 0.234375 / 0.4
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.slope) and self.slope > 0.0):
+            raise ValueError(f'PressureRelation.slope must be finite and > 0, got {self.slope}')
+
+    def pressure_ratio(self, stiffness_ratio: np.ndarray) -> np.ndarray:
+        """p / p0 for the given K / K0."""
+        return 1.0 - (1.0 - np.asarray(stiffness_ratio, dtype=float)) / self.slope
+
+    def pressure_ratio_per_stiffness_ratio(self) -> float:
+        """d(p / p0) / d(K / K0): converts a stiffness-ratio std into a pressure-ratio std."""
+        return 1.0 / self.slope
+
+
+@dataclass(frozen=True)
+class StiffnessObserverParams:
+    """Parameters of :class:`TireStiffnessObserver` (defaults from the paper and SPEC §2).
+
+    Attributes:
+        sample_rate_hz: nominal wheel-speed sample rate; the discrete filters are built for it.
+        band_hz: pre-filter pass band around the torsional resonance (paper: 25-60 Hz).
+        band_order: Butterworth order of each band edge (the band-pass has twice this order).
+        observer_pole_factor: observer pole radius as a multiple of the model resonance.
+        block_s: least-squares block length; one RLS update per block.
+        forgetting_factor: RLS forgetting factor rho per update (paper: 0.95-0.99).
+        ls_mode: 'rls' (eq. 11) or 'batch' (eq. 10 over the last ``batch_window_blocks``).
+        batch_window_blocks: window of the batch LS, in valid blocks.
+        min_block_fraction: fraction of valid samples a block needs to count for a wheel.
+        driven_axle: axle(s) that get drive-wheel compensation: 'front', 'rear', 'none', 'all'.
+        consistency_correction: map the raw LS coefficient to K through the model (see module).
+        calibration_s: valid-data time per tire needed to finish a calibration.
+        nominal_pressure_kpa: placard pressure of each tire (the p0 of the relation).
+        pressure_relation: K <-> pressure relation.
+        warning_pressure_ratio: a tire is flagged when its estimated p / p0 is below this.
+        rolling_radius_m: nominal rolling radius, for the speed and acceleration gates.
+        speed_band_kmh: (min, max) vehicle speed where the estimate is updated.
+        max_accel_mps2: |wheel acceleration| above this (hard braking/traction) masks samples.
+        max_slip: |wheel speed / median wheel speed - 1| above this masks the wheel.
+        max_wheel_torque_nm: |drive/brake torque| above this masks the wheel (if torque given).
+        gate_lowpass_hz: low-pass corner of the speed used by the speed/accel/slip gates.
+        max_omega_rad_s: wheel speeds above this are non-physical and rejected.
+        dead_omega_rad_s: a wheel below this while another wheel is in the speed band is dead.
+        stuck_s: a wheel reading exactly the same value for this long is a stuck sensor.
+        settle_s: time after a filter reset during which samples are not used.
+        timing_tolerance: relative deviation of a sample interval from 1/sample_rate beyond
+            which the sample breaks continuity (gap or rate change): filters are reset.
+    """
+
+    sample_rate_hz: float = 1000.0
+    band_hz: tuple[float, float] = (25.0, 60.0)
+    band_order: int = 2
+    observer_pole_factor: float = 3.0
+    block_s: float = 0.25
+    forgetting_factor: float = 0.98
+    ls_mode: Literal['rls', 'batch'] = 'rls'
+    batch_window_blocks: int = 100
+    min_block_fraction: float = 0.9
+    driven_axle: Literal['front', 'rear', 'none', 'all'] = 'none'
+    consistency_correction: bool = True
+    calibration_s: float = 60.0
+    nominal_pressure_kpa: tuple[float, float, float, float] = (200.0, 200.0, 200.0, 200.0)
+    pressure_relation: PressureRelation = field(default_factory=PressureRelation)
+    warning_pressure_ratio: float = 0.85
+    rolling_radius_m: float = 0.3
+    speed_band_kmh: tuple[float, float] = (30.0, 160.0)
+    max_accel_mps2: float = 2.5
+    max_slip: float = 0.05
+    max_wheel_torque_nm: float = 1000.0
+    gate_lowpass_hz: float = 2.0
+    max_omega_rad_s: float = 400.0
+    dead_omega_rad_s: float = 1.0
+    stuck_s: float = 0.05
+    settle_s: float = 0.2
+    timing_tolerance: float = 0.25
+
+    def __post_init__(self) -> None:
+        def positive(name: str) -> None:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f'StiffnessObserverParams.{name} must be finite and > 0, '
+                                 f'got {value!r}')
+
+        for name in ('sample_rate_hz', 'observer_pole_factor', 'block_s', 'calibration_s',
+                     'rolling_radius_m', 'max_accel_mps2', 'max_slip', 'max_wheel_torque_nm',
+                     'gate_lowpass_hz', 'max_omega_rad_s', 'dead_omega_rad_s', 'stuck_s',
+                     'settle_s', 'timing_tolerance', 'warning_pressure_ratio'):
+            positive(name)
+        nyquist = 0.5 * self.sample_rate_hz
+        low, high = self.band_hz
+        if not (0.0 < low < high < nyquist):
+            raise ValueError(f'StiffnessObserverParams.band_hz must satisfy 0 < low < high < '
+                             f'{nyquist} Hz (Nyquist), got {self.band_hz}')
+        if not (isinstance(self.band_order, int) and 1 <= self.band_order <= 8):
+            raise ValueError(f'StiffnessObserverParams.band_order must be an int in 1..8, '
+                             f'got {self.band_order!r}')
+        if not 0.5 <= self.forgetting_factor < 1.0:
+            raise ValueError('StiffnessObserverParams.forgetting_factor must be in [0.5, 1), '
+                             f'got {self.forgetting_factor}')
+        if self.ls_mode not in ('rls', 'batch'):
+            raise ValueError(f"StiffnessObserverParams.ls_mode must be 'rls' or 'batch', "
+                             f'got {self.ls_mode!r}')
+        if not (isinstance(self.batch_window_blocks, int) and self.batch_window_blocks >= 2):
+            raise ValueError('StiffnessObserverParams.batch_window_blocks must be an int >= 2, '
+                             f'got {self.batch_window_blocks!r}')
+        if not 0.0 < self.min_block_fraction <= 1.0:
+            raise ValueError('StiffnessObserverParams.min_block_fraction must be in (0, 1], '
+                             f'got {self.min_block_fraction}')
+        if self.driven_axle not in ('front', 'rear', 'none', 'all'):
+            raise ValueError("StiffnessObserverParams.driven_axle must be 'front', 'rear', "
+                             f"'none' or 'all', got {self.driven_axle!r}")
+        if len(self.nominal_pressure_kpa) != N_WHEELS or not all(
+                math.isfinite(p) and p > 0 for p in self.nominal_pressure_kpa):
+            raise ValueError('StiffnessObserverParams.nominal_pressure_kpa must be 4 finite '
+                             f'values > 0, got {self.nominal_pressure_kpa!r}')
+        if not self.warning_pressure_ratio < 1.0:
+            raise ValueError('StiffnessObserverParams.warning_pressure_ratio must be < 1, '
+                             f'got {self.warning_pressure_ratio}')
+        vmin, vmax = self.speed_band_kmh
+        if not 0.0 <= vmin < vmax:
+            raise ValueError('StiffnessObserverParams.speed_band_kmh must satisfy '
+                             f'0 <= min < max, got {self.speed_band_kmh}')
+        if self.block_samples < 10:
+            raise ValueError('StiffnessObserverParams.block_s must hold >= 10 samples, '
+                             f'got {self.block_s} s at {self.sample_rate_hz} Hz')
+
+    @property
+    def block_samples(self) -> int:
+        """Samples per least-squares block (one update)."""
+        return int(round(self.block_s * self.sample_rate_hz))
+
+    @property
+    def time_constant_s(self) -> float:
+        """Memory time constant of the RLS, ``block_s / (1 - rho)``."""
+        return self.block_s / (1.0 - self.forgetting_factor)
+
+    @property
+    def effective_blocks(self) -> float:
+        """Number of equally informative blocks the output averages over (sets its noise)."""
+        if self.ls_mode == 'batch':
+            return float(self.batch_window_blocks)
+        return (1.0 + self.forgetting_factor) / (1.0 - self.forgetting_factor)
+
+    @property
+    def driven_axles(self) -> tuple[str, ...]:
+        """Names of the compensated axles."""
+        if self.driven_axle == 'all':
+            return ('front', 'rear')
+        if self.driven_axle == 'none':
+            return ()
+        return (self.driven_axle,)
+
+
+@dataclass(frozen=True)
+class StiffnessEstimate:
+    """Estimator output after one :meth:`TireStiffnessObserver.update` (arrays are FL..RR).
+
+    Attributes:
+        stamp: time of the last accepted sample, s (NaN when no stamps were given).
+        delta_k: stiffness change from the model, ``stiffness - K_model``, N m/rad.
+        delta_d: damping change from the model (bias-removed raw LS coefficient), N m s/rad;
+            its gain is not corrected (it does not feed the pressure).
+        stiffness: estimated torsional stiffness K, N m/rad.
+        stiffness_ratio: K / K_nominal (K_model until calibrated).
+        pressure_kpa: pressure from the stiffness ratio and the pressure relation.
+        pressure_std_kpa: 1-sigma noise of ``pressure_kpa`` from the calibration (NaN before).
+        valid: the wheel's estimate is current, converged and its input healthy.
+        status: per wheel 'ok' or the reason it is unknown.
+        calibrated: all four tires calibrated.
+        wheel_calibrated: per tire.
+        underinflated: flag t_i: valid, calibrated and pressure ratio below the threshold.
+        confidence: c_i in 0..1, the probability that the pressure is below the threshold
+            given the estimate and its noise (normal CDF); 0 for unknown or uncalibrated tires.
+        calibrating: a calibration is in progress.
+    """
+
+    stamp: float
+    delta_k: np.ndarray
+    delta_d: np.ndarray
+    stiffness: np.ndarray
+    stiffness_ratio: np.ndarray
+    pressure_kpa: np.ndarray
+    pressure_std_kpa: np.ndarray
+    valid: np.ndarray
+    status: tuple[str, ...]
+    calibrated: bool
+    wheel_calibrated: np.ndarray
+    underinflated: np.ndarray
+    confidence: np.ndarray
+    calibrating: bool
+
+
+# --------------------------------------------------------------------------------------------
+# Observer design
+
+
+@dataclass(frozen=True)
+class ObserverDesign:
+    """Continuous and discrete reduced-order disturbance observer for one tire model.
+
+    Attributes:
+        gain: observer gain G, (3,) for z = [w2, th, w].
+        error_matrix: ``A'22 - G A'12`` (eq. 8); its eigenvalues are the observer poles.
+        numerators: (3, n+1) discrete numerators for the outputs [th, th_dot, w] from w1.
+        denominator: (n+1,) common discrete denominator.
+    """
+
+    gain: np.ndarray
+    error_matrix: np.ndarray
+    numerators: np.ndarray
+    denominator: np.ndarray
+
+
+def extended_system(tire: TorsionalTire) -> tuple[np.ndarray, np.ndarray]:
+    """Extended system of eq. 7: state [w1, w2, th, w], w constant, acting like -T_d.
+
+    Returns:
+        (A_ext (4, 4), B_ext (4, 1)) with the rim torque as the only input (eq. 7's B').
+    """
+    a, b = tire.state_space()
+    a_ext = np.zeros((4, 4))
+    a_ext[:3, :3] = a
+    # w = dK th + dD th_dot - T_d enters where -T_d does: minus the road-torque input column.
+    a_ext[:3, 3] = -b[:, 1]
+    b_ext = np.zeros((4, 1))
+    b_ext[:3, 0] = b[:, 0]
+    return a_ext, b_ext
+
+
+def design_observer(tire: TorsionalTire, pole_factor: float,
+                    sample_rate_hz: float) -> ObserverDesign:
+    """Gopinath observer for z = [w2, th, w] from w1, discretised by the bilinear transform.
+
+    Args:
+        tire: the estimator's nominal model.
+        pole_factor: observer pole radius as a multiple of the model resonance.
+        sample_rate_hz: sample rate of the discrete filters.
+
+    Returns:
+        The design; outputs are ordered [th, th_dot = w1 - w2_hat, w].
+    """
+    radius = 2.0 * np.pi * pole_factor * tire.resonance_hz
+    if not radius < np.pi * sample_rate_hz:
+        raise ValueError(f'observer_pole_factor {pole_factor} puts the observer poles at '
+                         f'{radius / 2 / np.pi:.1f} Hz, above the Nyquist frequency '
+                         f'{sample_rate_hz / 2} Hz')
+    a_ext, _ = extended_system(tire)
+    a11 = a_ext[:1, :1]
+    a12 = a_ext[:1, 1:]
+    a21 = a_ext[1:, :1]
+    a22 = a_ext[1:, 1:]
+    # Third-order Butterworth pattern: distinct poles (place_poles needs them distinct for a
+    # single measured output) with 50 % damping for the complex pair, so no ringing.
+    poles = radius * np.array([-1.0, np.exp(1j * 2 * np.pi / 3), np.exp(-1j * 2 * np.pi / 3)])
+    placed = sig.place_poles(a22.T, a12.T, poles)
+    gain = placed.gain_matrix.T  # (3, 1): duality, eig(A22 - G A12) = eig(A22^T - A12^T G^T)
+    error_matrix = a22 - gain @ a12
+    input_matrix = error_matrix @ gain + a21 - gain @ a11
+    # z_hat = v + G w1; outputs th = z[1], th_dot = w1 - z[0], w = z[2].
+    select = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    c_out = select
+    d_out = select @ gain + np.array([[0.0], [1.0], [0.0]])
+    ad, bd, cd, dd, _ = sig.cont2discrete((error_matrix, input_matrix, c_out, d_out),
+                                          1.0 / sample_rate_hz, method='bilinear')
+    numerators, denominator = sig.ss2tf(ad, bd, cd, dd)
+    return ObserverDesign(gain[:, 0], error_matrix, np.asarray(numerators),
+                          np.asarray(denominator))
+
+
+@dataclass(frozen=True)
+class ConsistencyMap:
+    """Expected raw LS coefficients vs true stiffness for one model and filter design.
+
+    Attributes:
+        stiffness: (M,) true K grid, increasing, N m/rad.
+        raw_dk: (M,) expected raw dK coefficient at each K (increasing over the grid).
+        raw_dd: (M,) expected raw dD coefficient at each K (model damping).
+    """
+
+    stiffness: np.ndarray
+    raw_dk: np.ndarray
+    raw_dd: np.ndarray
+
+    def stiffness_from_raw(self, raw_dk: np.ndarray) -> np.ndarray:
+        """Invert the map (clipped to the grid); NaN stays NaN."""
+        return np.interp(raw_dk, self.raw_dk, self.stiffness)
+
+    def expected_raw_dd(self, stiffness: np.ndarray) -> np.ndarray:
+        """Expected raw dD coefficient at the given K with the model damping."""
+        return np.interp(stiffness, self.stiffness, self.raw_dd)
+
+
+def consistency_map(tire: TorsionalTire, design: ObserverDesign, band_sos: np.ndarray,
+                    sample_rate_hz: float, n_freq: int = 16384) -> ConsistencyMap:
+    """Expected LS coefficients under white road torque for true K over 0.25..3 x K_model.
+
+    All regressors and the target are filters of the same wheel speed, so their covariances
+    are ``integral |P_K|^2 |BP|^2 Re(O_i conj O_j)`` over frequency, with P_K the road-torque to
+    wheel-speed response of a tire with stiffness K, BP the band-pass and O the observer.
+    Only |P_K| matters (phase cancels), so the continuous response is used.
+    """
+    omega_d = np.linspace(0.0, np.pi, n_freq)[1:]
+    _, band_resp = sig.sosfreqz(band_sos, worN=omega_d)
+    obs_resp = np.stack([sig.freqz(num, design.denominator, worN=omega_d)[1]
+                         for num in design.numerators], axis=1)  # (F, 3)
+    filt = band_resp[:, None] * obs_resp
+    cross = np.real(filt.conj()[:, :, None] * filt[:, None, :]).reshape(len(omega_d), 9)
+    stiffness = tire.k * np.geomspace(0.25, 3.0, 161)
+    weights = np.empty((stiffness.size, omega_d.size))
+    for i, k in enumerate(stiffness):
+        a, b = TorsionalTire(tire.j1, tire.j2, float(k), tire.d).state_space()
+        num, den = sig.ss2tf(a, b[:, 1:2], np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 1)))
+        _, resp = sig.freqs(num[0], den, worN=omega_d * sample_rate_hz)
+        weights[i] = np.abs(resp) ** 2
+    gram = (weights @ cross).reshape(stiffness.size, 3, 3)
+    coef = np.linalg.solve(gram[:, :2, :2], gram[:, :2, 2:3])[:, :, 0]
+    raw_dk, raw_dd = coef[:, 0], coef[:, 1]
+    # Keep the monotone branch through the model stiffness so the inverse is unique.
+    increasing = np.diff(raw_dk) > 0
+    centre = int(np.argmin(np.abs(stiffness - tire.k)))
+    lo = centre
+    while lo > 0 and increasing[lo - 1]:
+        lo -= 1
+    hi = centre
+    while hi < increasing.size and increasing[hi]:
+        hi += 1
+    keep = slice(lo, hi + 1)
+    return ConsistencyMap(stiffness[keep], raw_dk[keep], raw_dd[keep])
+
+
+# --------------------------------------------------------------------------------------------
+# Least squares
+
+
+def batch_least_squares(regressors: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Batch LS of eq. 10: ``(sum zeta zeta^T)^-1 sum w zeta``, vectorised over problems.
+
+    Args:
+        regressors: (N, ..., p) regressor rows zeta.
+        target: (N, ...) disturbance w.
+
+    Returns:
+        (..., p) coefficients (NaN where the normal matrix is singular).
+    """
+    gram = np.einsum('n...p,n...q->...pq', regressors, regressors)
+    rhs = np.einsum('n...p,n...->...p', regressors, target)
+    return _solve_normal(gram, rhs)
+
+
+def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve batched normal equations with Jacobi scaling (th and th_dot differ ~300x)."""
+    diag = np.einsum('...ii->...i', gram)
+    ok = np.all(diag > 0, axis=-1)
+    scale = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 0.0)
+    scaled = gram * scale[..., :, None] * scale[..., None, :]
+    eye = np.eye(gram.shape[-1])
+    scaled = np.where(ok[..., None, None], scaled, eye)
+    ok &= np.linalg.cond(scaled) < 1e10
+    solution = np.linalg.solve(np.where(ok[..., None, None], scaled, eye),
+                               (rhs * scale)[..., None])[..., 0] * scale
+    return np.where(ok[..., None], solution, np.nan)
+
+
+class _BlockLeastSquares:
+    """Block sums of zeta zeta^T and w zeta for several LS problems, with RLS and batch.
+
+    Problems are independent (wheels or axles) and share the block clock.
+    """
+
+    def __init__(self, n_problems: int, n_params: int, params: StiffnessObserverParams) -> None:
+        self.n_params = n_params
+        self._rho = params.forgetting_factor
+        self._window = params.batch_window_blocks
+        self._min_count = params.min_block_fraction * params.block_samples
+        shape = (n_problems, n_params)
+        self.info = np.zeros(shape + (n_params,))
+        self.rhs = np.zeros(shape)
+        self.n_eff = np.zeros(n_problems)
+        self.window_gram = np.zeros((self._window, n_problems, n_params, n_params))
+        self.window_rhs = np.zeros((self._window, n_problems, n_params))
+        self.window_fill = np.zeros(n_problems, dtype=int)
+        self._window_pos = np.zeros(n_problems, dtype=int)
+
+    def block_sums(self, regressors: np.ndarray, target: np.ndarray,
+                   mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sums over the sample axis 1 of (B, L, n, p) arrays: gram, rhs, valid count."""
+        weighted = regressors * mask[..., None]
+        gram = np.einsum('blnp,blnq->bnpq', weighted, regressors, optimize=True)
+        rhs = np.einsum('blnp,bln->bnp', weighted, target, optimize=True)
+        return gram, rhs, mask.sum(axis=1)
+
+    def update(self, gram: np.ndarray, rhs: np.ndarray, good: np.ndarray) -> None:
+        """One update per block (axis 0); a bad block is skipped (estimate held, no forgetting)."""
+        rho = self._rho
+        for b in range(gram.shape[0]):
+            g = good[b]
+            self.info[g] = rho * self.info[g] + gram[b, g]
+            self.rhs[g] = rho * self.rhs[g] + rhs[b, g]
+            self.n_eff[g] = rho * self.n_eff[g] + 1.0
+            idx = np.flatnonzero(g)
+            pos = self._window_pos[idx]
+            self.window_gram[pos, idx] = gram[b, idx]
+            self.window_rhs[pos, idx] = rhs[b, idx]
+            self._window_pos[idx] = (pos + 1) % self._window
+            self.window_fill[idx] = np.minimum(self.window_fill[idx] + 1, self._window)
+
+    def good_blocks(self, count: np.ndarray) -> np.ndarray:
+        """Blocks with enough valid samples."""
+        return count >= self._min_count
+
+    def rls(self) -> np.ndarray:
+        """Current RLS coefficients (n, p)."""
+        return _solve_normal(self.info, self.rhs)
+
+    def batch(self) -> np.ndarray:
+        """Batch LS coefficients over the window (n, p)."""
+        return _solve_normal(self.window_gram.sum(axis=0), self.window_rhs.sum(axis=0))
+
+
+# --------------------------------------------------------------------------------------------
+# Streaming estimator
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+def _row_median(values: np.ndarray) -> np.ndarray:
+    """Median of each row ignoring NaN (NaN for an all-NaN row), vectorised for few columns."""
+    ordered = np.sort(values, axis=1)  # NaN sorts last
+    count = np.count_nonzero(np.isfinite(values), axis=1)
+    lo = np.clip((count - 1) // 2, 0, None)[:, None]
+    hi = np.clip(count // 2, 0, values.shape[1] - 1)[:, None]
+    mid = 0.5 * (np.take_along_axis(ordered, lo, axis=1)
+                 + np.take_along_axis(ordered, hi, axis=1))[:, 0]
+    return np.where(count > 0, mid, np.nan)
+
+
+@dataclass
+class _Calibration:
+    """Accumulators of a running calibration (raw, uncorrected LS sums)."""
+
+    wheel_gram: np.ndarray    # (4, 2, 2) pooled per-wheel normal matrices
+    wheel_rhs: np.ndarray     # (4, 2)
+    axle_gram: np.ndarray     # (A, 4, 4) pooled per-axle normal matrices (compensated axles)
+    axle_rhs: np.ndarray      # (A, 4)
+    block_k: list[list[float]]
+    blocks: np.ndarray        # (4,) valid blocks collected
+    needed_blocks: int
+
+
+class TireStiffnessObserver:
+    """Four-wheel tire stiffness and pressure estimator (Umeno et al. 1997), streaming.
+
+    Args:
+        params: estimator parameters.
+        tires: the estimator's nominal model, one for all wheels or one per wheel (FL..RR).
+    """
+
+    def __init__(self, params: StiffnessObserverParams | None = None,
+                 tires: TorsionalTire | Sequence[TorsionalTire] | None = None) -> None:
+        self.params = params if params is not None else StiffnessObserverParams()
+        if tires is None:
+            tires = TorsionalTire()
+        if isinstance(tires, TorsionalTire):
+            tires = (tires,) * N_WHEELS
+        if len(tires) != N_WHEELS or not all(isinstance(t, TorsionalTire) for t in tires):
+            raise ValueError(f'tires must be one TorsionalTire or {N_WHEELS} of them')
+        self.tires: tuple[TorsionalTire, ...] = tuple(tires)
+        p = self.params
+        fs = p.sample_rate_hz
+        self._band_sos = sig.butter(p.band_order, p.band_hz, 'bandpass', fs=fs, output='sos')
+        self._lowpass_sos = sig.butter(2, p.gate_lowpass_hz, 'lowpass', fs=fs, output='sos')
+        # Group wheels by model so identical tires share one vectorised filter call.
+        self._groups: list[tuple[np.ndarray, ObserverDesign, ConsistencyMap]] = []
+        for model in dict.fromkeys(self.tires):
+            wheels = np.array([i for i, t in enumerate(self.tires) if t == model])
+            design = design_observer(model, p.observer_pole_factor, fs)
+            cmap = consistency_map(model, design, self._band_sos, fs)
+            self._groups.append((wheels, design, cmap))
+        self._model_k = np.array([t.k for t in self.tires])
+        self._axles = [AXLES[name] for name in p.driven_axles]
+        self._counters: dict[str, np.ndarray] = {}
+        self._calibration: _Calibration | None = None
+        self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
+        self._k_nominal = np.full(N_WHEELS, np.nan)
+        self._k_block_std = np.full(N_WHEELS, np.nan)
+        self.reset()
+
+    # ---------------------------------------------------------------- state management
+
+    def reset(self) -> None:
+        """Forget all filter and LS state (the calibration is kept)."""
+        p = self.params
+        n_sec = self._band_sos.shape[0]
+        self._band_zi = np.zeros((n_sec, 2, N_WHEELS))
+        self._lowpass_zi = np.zeros((self._lowpass_sos.shape[0], 2, N_WHEELS))
+        self._obs_zi = [np.zeros((3, design.denominator.size - 1, wheels.size))
+                        for wheels, design, _ in self._groups]
+        self._prev_lowpass = np.zeros(N_WHEELS)
+        self._prev_good = np.zeros(N_WHEELS, dtype=bool)
+        self._prev_code = np.full(N_WHEELS, _CODE['settling'])
+        self._hold = np.full(N_WHEELS, np.nan)
+        self._last_value = np.full(N_WHEELS, np.nan)
+        self._run = np.zeros(N_WHEELS, dtype=np.int64)
+        self._since_reset = np.zeros(N_WHEELS, dtype=np.int64)
+        self._reset_cause = np.full(N_WHEELS, _CODE['settling'])
+        self._last_stamp = -math.inf
+        self._timing_pending = False
+        # Partial block carried between chunks: per-sample arrays of the unfinished block.
+        self._partial: list[np.ndarray] = []
+        self._wheel_ls = _BlockLeastSquares(N_WHEELS, 2, p)
+        self._axle_ls = _BlockLeastSquares(len(self._axles), 4, p)
+        self._last_block_code = np.full(N_WHEELS, -1)
+        self._stamp = math.nan
+        # The estimate only changes when a block completes or the calibration changes; caching
+        # it keeps small streaming chunks cheap.
+        self._cached: StiffnessEstimate | None = None
+        for name in (*REASONS[1:], 'out_of_order', 'timing_breaks', 'resets',
+                     'torque_invalid'):
+            self._counters[name] = np.zeros(N_WHEELS, dtype=np.int64)
+
+    @property
+    def counters(self) -> dict[str, tuple[int, ...]]:
+        """Cumulative per-wheel counts.
+
+        Rejected samples by sensor fault ('invalid_sample', 'dead_sensor', 'stuck_sensor');
+        samples refused for a wrong ``dt`` ('timing'); samples masked while settling after a
+        reset ('settling') or by each gate ('axle_partner', 'wheel_slip', 'wheel_torque',
+        'acceleration', 'speed_band'); events: 'out_of_order' samples dropped,
+        'timing_breaks' (gaps/rate jumps), filter 'resets', non-finite torque samples
+        ('torque_invalid', the torque gate is then skipped).
+        """
+        return {name: tuple(int(v) for v in values) for name, values in self._counters.items()}
+
+    @property
+    def observer_designs(self) -> tuple[ObserverDesign, ...]:
+        """The observer design of each wheel (FL..RR)."""
+        by_wheel: list[ObserverDesign | None] = [None] * N_WHEELS
+        for wheels, design, _ in self._groups:
+            for w in wheels:
+                by_wheel[w] = design
+        return tuple(d for d in by_wheel if d is not None)
+
+    # ---------------------------------------------------------------- calibration
+
+    def start_calibration(self, duration_s: float | None = None) -> None:
+        """Start (or restart) learning each tire's nominal K over ``duration_s`` of valid data.
+
+        Args:
+            duration_s: valid-data time per tire; default ``params.calibration_s``.
+        """
+        duration = self.params.calibration_s if duration_s is None else duration_s
+        if not (math.isfinite(duration) and duration > 0):
+            raise ValueError(f'duration_s must be finite and > 0, got {duration}')
+        needed = max(2, int(math.ceil(duration / self.params.block_s)))
+        n_axles = len(self._axles)
+        self._calibration = _Calibration(np.zeros((N_WHEELS, 2, 2)), np.zeros((N_WHEELS, 2)),
+                                         np.zeros((n_axles, 4, 4)), np.zeros((n_axles, 4)),
+                                         [[] for _ in range(N_WHEELS)],
+                                         np.zeros(N_WHEELS, dtype=int), needed)
+        self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
+        self._cached = None
+
+    @property
+    def calibrating(self) -> bool:
+        """A calibration is running."""
+        return self._calibration is not None
+
+    def calibration_state(self) -> dict[str, Any]:
+        """The learned calibration as a plain dict (JSON/YAML-safe) for persisting.
+
+        Raises:
+            ValueError: when not all four tires are calibrated.
+        """
+        if not np.all(self._wheel_calibrated):
+            raise ValueError('calibration_state: not all tires are calibrated')
+        return {
+            'version': CALIBRATION_VERSION,
+            'k_nominal': [float(v) for v in self._k_nominal],
+            'k_block_std': [float(v) for v in self._k_block_std],
+            'block_s': float(self.params.block_s),
+            'model_k': [float(v) for v in self._model_k],
+        }
+
+    def load_calibration(self, state: Mapping[str, Any]) -> None:
+        """Install a calibration from :meth:`calibration_state` output, after validating it.
+
+        Raises:
+            ValueError: naming the offending key when the dict is corrupt or does not fit the
+                current model (the current calibration is then left unchanged).
+        """
+        if not isinstance(state, Mapping):
+            raise ValueError(f'calibration must be a mapping, got {type(state).__name__}')
+        if state.get('version') != CALIBRATION_VERSION:
+            raise ValueError(f"calibration 'version' must be {CALIBRATION_VERSION}, "
+                             f"got {state.get('version')!r}")
+        arrays = {}
+        for key in ('k_nominal', 'k_block_std', 'model_k'):
+            value = state.get(key)
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f'calibration {key!r} is not numeric: {value!r}') from None
+            if arr.shape != (N_WHEELS,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+                raise ValueError(f'calibration {key!r} must be {N_WHEELS} finite values > 0, '
+                                 f'got {value!r}')
+            arrays[key] = arr
+        block_s = state.get('block_s')
+        if not (isinstance(block_s, (int, float)) and math.isfinite(block_s) and block_s > 0):
+            raise ValueError(f"calibration 'block_s' must be finite and > 0, got {block_s!r}")
+        if not np.allclose(arrays['model_k'], self._model_k, rtol=1e-9):
+            raise ValueError("calibration 'model_k' does not match the estimator's tire model "
+                             f"{self._model_k.tolist()}: recalibrate")
+        ratio = arrays['k_nominal'] / self._model_k
+        if np.any((ratio < 0.25) | (ratio > 3.0)):
+            raise ValueError(f"calibration 'k_nominal' is implausible (K/K_model = "
+                             f'{ratio.tolist()}, allowed 0.25..3)')
+        self._k_nominal = arrays['k_nominal']
+        # Block noise scales as 1/sqrt(block length) when the block length changed.
+        self._k_block_std = arrays['k_block_std'] * math.sqrt(block_s / self.params.block_s)
+        self._wheel_calibrated = np.ones(N_WHEELS, dtype=bool)
+        self._calibration = None
+        self._cached = None
+
+    def _collect_calibration(self, block_raw: np.ndarray, good: np.ndarray,
+                             wheel_sums: tuple[np.ndarray, np.ndarray],
+                             axle_sums: tuple[np.ndarray, np.ndarray]) -> None:
+        """Add completed blocks to a running calibration; finish the tires that have enough.
+
+        Args:
+            block_raw: (B, 4, 2) raw per-block coefficients per wheel (compensated on driven
+                axles).
+            good: (B, 4) blocks that count per wheel.
+            wheel_sums: per-wheel block (gram (B, 4, 2, 2), rhs (B, 4, 2)).
+            axle_sums: per-axle block (gram (B, A, 4, 4), rhs (B, A, 4)).
+        """
+        cal = self._calibration
+        if cal is None:
+            return
+        block_k = self._stiffness_from_raw(block_raw[..., 0])
+        usable = good & np.isfinite(block_k)
+        problems: list[tuple[tuple[int, ...], int | None]] = [
+            ((w,), None) for w in range(N_WHEELS)
+            if not any(w in axle for axle in self._axles)]
+        problems += [(axle, a) for a, axle in enumerate(self._axles)]
+        for wheels, axle_index in problems:
+            first = wheels[0]
+            if self._wheel_calibrated[first]:
+                continue
+            take = usable[:, list(wheels)].all(axis=1)
+            take &= np.cumsum(take) <= cal.needed_blocks - cal.blocks[first]
+            if axle_index is None:
+                cal.wheel_gram[first] += wheel_sums[0][take, first].sum(axis=0)
+                cal.wheel_rhs[first] += wheel_sums[1][take, first].sum(axis=0)
+            else:
+                cal.axle_gram[axle_index] += axle_sums[0][take, axle_index].sum(axis=0)
+                cal.axle_rhs[axle_index] += axle_sums[1][take, axle_index].sum(axis=0)
+            for w in wheels:
+                cal.block_k[w].extend(block_k[take, w].tolist())
+                cal.blocks[w] += int(take.sum())
+            if cal.blocks[first] < cal.needed_blocks:
+                continue
+            pooled = np.full((N_WHEELS, 2), np.nan)
+            if axle_index is None:
+                pooled[first] = _solve_normal(cal.wheel_gram[first], cal.wheel_rhs[first])
+            else:
+                axle = _solve_normal(cal.axle_gram[axle_index], cal.axle_rhs[axle_index])
+                pooled[wheels[0]] = axle[[0, 2]]
+                pooled[wheels[1]] = -axle[[1, 3]]
+            k_pooled = self._stiffness_from_raw(pooled[:, 0])
+            for w in wheels:
+                ks = np.asarray(cal.block_k[w])
+                self._k_nominal[w] = float(k_pooled[w])
+                # Median absolute deviation: robust to the odd poorly excited block.
+                self._k_block_std[w] = 1.4826 * float(np.median(np.abs(ks - np.median(ks))))
+                self._wheel_calibrated[w] = bool(np.isfinite(k_pooled[w]))
+        if np.all(self._wheel_calibrated):
+            self._calibration = None
+
+    # ---------------------------------------------------------------- helpers
+
+    def _stiffness_from_raw(self, raw_dk: np.ndarray) -> np.ndarray:
+        """(..., 4) raw dK coefficients -> K estimates."""
+        out = np.empty_like(raw_dk, dtype=float)
+        for wheels, _, cmap in self._groups:
+            if self.params.consistency_correction:
+                out[..., wheels] = cmap.stiffness_from_raw(raw_dk[..., wheels])
+            else:
+                out[..., wheels] = self._model_k[wheels] + raw_dk[..., wheels]
+        return np.where(np.isfinite(raw_dk), out, np.nan)
+
+    def _delta_d(self, raw_dd: np.ndarray, stiffness: np.ndarray) -> np.ndarray:
+        out = raw_dd.copy()
+        if self.params.consistency_correction:
+            for wheels, _, cmap in self._groups:
+                out[wheels] = raw_dd[wheels] - cmap.expected_raw_dd(stiffness[wheels])
+        return out
+
+    def _reset_wheels(self, wheels: np.ndarray, values: np.ndarray) -> None:
+        """Reset the filter states of ``wheels`` to steady state at speed ``values``."""
+        self._band_zi[:, :, wheels] = (sig.sosfilt_zi(self._band_sos)[:, :, None]
+                                       * values[None, None, :])
+        self._lowpass_zi[:, :, wheels] = (sig.sosfilt_zi(self._lowpass_sos)[:, :, None]
+                                          * values[None, None, :])
+        for (group_wheels, _, _), zi in zip(self._groups, self._obs_zi, strict=True):
+            cols = np.isin(group_wheels, wheels)
+            zi[:, :, cols] = 0.0
+        self._counters['resets'][wheels] += 1
+
+    def _filter(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Run band-pass, observer and gate low-pass on a continuous segment (n, 4).
+
+        Returns:
+            (outputs (n, 4, 3) = [th, th_dot, w], low-passed speed (n, 4)).
+        """
+        band, self._band_zi = sig.sosfilt(self._band_sos, omega, axis=0, zi=self._band_zi)
+        low, self._lowpass_zi = sig.sosfilt(self._lowpass_sos, omega, axis=0,
+                                            zi=self._lowpass_zi)
+        out = np.empty(omega.shape + (3,))
+        for (wheels, design, _), zi in zip(self._groups, self._obs_zi, strict=True):
+            x = band[:, wheels]
+            for k in range(3):
+                out[:, wheels, k], zi[k] = sig.lfilter(design.numerators[k], design.denominator,
+                                                       x, axis=0, zi=zi[k])
+        return out, low
+
+    # ---------------------------------------------------------------- streaming update
+
+    def update(self, omega: np.ndarray, *, stamps: np.ndarray | None = None,
+               dt: float | None = None,
+               wheel_torque: np.ndarray | None = None) -> StiffnessEstimate:
+        """Process a chunk of wheel speeds and return the current estimate.
+
+        Args:
+            omega: (N, 4) wheel angular speeds, rad/s, FL..RR. Bad values are rejected per
+                sample and counted.
+            stamps: (N,) sample times, s. Repeated or out-of-order samples are dropped; gaps
+                and interval changes beyond ``timing_tolerance`` reset the filters.
+            dt: sample interval of the whole chunk, s, when no stamps are given (a mismatch
+                with ``sample_rate_hz`` rejects the chunk). Neither: nominal rate assumed.
+            wheel_torque: optional (N, 4) drive/brake torque per wheel, N m, for the gate.
+
+        Raises:
+            ValueError: on wrong shapes or a non-positive ``dt`` (caller errors, not data).
+        """
+        p = self.params
+        omega = np.asarray(omega, dtype=float)
+        if omega.ndim != 2 or omega.shape[1] != N_WHEELS:
+            raise ValueError(f'omega must have shape (N, {N_WHEELS}), got {omega.shape}')
+        n = omega.shape[0]
+        if wheel_torque is not None:
+            wheel_torque = np.asarray(wheel_torque, dtype=float)
+            if wheel_torque.shape != omega.shape:
+                raise ValueError(f'wheel_torque must have shape {omega.shape}, '
+                                 f'got {wheel_torque.shape}')
+        timing_break = np.zeros(n, dtype=bool)
+        if stamps is not None:
+            stamps = np.asarray(stamps, dtype=float)
+            if stamps.shape != (n,):
+                raise ValueError(f'stamps must have shape ({n},), got {stamps.shape}')
+            # A sample is kept when its stamp is later than every earlier one.
+            prior_max = np.maximum.accumulate(np.concatenate(([self._last_stamp], stamps)))
+            keep = np.isfinite(stamps) & (stamps > prior_max[:-1])
+            self._counters['out_of_order'] += int(np.count_nonzero(~keep))
+            omega, stamps = omega[keep], stamps[keep]
+            if wheel_torque is not None:
+                wheel_torque = wheel_torque[keep]
+            n = omega.shape[0]
+            if n:
+                interval = np.diff(np.concatenate(([self._last_stamp], stamps)))
+                timing_break = np.abs(interval * p.sample_rate_hz - 1.0) > p.timing_tolerance
+                if not math.isfinite(self._last_stamp):
+                    timing_break[0] = False  # the first sample ever: a plain start
+                self._last_stamp = float(stamps[-1])
+                self._stamp = float(stamps[-1])
+        elif dt is not None:
+            if not (math.isfinite(dt) and dt > 0):
+                raise ValueError(f'dt must be finite and > 0, got {dt}')
+            if abs(dt * p.sample_rate_hz - 1.0) > p.timing_tolerance:
+                # Samples at another rate cannot go through filters designed for this one.
+                self._counters['timing'] += n
+                self._timing_pending = True
+                self._prev_good[:] = False
+                self._prev_code[:] = _CODE['timing']
+                return self.estimate()
+        if n == 0:
+            return self.estimate()
+        if self._timing_pending:
+            timing_break[0] = True
+            self._timing_pending = False
+        self._counters['timing_breaks'] += int(np.count_nonzero(timing_break))
+        self._process(omega, timing_break, wheel_torque)
+        return self.estimate()
+
+    def _process(self, omega: np.ndarray, timing_break: np.ndarray,
+                 wheel_torque: np.ndarray | None) -> None:
+        p = self.params
+        n = omega.shape[0]
+        idx = np.arange(n)[:, None]
+        fs = p.sample_rate_hz
+
+        # --- per-sample sensor validity --------------------------------------------------
+        code = np.zeros((n, N_WHEELS), dtype=np.int64)
+        finite = np.isfinite(omega)
+        invalid = ~finite | (np.where(finite, omega, 0.0) < 0.0) | (
+            np.where(finite, omega, 0.0) > p.max_omega_rad_s)
+        speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
+        plausible = np.where(invalid, 0.0, omega)
+        others_max = np.stack([np.delete(plausible, w, axis=1).max(axis=1)
+                               for w in range(N_WHEELS)], axis=1)
+        dead = ~invalid & (omega < p.dead_omega_rad_s) & (others_max >= max(speed_min, 1e-9))
+        # Stuck: identical consecutive readings for stuck_s (a quantised ABS speed holds a
+        # value only for one tooth period, a few ms at speed).
+        prev = np.concatenate((self._last_value[None], omega[:-1]))
+        same = omega == prev
+        change = np.where(same, -1, idx)
+        last_change = np.maximum.accumulate(change, axis=0)
+        run = np.where(last_change >= 0, idx - last_change, idx + 1 + self._run[None])
+        stuck = ~invalid & ~dead & (run >= int(round(p.stuck_s * fs)))
+        self._run = run[-1].copy()
+        self._last_value = omega[-1].copy()
+        code[stuck] = _CODE['stuck_sensor']
+        code[dead] = _CODE['dead_sensor']
+        code[invalid] = _CODE['invalid_sample']
+        bad = code != OK
+        for name in ('invalid_sample', 'dead_sensor', 'stuck_sensor'):
+            self._counters[name] += (code == _CODE[name]).sum(axis=0)
+        good = ~bad
+
+        # --- resets: on resuming after bad data, on a timing break, and at the start --------
+        prev_good = np.concatenate((self._prev_good[None], good[:-1]))
+        prev_code = np.concatenate((self._prev_code[None], code[:-1]))
+        resume = good & ~prev_good
+        reset = good & (resume | timing_break[:, None])
+        cause = np.where(timing_break[:, None], _CODE['timing'],
+                         np.where(prev_code == OK, _CODE['settling'], prev_code))
+        self._prev_good = good[-1].copy()
+        self._prev_code = code[-1].copy()
+
+        # Held values for bad samples keep the filters finite; they are masked and the wheel
+        # is reset when good data resumes, so they never reach an estimate.
+        last_good_idx = np.maximum.accumulate(np.where(good, idx, -1), axis=0)
+        hold = np.where(np.isfinite(self._hold), self._hold, 0.0)
+        filled = np.where(last_good_idx >= 0,
+                          np.take_along_axis(omega, np.maximum(last_good_idx, 0), axis=0),
+                          hold[None])
+        self._hold = filled[-1].copy()
+
+        # --- filters, split at reset rows ----------------------------------------------------
+        outputs = np.empty((n, N_WHEELS, 3))
+        lowpass = np.empty((n, N_WHEELS))
+        reset_rows = np.flatnonzero(reset.any(axis=1))
+        bounds = np.union1d(reset_rows, [0, n])
+        for s, e in zip(bounds[:-1], bounds[1:], strict=True):
+            wheels = np.flatnonzero(reset[s])
+            if wheels.size:
+                self._reset_wheels(wheels, omega[s, wheels])
+            outputs[s:e], lowpass[s:e] = self._filter(filled[s:e])
+        # Previous low-passed speed from before any reset, so the chunking cannot matter
+        # (the derivative at a reset row is masked by the settling anyway).
+        prev_low = np.concatenate((self._prev_lowpass[None], lowpass[:-1]))
+        self._prev_lowpass = lowpass[-1].copy()
+
+        # --- settling after resets ------------------------------------------------------
+        last_reset = np.maximum.accumulate(np.where(reset, idx, -1), axis=0)
+        since = np.where(last_reset >= 0, idx - last_reset, idx + 1 + self._since_reset[None])
+        settle_cause = np.where(last_reset >= 0,
+                                np.take_along_axis(cause, np.maximum(last_reset, 0), axis=0),
+                                self._reset_cause[None])
+        self._since_reset = since[-1].copy()
+        self._reset_cause = settle_cause[-1].copy()
+        settling = good & (since < int(round(p.settle_s * fs)))
+        code = np.where(settling, settle_cause, code)
+        self._counters['settling'] += settling.sum(axis=0)
+
+        # --- validity gates (the data are fine, the method is not valid here) ---------------
+        accel = (lowpass - prev_low) * fs * p.rolling_radius_m
+        speed_kmh = lowpass * p.rolling_radius_m * 3.6
+        ref = _row_median(np.where(good, lowpass, np.nan))[:, None]
+        with np.errstate(invalid='ignore', divide='ignore'):
+            slip = np.abs(lowpass / ref - 1.0)
+        gates = [
+            (_CODE['speed_band'],
+             (speed_kmh < p.speed_band_kmh[0]) | (speed_kmh > p.speed_band_kmh[1])),
+            (_CODE['acceleration'], np.abs(accel) > p.max_accel_mps2),
+        ]
+        if wheel_torque is not None:
+            torque_ok = np.isfinite(wheel_torque)
+            self._counters['torque_invalid'] += (~torque_ok).sum(axis=0)
+            gates.append((_CODE['wheel_torque'],
+                          torque_ok & (np.abs(np.where(torque_ok, wheel_torque, 0.0))
+                                       > p.max_wheel_torque_nm)))
+        gates.append((_CODE['wheel_slip'], np.isfinite(slip) & (slip > p.max_slip)))
+        for gate_code, hit in gates:  # ascending priority: later (more specific) wins
+            code = np.where((code == OK) & hit, gate_code, code)
+
+        # Driven axles need both wheels: a wheel whose partner is masked is masked too.
+        wheel_mask = code == OK
+        for left, right in self._axles:
+            both = wheel_mask[:, left] & wheel_mask[:, right]
+            for w in (left, right):
+                code[:, w] = np.where(wheel_mask[:, w] & ~both, _CODE['axle_partner'],
+                                      code[:, w])
+        for name in ('axle_partner', 'wheel_slip', 'wheel_torque', 'acceleration', 'speed_band'):
+            self._counters[name] += (code == _CODE[name]).sum(axis=0)
+
+        self._accumulate(outputs, code)
+
+    def _accumulate(self, outputs: np.ndarray, code: np.ndarray) -> None:
+        """Cut the chunk into LS blocks (carrying the partial one) and update the LS."""
+        block_len = self.params.block_samples
+        if self._partial:
+            outputs = np.concatenate((self._partial[0], outputs))
+            code = np.concatenate((self._partial[1], code))
+        n_blocks = outputs.shape[0] // block_len
+        cut = n_blocks * block_len
+        self._partial = [outputs[cut:], code[cut:]] if cut < outputs.shape[0] else []
+        if n_blocks == 0:
+            return
+        self._cached = None
+        out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, 3)
+        blk_code = code[:cut].reshape(n_blocks, block_len, N_WHEELS)
+        mask = (blk_code == OK).astype(float)
+        zeta = out[..., :2]
+        w = out[..., 2]
+        wheel_gram, wheel_rhs, count = self._wheel_ls.block_sums(zeta, w, mask)
+        good = self._wheel_ls.good_blocks(count)
+        self._wheel_ls.update(wheel_gram, wheel_rhs, good)
+        axle_gram = np.zeros((n_blocks, 0, 4, 4))
+        axle_rhs = np.zeros((n_blocks, 0, 4))
+        if self._axles:
+            left = np.array([a[0] for a in self._axles])
+            right = np.array([a[1] for a in self._axles])
+            axle_reg = np.concatenate((zeta[:, :, left, :1], zeta[:, :, right, :1],
+                                       zeta[:, :, left, 1:], zeta[:, :, right, 1:]), axis=-1)
+            axle_target = w[:, :, left] - w[:, :, right]
+            axle_mask = mask[:, :, left] * mask[:, :, right]
+            axle_gram, axle_rhs, axle_count = self._axle_ls.block_sums(axle_reg, axle_target,
+                                                                       axle_mask)
+            axle_good = self._axle_ls.good_blocks(axle_count)
+            self._axle_ls.update(axle_gram, axle_rhs, axle_good)
+            good[:, left] = axle_good
+            good[:, right] = axle_good
+        if self._calibration is not None:
+            block_raw = _solve_normal(wheel_gram, wheel_rhs)
+            if self._axles:
+                axle_raw = _solve_normal(axle_gram, axle_rhs)
+                block_raw[:, left] = axle_raw[:, :, [0, 2]]
+                block_raw[:, right] = -axle_raw[:, :, [1, 3]]
+            self._collect_calibration(block_raw, good, (wheel_gram, wheel_rhs),
+                                      (axle_gram, axle_rhs))
+        # Status follows each wheel's last block: 'ok' when it counted, else its most
+        # specific reason.
+        last = blk_code[-1]
+        worst = np.where(last == OK, _NO_REASON, last).min(axis=0)
+        self._last_block_code = np.where(good[-1] | (worst == _NO_REASON), OK, worst)
+
+    # ---------------------------------------------------------------- output
+
+    def raw_coefficients(self) -> np.ndarray:
+        """(4, 2) raw LS coefficients [dK, dD] per wheel (driven axles: compensated)."""
+        use_batch = self.params.ls_mode == 'batch'
+        coef = self._wheel_ls.batch() if use_batch else self._wheel_ls.rls()
+        if self._axles:
+            axle = self._axle_ls.batch() if use_batch else self._axle_ls.rls()
+            for a, (left, right) in enumerate(self._axles):
+                coef[left] = axle[a, [0, 2]]
+                coef[right] = -axle[a, [1, 3]]
+        return coef
+
+    def _converged(self) -> np.ndarray:
+        p = self.params
+        if p.ls_mode == 'batch':
+            fill = self._wheel_ls.window_fill.copy()
+            need = float(p.batch_window_blocks)
+        else:
+            fill = self._wheel_ls.n_eff.copy()
+            need = (1.0 - math.exp(-1.0)) / (1.0 - p.forgetting_factor)
+        if self._axles:
+            axle_fill = (self._axle_ls.window_fill if p.ls_mode == 'batch'
+                         else self._axle_ls.n_eff)
+            for a, (left, right) in enumerate(self._axles):
+                fill[[left, right]] = axle_fill[a]
+        return fill >= need - 1e-9
+
+    def estimate(self) -> StiffnessEstimate:
+        """The current estimate (no new data)."""
+        if self._cached is None:
+            self._cached = self._compute_estimate()
+        return replace(self._cached, stamp=self._stamp)
+
+    def _compute_estimate(self) -> StiffnessEstimate:
+        p = self.params
+        coef = self.raw_coefficients()
+        stiffness = self._stiffness_from_raw(coef[:, 0])
+        delta_d = self._delta_d(coef[:, 1], np.where(np.isfinite(stiffness), stiffness,
+                                                     self._model_k))
+        calibrated = self._wheel_calibrated.copy()
+        k_nominal = np.where(calibrated, self._k_nominal, self._model_k)
+        ratio = stiffness / k_nominal
+        p0 = np.asarray(p.nominal_pressure_kpa)
+        pressure_ratio = p.pressure_relation.pressure_ratio(ratio)
+        pressure = p0 * pressure_ratio
+        sigma_ratio = self._k_block_std / math.sqrt(p.effective_blocks) / k_nominal
+        pressure_std = np.where(
+            calibrated,
+            p0 * sigma_ratio * p.pressure_relation.pressure_ratio_per_stiffness_ratio(), np.nan)
+        converged = self._converged()
+        status = []
+        for w in range(N_WHEELS):
+            code = int(self._last_block_code[w])
+            if code < 0:
+                status.append('no_data')
+            elif code != OK:
+                status.append(REASONS[code])
+            elif not np.isfinite(stiffness[w]):
+                status.append('no_excitation')
+            elif not converged[w]:
+                status.append('converging')
+            else:
+                status.append('ok')
+        valid = np.array([s == 'ok' for s in status])
+        flag_ok = valid & calibrated
+        threshold = p.warning_pressure_ratio * p0
+        with np.errstate(invalid='ignore', divide='ignore'):
+            z = (threshold - pressure) / np.maximum(pressure_std, 1e-12)
+        confidence = np.where(flag_ok, ndtr(np.where(flag_ok, z, 0.0)), 0.0)
+        underinflated = flag_ok & (pressure < threshold)
+        arrays = [stiffness, delta_d, ratio, pressure, pressure_std, valid, calibrated,
+                  underinflated, confidence]
+        for array in arrays:
+            array.flags.writeable = False  # the cached arrays are shared between estimates
+        return StiffnessEstimate(
+            stamp=self._stamp,
+            delta_k=_read_only(stiffness - self._model_k),
+            delta_d=delta_d,
+            stiffness=stiffness,
+            stiffness_ratio=ratio,
+            pressure_kpa=pressure,
+            pressure_std_kpa=pressure_std,
+            valid=valid,
+            status=tuple(status),
+            calibrated=bool(np.all(calibrated)),
+            wheel_calibrated=calibrated,
+            underinflated=underinflated,
+            confidence=confidence,
+            calibrating=self.calibrating,
+        )

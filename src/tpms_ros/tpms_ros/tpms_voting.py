@@ -1,0 +1,320 @@
+"""Voting fusion of TPMS indications (Persson, Gustafsson, Drevö, SAE 2002; SPEC §3.3).
+
+Neither method estimates absolute pressure, so decisions are fused, not states. Each method
+delivers per tire a flag t (this tire looks low) and a confidence c in 0..1. The paper's rule for
+two methods, generalised here per tire and to any number of methods:
+
+* a method counts for tire j only if it is enabled, its latest indication is fresh (age at most
+  ``max_age_s``) and it knows tire j (an unknown tire is never counted as low);
+* no counted method flags j -> no warning condition for j;
+* every counted method flags j and there are at least two of them (agreement, t1 = t2) ->
+  condition if the mean confidence exceeds h0;
+* otherwise (disagreement, or a single method) -> condition if any flagging method's confidence
+  exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses.
+
+The condition is turned into a warning with hold-off and hysteresis: the warning is set once the
+condition has held for ``set_on_s`` net (an up/down timer); it clears once the evidence has
+stayed below the lower clear threshold (``clear_ratio`` x the threshold in force) for
+``set_off_s`` net. A tire with
+no counted method keeps its state and both timers pause: a silent method neither raises nor
+cancels a warning.
+
+No ROS import: ``tpms_voter`` converts ``TpmsIndication`` messages to :class:`TpmsIndication`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+N_TIRES = 4
+TIRE_NAMES = ('FL', 'FR', 'RL', 'RR')
+
+
+@dataclass(frozen=True)
+class TpmsIndication:
+    """One method's per-tire indication (the content of ``/tpms/indication/<method>``).
+
+    Attributes:
+        method: method name, e.g. ``'vibration'``, ``'wheel_radius'``, ``'stiffness'``.
+        stamp_s: time of the input sample the indication answers, s.
+        underinflated: (4,) bool flags t_i, wheel order FL, FR, RL, RR.
+        confidence: (4,) confidence c_i in 0..1 that the tire is low.
+        known: (4,) bool; False where the method has no valid information on the tire (not
+            calibrated, bad sensor, not observable). An unknown tire is never counted as low.
+    """
+
+    method: str
+    stamp_s: float
+    underinflated: np.ndarray
+    confidence: np.ndarray
+    known: np.ndarray = field(default_factory=lambda: np.ones(N_TIRES, dtype=bool))
+
+    def __post_init__(self) -> None:
+        if not self.method:
+            raise ValueError('TpmsIndication.method must be a non-empty string')
+        if not math.isfinite(self.stamp_s):
+            raise ValueError(f'TpmsIndication.stamp_s must be finite, got {self.stamp_s}')
+        flags = np.asarray(self.underinflated, dtype=bool).copy()
+        conf = np.asarray(self.confidence, dtype=float).copy()
+        known = np.asarray(self.known, dtype=bool).copy()
+        for name, arr in (('underinflated', flags), ('confidence', conf), ('known', known)):
+            if arr.shape != (N_TIRES,):
+                raise ValueError(f'TpmsIndication.{name} must have shape (4,), got {arr.shape}')
+        if not np.all(np.isfinite(conf)) or np.any(conf < 0.0) or np.any(conf > 1.0):
+            raise ValueError(f'TpmsIndication.confidence must be finite in 0..1, got {conf}')
+        for arr in (flags, conf, known):
+            arr.flags.writeable = False
+        # frozen dataclass: store the validated read-only copies
+        object.__setattr__(self, 'underinflated', flags)
+        object.__setattr__(self, 'confidence', conf)
+        object.__setattr__(self, 'known', known)
+
+
+@dataclass(frozen=True)
+class VoterParams:
+    """Thresholds and timing of the voter.
+
+    Attributes:
+        h0: threshold on the mean confidence when all counted methods agree.
+        method_thresholds: method name -> its own threshold h_i (each > h0), used when the
+            methods disagree or only one is available. Only these methods are voted.
+        max_age_s: an indication older than this (relative to the evaluation time) is stale
+            and ignored, s.
+        set_on_s: hold-off: the warning condition must hold this long (net: the timer counts
+            down while it does not hold) before a warning, s.
+        set_off_s: the evidence must stay below the clear threshold this long (net) to clear, s.
+        clear_ratio: clear threshold = clear_ratio x the threshold in force (h0 or h_i); in
+            (0, 1], lower than the set threshold so a signal hovering there does not flicker.
+    """
+
+    h0: float = 0.5
+    method_thresholds: Mapping[str, float] = field(
+        default_factory=lambda: {'vibration': 0.8, 'wheel_radius': 0.8, 'stiffness': 0.8})
+    max_age_s: float = 2.0
+    set_on_s: float = 3.0
+    set_off_s: float = 10.0
+    clear_ratio: float = 0.7
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.h0 < 1.0:
+            raise ValueError(f'VoterParams.h0 must be in (0, 1), got {self.h0}')
+        if not self.method_thresholds:
+            raise ValueError('VoterParams.method_thresholds must name at least one method')
+        for name, h in self.method_thresholds.items():
+            if not (math.isfinite(h) and self.h0 < h < 1.0):
+                raise ValueError(
+                    f'VoterParams.method_thresholds[{name!r}] must be in (h0={self.h0}, 1), '
+                    f'got {h}')
+        for name in ('max_age_s', 'set_on_s', 'set_off_s'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'VoterParams.{name} must be finite and >= 0, got {value}')
+        if not self.max_age_s > 0.0:
+            raise ValueError(f'VoterParams.max_age_s must be > 0, got {self.max_age_s}')
+        if not 0.0 < self.clear_ratio <= 1.0:
+            raise ValueError(f'VoterParams.clear_ratio must be in (0, 1], got {self.clear_ratio}')
+        object.__setattr__(self, 'method_thresholds', dict(self.method_thresholds))
+
+
+@dataclass(frozen=True)
+class TpmsWarningResult:
+    """The voter's output (the content of ``/tpms/warning``).
+
+    Attributes:
+        stamp_s: evaluation time, s.
+        warning: (4,) bool warning per tire after hold-off/hysteresis.
+        active: any tire warned.
+        confidence: (4,) the confidence tested for each tire (agreement: mean; otherwise the
+            largest confidence of a flagging method; 0 when no method flags).
+        condition: (4,) bool raw warning condition before hold-off.
+        reasons: human-readable explanation of each flagged or warned tire and of every
+            stale, rejected or disabled input.
+        methods_used: methods whose fresh indication was voted.
+        stale_methods: configured, enabled methods with no fresh indication.
+    """
+
+    stamp_s: float
+    warning: np.ndarray
+    active: bool
+    confidence: np.ndarray
+    condition: np.ndarray
+    reasons: tuple[str, ...]
+    methods_used: tuple[str, ...]
+    stale_methods: tuple[str, ...]
+
+
+class TpmsVoter:
+    """Fuses TPMS indications by the paper's voting rule with hold-off and hysteresis.
+
+    Feed indications with :meth:`submit` as they arrive, call :meth:`evaluate` at the output
+    rate. Streaming input is never allowed to raise: an indication from an unconfigured method,
+    or older than the one held for its method, is rejected and counted in :attr:`rejected`.
+    """
+
+    def __init__(self, params: VoterParams | None = None) -> None:
+        self.params = params if params is not None else VoterParams()
+        self._latest: dict[str, TpmsIndication] = {}
+        self._enabled = dict.fromkeys(self.params.method_thresholds, True)
+        self._warning = np.zeros(N_TIRES, dtype=bool)
+        self._on_time = np.zeros(N_TIRES)     # how long the set condition has held, s
+        self._off_time = np.zeros(N_TIRES)    # how long the evidence has stayed below clear, s
+        self._last_eval_s: float | None = None
+        self._last_result: TpmsWarningResult | None = None
+        self.rejected: dict[str, int] = {'unknown_method': 0, 'out_of_order': 0,
+                                         'time_backwards': 0}
+
+    def set_enabled(self, method: str, enabled: bool) -> None:
+        """Switch a configured method on or off (off: its indications are ignored)."""
+        if method not in self._enabled:
+            raise ValueError(f'method {method!r} is not configured in method_thresholds')
+        self._enabled[method] = enabled
+
+    def submit(self, indication: TpmsIndication) -> bool:
+        """Store the latest indication of its method. Returns False if it was rejected."""
+        if indication.method not in self._enabled:
+            self.rejected['unknown_method'] += 1
+            return False
+        held = self._latest.get(indication.method)
+        if held is not None and indication.stamp_s < held.stamp_s:
+            self.rejected['out_of_order'] += 1
+            return False
+        self._latest[indication.method] = indication
+        return True
+
+    def reset(self) -> None:
+        """Forget indications, warnings and timers (e.g. after the driver re-calibrates)."""
+        self._latest.clear()
+        self._warning[:] = False
+        self._on_time[:] = 0.0
+        self._off_time[:] = 0.0
+        self._last_eval_s = None
+        self._last_result = None
+
+    def evaluate(self, now_s: float, indications: Iterable[TpmsIndication] = ()) -> \
+            TpmsWarningResult:
+        """Submit ``indications`` (if any) and vote at time ``now_s``.
+
+        A ``now_s`` earlier than the previous evaluation is rejected (counted) and the previous
+        result is returned unchanged.
+        """
+        for indication in indications:
+            self.submit(indication)
+        if not math.isfinite(now_s):
+            raise ValueError(f'now_s must be finite, got {now_s}')
+        if self._last_eval_s is not None and now_s < self._last_eval_s:
+            self.rejected['time_backwards'] += 1
+            assert self._last_result is not None
+            return self._last_result
+        dt = 0.0 if self._last_eval_s is None else now_s - self._last_eval_s
+        self._last_eval_s = now_s
+
+        p = self.params
+        reasons: list[str] = []
+        used: list[str] = []
+        stale: list[str] = []
+        for method, enabled in self._enabled.items():
+            if not enabled:
+                reasons.append(f'{method}: disabled')
+                continue
+            ind = self._latest.get(method)
+            if ind is None:
+                stale.append(method)
+                reasons.append(f'{method}: no indication received')
+            elif now_s - ind.stamp_s > p.max_age_s:
+                stale.append(method)
+                reasons.append(f'{method}: stale ({now_s - ind.stamp_s:.1f} s old > '
+                               f'{p.max_age_s:.1f} s), ignored')
+            else:
+                used.append(method)
+        if any(self.rejected.values()):
+            reasons.append('rejected inputs: ' + ', '.join(
+                f'{k}={v}' for k, v in self.rejected.items() if v))
+
+        # (n_methods, 4) arrays of the fresh, enabled indications
+        if used:
+            flags = np.array([self._latest[m].underinflated for m in used])
+            conf = np.array([self._latest[m].confidence for m in used])
+            known = np.array([self._latest[m].known for m in used])
+            h_own = np.array([p.method_thresholds[m] for m in used])
+        else:
+            flags = conf = known = np.zeros((0, N_TIRES))
+            h_own = np.zeros(0)
+        counted = known.astype(bool)
+        flagging = counted & flags.astype(bool)
+        n_counted = counted.sum(axis=0)
+        n_flagging = flagging.sum(axis=0)
+        agree = (n_flagging == n_counted) & (n_counted >= 2)
+
+        mean_conf = np.where(counted, conf, 0.0).sum(axis=0) / np.maximum(n_counted, 1)
+        # disagreement: each flagging method against its own threshold; the margin c/h tells
+        # which method is strongest relative to its threshold
+        margin_own = np.where(flagging, conf / h_own[:, None], 0.0) if used else \
+            np.zeros((0, N_TIRES))
+        best = margin_own.argmax(axis=0) if used else np.zeros(N_TIRES, dtype=int)
+        max_flag_conf = np.where(flagging, conf, 0.0).max(axis=0) if used else \
+            np.zeros(N_TIRES)
+        best_margin = margin_own.max(axis=0) if used else np.zeros(N_TIRES)
+
+        confidence = np.where(agree, mean_conf, np.where(n_flagging > 0, max_flag_conf, 0.0))
+        # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears
+        ratio = np.where(agree, mean_conf / p.h0, best_margin)
+        condition = (n_flagging > 0) & (ratio > 1.0)
+        below_clear = (n_flagging == 0) | (ratio < p.clear_ratio)
+        informed = n_counted > 0
+
+        # hold-off and hysteresis as up/down timers: they count up while their condition holds
+        # and down (not to zero) otherwise, so a noisy confidence that is mostly above the
+        # threshold still warns, and one dropping out for a sample does not restart the wait.
+        # A tire with no information keeps state and timers.
+        self._on_time = np.where(
+            informed, np.maximum(self._on_time + np.where(condition, dt, -dt), 0.0),
+            self._on_time)
+        self._off_time = np.where(
+            informed, np.maximum(self._off_time + np.where(below_clear, dt, -dt), 0.0),
+            self._off_time)
+        set_now = ~self._warning & condition & (self._on_time >= p.set_on_s)
+        clear_now = self._warning & below_clear & (self._off_time >= p.set_off_s)
+        self._warning = (self._warning | set_now) & ~clear_now
+        self._on_time[self._warning] = 0.0
+        self._off_time[~self._warning] = 0.0
+
+        for j in range(N_TIRES):
+            tire = TIRE_NAMES[j]
+            if not informed[j]:
+                if self._warning[j]:
+                    reasons.append(f'{tire}: warning held, no method has fresh information')
+                continue
+            if n_flagging[j] == 0:
+                if self._warning[j]:
+                    reasons.append(f'{tire}: warning held, clearing in '
+                                   f'{max(p.set_off_s - self._off_time[j], 0.0):.1f} s')
+                continue
+            names = [m for i, m in enumerate(used) if flagging[i, j]]
+            if agree[j]:
+                rule = (f'{tire}: {" + ".join(names)} agree, mean confidence '
+                        f'{mean_conf[j]:.2f} vs h0 {p.h0:.2f}')
+            else:
+                m = used[best[j]]
+                rule = (f'{tire}: flagged by {", ".join(names)} only, {m} confidence '
+                        f'{conf[best[j], j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
+            state = 'WARNING' if self._warning[j] else (
+                f'condition held {self._on_time[j]:.1f}/{p.set_on_s:.1f} s' if condition[j]
+                else 'below threshold')
+            reasons.append(f'{rule} -> {state}')
+
+        result = TpmsWarningResult(
+            stamp_s=now_s,
+            warning=self._warning.copy(),
+            active=bool(self._warning.any()),
+            confidence=confidence,
+            condition=condition,
+            reasons=tuple(reasons),
+            methods_used=tuple(used),
+            stale_methods=tuple(stale),
+        )
+        self._last_result = result
+        return result

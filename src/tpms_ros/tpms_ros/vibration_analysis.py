@@ -1,0 +1,512 @@
+"""TPMS by vibration analysis (Persson, Gustafsson, Drevö, SAE 2002; SPEC §3.1).
+
+The tire's torsional mode (40-50 Hz; the vertical mode is at 10-20 Hz) is excited by road
+roughness and shows in the wheel speed. Its frequency drops with pressure. Per wheel:
+
+1. pre-processing: de-trend and band-pass around the mode (Butterworth, ``sosfilt`` with
+   carried state; the filter's initial state is the steady state of the first sample, so the
+   large DC of the wheel speed does not ring), then decimation to ``analysis_rate_hz`` (the
+   band-pass is the anti-alias filter);
+2. AR(2) fit ``y_t = -a1 y_{t-1} - a2 y_{t-2} + e_t`` by recursive least squares with
+   exponential forgetting lambda. RLS with forgetting is *exactly* the exponentially weighted
+   least-squares solution theta_t = R_t^-1 r_t with R_t = lambda R_{t-1} + phi phi^T and
+   r_t = lambda r_{t-1} + phi y_t (R_t = P_t^-1; R_0 = P_0^-1 = ``rls_regularization`` I), so
+   R and r are first-order IIR filters of the regressor products, run by ``lfilter`` over the
+   whole chunk with carried state, and theta follows from the closed-form 2x2 solve. No
+   per-sample Python loop; :func:`ar2_rls_reference` is the textbook per-sample recursion it
+   equals (tested);
+3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2);
+4. calibration: each tire's nominal frequency and the noise of its estimate;
+5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
+   confidence = clip(z / z_full, 0, 1).
+
+Input is a uniformly sampled (N, 4) wheel speed array (rad/s, FL, FR, RL, RR); the node handles
+stamps and gaps (a gap: :meth:`VibrationAnalyzer.reset_filters`). Bad samples (non-finite,
+negative, above ``max_wheel_speed``) are rejected and counted: the filter input holds the last
+good value and the regression ignores the samples the hold disturbs, so the state is not
+corrupted. Samples below ``min_wheel_speed`` (too little road excitation) are gated out the same
+way. No ROS import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+
+TORSIONAL_MODE_HZ = (40.0, 50.0)
+"""The paper's torsional tire mode band, Hz (used by the paper)."""
+VERTICAL_MODE_HZ = (10.0, 20.0)
+"""The paper's vertical tire mode band, Hz."""
+
+CALIBRATION_VERSION = 1
+
+
+@dataclass(frozen=True)
+class VibrationParams:
+    """Parameters of the vibration analysis.
+
+    Attributes:
+        sample_rate_hz: input wheel-speed rate, Hz.
+        mode_band_hz: (low, high) band of the monitored mode at nominal pressure, Hz.
+        band_margin: relative widening of ``mode_band_hz`` for the band-pass, so that a 30 %
+            pressure loss (frequency about 10 % lower) stays well inside the passband and the
+            filter edges do not pull the AR(2) peak.
+        filter_order: Butterworth order of the band-pass (per edge).
+        analysis_rate_hz: rate of the AR(2) fit after decimation (integer factor, rounded
+            down), Hz. Lower means a better-conditioned AR(2) (pole angle far from 0) and fewer
+            samples; it must keep the passband below 0.45 of it.
+        memory_s: RLS memory (forgetting lambda = exp(-1 / (memory_s * analysis rate))), s.
+        rls_regularization: R_0 = P_0^-1 of the RLS, in (rad/s)^2; small, it only makes the
+            first solves well posed.
+        min_wheel_speed: below this wheel speed (rad/s) the road excitation is too weak and
+            the sample is not used.
+        max_wheel_speed: above this the sample is non-physical and rejected, rad/s.
+        stuck_s: a wheel speed repeated exactly for longer than this is a stuck sensor and
+            rejected, s (an ABS speed held between tooth edges repeats for milliseconds only).
+        guard_s: after a rejected or gated input sample, the band-pass output is disturbed
+            for about its impulse-response length; the regression skips this long, s.
+        min_valid_fraction: a tire is known only if this fraction of its RLS memory holds
+            valid samples.
+        calibration_settle_s: samples from the first part of a calibration window are
+            discarded so the nominal is not biased by the RLS start-up, s.
+        min_calibration_s: shortest accepted calibration (after settling, known samples), s.
+        z_flag: flag a tire when its frequency drop exceeds this many noise sigmas.
+        z_full: the drop (in sigmas) at which the confidence reaches 1.
+        rel_noise_floor: floor of the noise sigma relative to the nominal frequency: the
+            frequency also wanders with road, speed and temperature, which a short
+            calibration does not see.
+    """
+
+    sample_rate_hz: float = 1000.0
+    mode_band_hz: tuple[float, float] = TORSIONAL_MODE_HZ
+    band_margin: float = 0.35
+    filter_order: int = 4
+    analysis_rate_hz: float = 200.0
+    memory_s: float = 5.0
+    rls_regularization: float = 1e-6
+    min_wheel_speed: float = 10.0
+    max_wheel_speed: float = 600.0
+    stuck_s: float = 0.1
+    guard_s: float = 0.05
+    min_valid_fraction: float = 0.5
+    calibration_settle_s: float = 15.0
+    min_calibration_s: float = 10.0
+    z_flag: float = 3.0
+    z_full: float = 8.0
+    rel_noise_floor: float = 0.005
+
+    def __post_init__(self) -> None:
+        positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
+                    'rls_regularization', 'max_wheel_speed', 'z_flag', 'z_full',
+                    'rel_noise_floor', 'min_calibration_s', 'stuck_s')
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'VibrationParams.{name} must be finite and > 0, got {value}')
+        for name in ('min_wheel_speed', 'guard_s', 'calibration_settle_s'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'VibrationParams.{name} must be finite and >= 0, got {value}')
+        low, high = self.mode_band_hz
+        if not (math.isfinite(low) and math.isfinite(high) and 0.0 < low < high):
+            raise ValueError(f'VibrationParams.mode_band_hz must be 0 < low < high, got '
+                             f'{self.mode_band_hz}')
+        if not self.band_margin < 1.0:
+            raise ValueError(f'VibrationParams.band_margin must be < 1, got {self.band_margin}')
+        if not 1 <= self.filter_order <= 8:
+            raise ValueError(f'VibrationParams.filter_order must be in 1..8, got '
+                             f'{self.filter_order}')
+        if not self.min_wheel_speed < self.max_wheel_speed:
+            raise ValueError('VibrationParams.min_wheel_speed must be < max_wheel_speed')
+        if not 0.0 < self.min_valid_fraction <= 1.0:
+            raise ValueError(f'VibrationParams.min_valid_fraction must be in (0, 1], got '
+                             f'{self.min_valid_fraction}')
+        if not self.z_flag < self.z_full:
+            raise ValueError('VibrationParams.z_flag must be < z_full')
+        if self.analysis_rate_hz > self.sample_rate_hz:
+            raise ValueError(f'VibrationParams.analysis_rate_hz ({self.analysis_rate_hz}) must '
+                             f'be <= sample_rate_hz ({self.sample_rate_hz})')
+        if self.passband_hz[1] >= 0.45 * self.effective_rate_hz:
+            raise ValueError(
+                f'VibrationParams.analysis_rate_hz: the decimated rate {self.effective_rate_hz} '
+                f'Hz must exceed the passband top {self.passband_hz[1]:.1f} Hz / 0.45')
+
+    @property
+    def passband_hz(self) -> tuple[float, float]:
+        """Band-pass edges: the mode band widened by ``band_margin``, Hz."""
+        low, high = self.mode_band_hz
+        return low * (1.0 - self.band_margin), high * (1.0 + self.band_margin)
+
+    @property
+    def decimation(self) -> int:
+        """Integer decimation factor from the input to the analysis rate."""
+        return max(1, int(self.sample_rate_hz // self.analysis_rate_hz))
+
+    @property
+    def effective_rate_hz(self) -> float:
+        """Actual rate of the AR(2) fit, Hz."""
+        return self.sample_rate_hz / self.decimation
+
+    @property
+    def forgetting(self) -> float:
+        """RLS forgetting factor lambda."""
+        return math.exp(-1.0 / (self.memory_s * self.effective_rate_hz))
+
+
+@dataclass(frozen=True)
+class ResonanceEstimate:
+    """Result of one processed chunk.
+
+    Attributes:
+        frequency_hz: (4,) latest resonance estimate, NaN where not known.
+        a1: (4,) latest AR(2) coefficient a1.
+        a2: (4,) latest AR(2) coefficient a2.
+        known: (4,) bool: enough recent valid data and complex poles.
+        trace_hz: (M, 4) estimate at each decimated sample of the chunk (NaN where unknown).
+        trace_index: (M,) index into the chunk's input samples of each trace row.
+        rejected: (4,) cumulative count of rejected (bad) input samples per wheel.
+        gated: (4,) cumulative count of input samples gated out (below min speed).
+    """
+
+    frequency_hz: np.ndarray
+    a1: np.ndarray
+    a2: np.ndarray
+    known: np.ndarray
+    trace_hz: np.ndarray
+    trace_index: np.ndarray
+    rejected: np.ndarray
+    gated: np.ndarray
+
+
+@dataclass(frozen=True)
+class VibrationCalibration:
+    """Nominal resonance of each tire, as learned by calibration.
+
+    Attributes:
+        nominal_frequency_hz: (4,) nominal resonance per tire, Hz.
+        noise_hz: (4,) standard deviation of the estimate at nominal pressure, Hz.
+        duration_s: (4,) seconds of known estimates that went into each tire's nominal.
+    """
+
+    nominal_frequency_hz: np.ndarray
+    noise_hz: np.ndarray
+    duration_s: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, JSON/YAML-serialisable state."""
+        return {
+            'version': CALIBRATION_VERSION,
+            'method': 'vibration',
+            'nominal_frequency_hz': [float(v) for v in self.nominal_frequency_hz],
+            'noise_hz': [float(v) for v in self.noise_hz],
+            'duration_s': [float(v) for v in self.duration_s],
+        }
+
+    @classmethod
+    def from_dict(cls, state: Mapping[str, Any]) -> VibrationCalibration:
+        """Rebuild from :meth:`to_dict` output; raises ValueError on anything corrupt."""
+        if not isinstance(state, Mapping):
+            raise ValueError(f'calibration state must be a mapping, got {type(state).__name__}')
+        if state.get('version') != CALIBRATION_VERSION or state.get('method') != 'vibration':
+            raise ValueError(f'calibration state: expected version {CALIBRATION_VERSION} of '
+                             f'method vibration, got {state.get("version")!r}/'
+                             f'{state.get("method")!r}')
+        arrays = {}
+        for key in ('nominal_frequency_hz', 'noise_hz', 'duration_s'):
+            if key not in state:
+                raise ValueError(f'calibration state: missing {key!r}')
+            try:
+                arr = np.asarray(state[key], dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f'calibration state: {key!r} is not numeric') from exc
+            if arr.shape != (N_TIRES,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
+                raise ValueError(f'calibration state: {key!r} must be 4 finite values > 0, '
+                                 f'got {state[key]!r}')
+            arrays[key] = arr
+        return cls(arrays['nominal_frequency_hz'], arrays['noise_hz'], arrays['duration_s'])
+
+
+def resonance_frequency(a1: np.ndarray, a2: np.ndarray, fs: float) -> np.ndarray:
+    """Resonance of the AR(2) model 1 / (1 + a1 q^-1 + a2 q^-2), Hz; NaN for real poles.
+
+    The pole angle w = arccos(-a1 / (2 sqrt(a2))) of the complex pair sqrt(a2) exp(+-i w)
+    gives f = fs w / (2 pi).
+    """
+    a1 = np.asarray(a1, dtype=float)
+    a2 = np.asarray(a2, dtype=float)
+    complex_poles = (a2 > 0.0) & (a1 * a1 < 4.0 * a2)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        cos_w = -a1 / (2.0 * np.sqrt(np.where(a2 > 0.0, a2, np.nan)))
+        freq = fs / (2.0 * np.pi) * np.arccos(np.clip(cos_w, -1.0, 1.0))
+    return np.where(complex_poles, freq, np.nan)
+
+
+def ar2_rls_reference(y: np.ndarray, forgetting: float, regularization: float) -> np.ndarray:
+    """Textbook per-sample RLS of an AR(2) model on one signal: the plain reference.
+
+    Used by the tests (the vectorised analyzer must equal it) and the benchmark (the ratio).
+
+    Args:
+        y: (M,) pre-processed signal.
+        forgetting: lambda in (0, 1].
+        regularization: P_0 = I / regularization.
+
+    Returns:
+        (M, 2) theta = (a1, a2) after each sample (the first two rows stay at 0).
+    """
+    theta = np.zeros(2)
+    p = np.eye(2) / regularization
+    out = np.zeros((len(y), 2))
+    for t in range(2, len(y)):
+        phi = np.array([-y[t - 1], -y[t - 2]])
+        p_phi = p @ phi
+        gain = p_phi / (forgetting + phi @ p_phi)
+        theta = theta + gain * (y[t] - phi @ theta)
+        p = (p - np.outer(gain, p_phi)) / forgetting
+        out[t] = theta
+    return out
+
+
+class VibrationAnalyzer:
+    """Recursive AR(2) resonance estimate, calibration and indication for four tires."""
+
+    def __init__(self, params: VibrationParams | None = None) -> None:
+        self.params = params if params is not None else VibrationParams()
+        p = self.params
+        self._sos = signal.butter(p.filter_order, p.passband_hz, btype='bandpass',
+                                  fs=p.sample_rate_hz, output='sos')
+        self._sos_zi_unit = signal.sosfilt_zi(self._sos)              # (sections, 2)
+        self._lambda = p.forgetting
+        self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
+        self._stuck_samples = max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz)))
+        self._calibration: VibrationCalibration | None = None
+        self._calibrating = False
+        self.rejected = np.zeros(N_TIRES, dtype=np.int64)
+        self.gated = np.zeros(N_TIRES, dtype=np.int64)
+        self.reset_filters()
+
+    # ---------------------------------------------------------------- state
+    def reset_filters(self) -> None:
+        """Restart pre-processing and RLS (after a gap in the data); keeps the calibration."""
+        self._sos_state = np.zeros((self._sos.shape[0], 2, N_TIRES))
+        self._wheel_started = np.zeros(N_TIRES, dtype=bool)
+        self._last_good = np.full(N_TIRES, np.nan)      # held input for bad samples
+        self._since_bad = np.full(N_TIRES, self._guard_samples, dtype=np.int64)
+        self._prev_input = np.full(N_TIRES, np.nan)
+        self._repeats = np.zeros(N_TIRES, dtype=np.int64)
+        self._phase = 0                                 # next chunk index to keep
+        self._y_hist = np.zeros((2, N_TIRES))           # y_{t-2}, y_{t-1}
+        self._v_hist = np.zeros((2, N_TIRES), dtype=bool)
+        # exponentially weighted sums R11, R12, R22, q1, q2, n as lfilter states (lambda x)
+        reg = self.params.rls_regularization
+        self._ls_state = np.zeros((1, 6, N_TIRES))
+        self._ls_state[0, 0] = self._lambda * reg
+        self._ls_state[0, 2] = self._lambda * reg
+        self._latest = np.full(N_TIRES, np.nan)
+        self._latest_a = np.zeros((2, N_TIRES))
+        self._latest_known = np.zeros(N_TIRES, dtype=bool)
+        self._cal_sum = np.zeros((3, N_TIRES))          # count, sum f, sum f^2
+        self._cal_seen = 0
+
+    @property
+    def calibration(self) -> VibrationCalibration | None:
+        """The calibration in force, or None."""
+        return self._calibration
+
+    @property
+    def calibrating(self) -> bool:
+        """True between :meth:`start_calibration` and :meth:`finish_calibration`."""
+        return self._calibrating
+
+    def start_calibration(self) -> None:
+        """Start learning the nominal frequencies from the data processed from now on."""
+        self._calibrating = True
+        self._cal_sum[:] = 0.0
+        self._cal_seen = 0
+
+    def finish_calibration(self) -> VibrationCalibration:
+        """End calibration and put it in force.
+
+        Raises:
+            ValueError: not calibrating, or a tire has less than ``min_calibration_s`` of known
+                estimates after settling (the previous calibration stays in force).
+        """
+        if not self._calibrating:
+            raise ValueError('finish_calibration called without start_calibration')
+        count, total, total_sq = self._cal_sum
+        duration = count / self.params.effective_rate_hz
+        if np.any(duration < self.params.min_calibration_s):
+            raise ValueError(f'calibration too short: {np.round(duration, 1)} s of known '
+                             f'estimates per tire, need {self.params.min_calibration_s} s')
+        mean = total / count
+        std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+        # a floor on the stored noise keeps a perfectly clean calibration from dividing by ~0
+        std = np.maximum(std, 1e-6 * mean)
+        self._calibration = VibrationCalibration(mean, std, duration)
+        self._calibrating = False
+        return self._calibration
+
+    def calibration_state(self) -> dict[str, Any]:
+        """Calibration as a plain dict (to persist); raises ValueError if not calibrated."""
+        if self._calibration is None:
+            raise ValueError('not calibrated')
+        return self._calibration.to_dict()
+
+    def load_calibration_state(self, state: Mapping[str, Any]) -> None:
+        """Put a persisted calibration in force; raises ValueError if it is corrupt."""
+        calibration = VibrationCalibration.from_dict(state)
+        low, high = self.params.passband_hz
+        f = calibration.nominal_frequency_hz
+        if np.any(f <= low) or np.any(f >= high):
+            raise ValueError(f'calibration state: nominal_frequency_hz {f} outside the '
+                             f'passband {low:.1f}..{high:.1f} Hz')
+        self._calibration = calibration
+
+    # ---------------------------------------------------------- processing
+    def process(self, omega: np.ndarray) -> ResonanceEstimate:
+        """Process a chunk of uniformly sampled wheel speeds.
+
+        Args:
+            omega: (N, 4) wheel angular speeds, rad/s, at ``sample_rate_hz``.
+
+        Returns:
+            The estimate at the end of the chunk and its trace at the analysis rate.
+        """
+        omega = np.asarray(omega, dtype=float)
+        if omega.ndim != 2 or omega.shape[1] != N_TIRES:
+            raise ValueError(f'omega must have shape (N, 4), got {omega.shape}')
+        p = self.params
+        n = omega.shape[0]
+        if n == 0:
+            return self._estimate(np.zeros((0, N_TIRES)), np.zeros(0, dtype=np.int64))
+
+        rows = np.arange(n)[:, None]
+        # run length of exactly repeated values, carried across chunks (stuck sensor)
+        prev = np.vstack([self._prev_input[None, :], omega[:-1]])
+        last_change = np.where(omega != prev, rows, -1)
+        np.maximum.accumulate(last_change, axis=0, out=last_change)
+        repeats = np.where(last_change >= 0, rows - last_change, self._repeats + rows + 1)
+        self._repeats = repeats[-1].copy()
+        self._prev_input = omega[-1].copy()
+        with np.errstate(invalid='ignore'):
+            bad = (~np.isfinite(omega) | (omega < 0.0) | (omega > p.max_wheel_speed)
+                   | (repeats >= self._stuck_samples))
+            slow = ~bad & (omega < p.min_wheel_speed)
+        self.rejected += bad.sum(axis=0)
+        self.gated += slow.sum(axis=0)
+
+        # hold the last good value over bad samples (forward fill, vectorised)
+        x = np.where(bad, np.nan, omega)
+        x = np.vstack([self._last_good[None, :], x])
+        idx = np.where(np.isnan(x), 0, np.arange(n + 1)[:, None])
+        np.maximum.accumulate(idx, axis=0, out=idx)
+        x = np.take_along_axis(x, idx, axis=0)[1:]
+        started = ~np.isnan(x)
+        # each wheel's band-pass starts in the steady state of its first good sample, so the
+        # large DC does not ring; a wheel without one yet (dead sensor) filters zeros and
+        # stays unknown without holding up the others
+        has_good = started.any(axis=0)
+        x_first = x[np.argmax(started, axis=0), np.arange(N_TIRES)]
+        newly = has_good & ~self._wheel_started
+        self._sos_state[:, :, newly] = self._sos_zi_unit[:, :, None] * x_first[newly]
+        self._wheel_started |= has_good
+        x = np.where(started, x, np.where(has_good, x_first, 0.0))
+        self._last_good = np.where(self._wheel_started, x[-1], np.nan)
+        y, self._sos_state = signal.sosfilt(self._sos, x, axis=0, zi=self._sos_state)
+
+        # samples since the last bad/gated one, carried across chunks
+        disturbed = bad | slow
+        last_dist = np.where(disturbed, rows, -1)
+        np.maximum.accumulate(last_dist, axis=0, out=last_dist)
+        since = np.where(last_dist >= 0, rows - last_dist, self._since_bad + rows + 1)
+        self._since_bad = since[-1].copy()
+        valid_in = (since >= self._guard_samples) & ~disturbed
+
+        # decimate with the phase carried across chunks
+        keep = np.arange(self._phase, n, p.decimation)
+        self._phase = int(keep[-1] + p.decimation - n) if keep.size else self._phase - n
+        if keep.size == 0:
+            return self._estimate(np.zeros((0, N_TIRES)), keep)
+        yd = y[keep]
+        vd = valid_in[keep]
+        y_all = np.vstack([self._y_hist, yd])
+        v_all = np.vstack([self._v_hist, vd])
+        self._y_hist = y_all[-2:].copy()
+        self._v_hist = v_all[-2:].copy()
+        y0, y1, y2 = y_all[2:], y_all[1:-1], y_all[:-2]
+        w = (v_all[2:] & v_all[1:-1] & v_all[:-2]).astype(float)
+
+        products = np.stack([w * y1 * y1, w * y1 * y2, w * y2 * y2,
+                             w * y1 * y0, w * y2 * y0, w], axis=1)      # (M, 6, 4)
+        sums, self._ls_state = signal.lfilter([1.0], [1.0, -self._lambda], products, axis=0,
+                                              zi=self._ls_state)
+        r11, r12, r22, q1, q2, count = np.moveaxis(sums, 1, 0)
+        det = r11 * r22 - r12 * r12
+        trace = r11 + r22
+        well_posed = det > 1e-9 * trace * trace
+        with np.errstate(invalid='ignore', divide='ignore'):
+            a1 = (r12 * q2 - r22 * q1) / det
+            a2 = (r12 * q1 - r11 * q2) / det
+        freq = resonance_frequency(a1, a2, p.effective_rate_hz)
+        enough = count * (1.0 - self._lambda) >= p.min_valid_fraction
+        known = well_posed & enough & np.isfinite(freq)
+        trace_hz = np.where(known, freq, np.nan)
+
+        self._latest = trace_hz[-1].copy()
+        self._latest_a = np.stack([a1[-1], a2[-1]])
+        self._latest_known = known[-1].copy()
+        if self._calibrating:
+            self._accumulate_calibration(trace_hz)
+        return self._estimate(trace_hz, keep)
+
+    def _accumulate_calibration(self, trace_hz: np.ndarray) -> None:
+        settle = int(round(self.params.calibration_settle_s * self.params.effective_rate_hz))
+        skip = max(0, min(settle - self._cal_seen, trace_hz.shape[0]))
+        self._cal_seen += trace_hz.shape[0]
+        used = trace_hz[skip:]
+        ok = np.isfinite(used)
+        vals = np.where(ok, used, 0.0)
+        self._cal_sum += np.stack([ok.sum(axis=0), vals.sum(axis=0), (vals * vals).sum(axis=0)])
+
+    def _estimate(self, trace_hz: np.ndarray, keep: np.ndarray) -> ResonanceEstimate:
+        return ResonanceEstimate(
+            frequency_hz=self._latest.copy(),
+            a1=self._latest_a[0].copy(),
+            a2=self._latest_a[1].copy(),
+            known=self._latest_known.copy(),
+            trace_hz=trace_hz,
+            trace_index=keep,
+            rejected=self.rejected.copy(),
+            gated=self.gated.copy(),
+        )
+
+    # ---------------------------------------------------------- indication
+    def frequency_drop_sigma(self) -> np.ndarray:
+        """(4,) frequency drop below nominal in noise sigmas (NaN where unknown)."""
+        cal = self._calibration
+        if cal is None:
+            return np.full(N_TIRES, np.nan)
+        sigma = np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
+        return np.where(self._latest_known, (cal.nominal_frequency_hz - self._latest) / sigma,
+                        np.nan)
+
+    def indication(self, stamp_s: float) -> TpmsIndication:
+        """Per-tire flag and confidence from the latest estimate (unknown if uncalibrated)."""
+        z = self.frequency_drop_sigma()
+        known = np.isfinite(z)
+        z = np.where(known, z, 0.0)
+        p = self.params
+        return TpmsIndication(
+            method='vibration',
+            stamp_s=stamp_s,
+            underinflated=known & (z >= p.z_flag),
+            confidence=np.clip(z / p.z_full, 0.0, 1.0),
+            known=known,
+        )

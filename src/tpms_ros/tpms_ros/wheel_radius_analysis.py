@@ -1,0 +1,695 @@
+"""TPMS by wheel radius analysis (Persson, Gustafsson, Drevö, SAE 2002; SPEC §3.2).
+
+A soft tire has a smaller effective rolling radius and turns faster. Two Kalman filters estimate
+relative radii between wheel pairs; a calibration learns their nominal levels (wear and
+manufacturing make them non-zero); a localisation turns the pair offsets into low tires.
+
+Wheel order FL, FR, RL, RR = paper's 1, 2, 3, 4.
+
+**Longitudinal (per side).** Slip of the driven wheel against the non-driven wheel of the same
+side, both with the nominal radius: s = omega_driven / omega_nondriven - 1. With
+mu = Fx / Fz = T_driven / (r_n Fz_static) the linear slip model is s = mu / k + delta, state
+x = (1/k, delta) random walk, measurement s_t = (mu_t, 1) x_t + e_t. Here delta is
+1 - r_driven / r_nondriven; it is reported as the paper's delta_13 = 1 - r1 / r3 (left) and
+delta_24 = 1 - r2 / r4 (right) whichever axle is driven (exact conversion for rear drive).
+
+**Lateral (both axles and the gyro).** Sign conventions, checked against the physics: in a turn
+the outer wheels travel faster. The paper writes psi_dot = (v3 - v4) / L_rear, which is the SAE
+J670 convention (z down, yaw rate positive turning right). With delta_34 = r3 / r4 - 1 and
+r4 ~ r_n this gives psi_dot_m,rear = r_n (omega3 - omega4) / L_rear
+= psi_dot - (r_n omega3 / L_rear) delta_34, hence the SPEC's H row (1, 0, 0, -r_n omega3 / L, 0).
+The IMU follows REP 103 (z up, yaw rate positive turning left), so the core feeds the filter
+psi_dot_gyro = -angular_velocity.z: then F and H are literally the SPEC's, psi_dot_m = (v_left -
+v_right) / track, and the state's yaw rate and gyro offset are in the SAE sense. The reported
+``gyro_offset`` is converted back to the IMU's own REP 103 sign (what to subtract from
+angular_velocity.z). Front axle: the front wheels roll along their steered heading, so the left-
+right speed difference is psi_dot L_front cos(steer); psi_dot_m,front and its H entry are divided
+by cos(steer) (1 without a steering input).
+
+State (psi_dot, psi_ddot, delta_o, delta_34, delta_12); F = [[1, Ts, 0, 0, 0], [0, 1, 0, 0, 0],
+I3]; process noise G v with G = (Ts^2/2, Ts, 0, 0, 0) and v white yaw jerk. Deviation from the
+paper's model, on purpose: delta_o, delta_34 and delta_12 also get a small random walk. Without
+it their covariance goes to zero and the filter stops following a pressure change (the paper's
+Fig. 7 shows it following one in about 60 s). Setting the random walks to zero gives the literal
+model.
+
+**Kalman filter implementation.** Per sample, a tight loop: the lateral filter does the
+predict with F's structure (row 0 += Ts row 1, then column 0 += Ts column 1) and three sequential
+scalar updates (R is diagonal, so it equals the joint update; tested against filterpy's
+``KalmanFilter``); the two longitudinal 2-state filters run on Python floats in closed form.
+filterpy's generic ``predict``/``update`` (dense products, checks) costs several times more per
+sample (measured in ``benchmarks/bench_tpms_cores.py``), and at 100 Hz the loop is the cost.
+Everything that does not need the recursion (validity, slip, mu, measurements) is computed
+vectorised before the loop.
+
+No ROS import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+
+CALIBRATION_VERSION = 1
+PAIR_NAMES = ('delta_13', 'delta_24', 'delta_34', 'delta_12')
+# d(pair offset) / d(relative radius change eps_i of tire i), to first order:
+# delta_13 = 1 - r1/r3 ~ eps3 - eps1, delta_24 ~ eps4 - eps2, delta_34 = r3/r4 - 1 ~ eps3 - eps4,
+# delta_12 ~ eps1 - eps2
+PAIR_SENSITIVITY = np.array([
+    [-1.0, 0.0, 1.0, 0.0],
+    [0.0, -1.0, 0.0, 1.0],
+    [0.0, 0.0, 1.0, -1.0],
+    [1.0, -1.0, 0.0, 0.0],
+])
+PAIR_TIRES = tuple(tuple(int(i) for i in np.flatnonzero(row)) for row in PAIR_SENSITIVITY)
+
+
+@dataclass(frozen=True)
+class WheelRadiusParams:
+    """Parameters of the wheel radius analysis (vehicle data, gating, noise, decision).
+
+    Attributes:
+        nominal_radius_m: nominal rolling radius r_n, m.
+        track_front_m: front track width L_front, m.
+        track_rear_m: rear track width L_rear, m.
+        static_load_n: (FL, FR, RL, RR) static wheel loads Fz, N.
+        driven_axle: 'front' or 'rear'.
+        sample_rate_hz: nominal input rate; the first sample's Ts, Hz.
+        max_gap_s: a larger gap between stamps restarts the yaw states, s.
+        max_wheel_speed: wheel speeds above this (rad/s) are rejected as non-physical.
+        min_speed_mps: speed band, lower end: below it the encoder speed is coarse, m/s.
+        max_speed_mps: speed band, upper end: above it the radius grows with speed, m/s.
+        mu_max: traction limit |Fx/Fz| of the linear slip model.
+        slip_max: |s| above this is wheel spin/lock, not the linear model.
+        brake_torque_nm: any wheel torque below -this means braking: all wheels slip and the
+            non-driven wheel is no speed reference, so the longitudinal model pauses, N m.
+        ay_max_longitudinal: cornering limit |v psi_dot| of the longitudinal model (front and
+            rear wheels of a side travel different radii), m/s^2.
+        ay_max_lateral: cornering limit of the lateral model (load transfer changes radii),
+            m/s^2.
+        gyro_stuck_s: a gyro reading repeated exactly this long is a stopped gyro: the lateral
+            filter pauses rather than drift, s.
+        wheel_recover_s: a tire stays unknown this long after its last bad sample, s.
+        slip_noise_std: std of the measured slip per sample.
+        inv_stiffness_rw: random walk of 1/k, per sqrt(s).
+        delta_rw: random walk of the relative radius offsets (both filters), per sqrt(s);
+            sets the tracking time of a pressure change (the paper: about 60 s).
+        inv_stiffness0_std: initial std of 1/k.
+        delta0_std: initial std of the offsets.
+        yaw_jerk_std: std of the white yaw jerk v driving (psi_dot, psi_ddot), rad/s^3.
+        gyro_noise_std: gyro noise per sample, rad/s.
+        wheel_yaw_noise_std: noise of the wheel-speed yaw rates per sample, rad/s.
+        gyro_offset_rw: random walk of the gyro offset, rad/s per sqrt(s) (MEMS bias drift,
+            ~0.1 deg/s over 10 min). Larger lets a radius step leak into the offset: at constant
+            speed only delta_o + c delta is observable, speed changes separate them.
+        gyro_offset0_std: initial std of the gyro offset, rad/s.
+        calibration_settle_s: first part of a calibration window not used, s.
+        min_calibration_s: least seconds of valid updates per pair for a calibration, s.
+        radius_noise_floor: floor of the per-tire radius noise (relative radius): wear,
+            temperature and load shifts a calibration does not see.
+        informative_std: a pair whose posterior std exceeds this carries no information.
+        z_flag: flag a tire whose radius drop exceeds this many noise sigmas.
+        z_full: radius drop in sigmas at which the confidence reaches 1.
+    """
+
+    nominal_radius_m: float = 0.31
+    track_front_m: float = 1.55
+    track_rear_m: float = 1.55
+    static_load_n: tuple[float, float, float, float] = (4200.0, 4200.0, 3300.0, 3300.0)
+    driven_axle: str = 'front'
+    sample_rate_hz: float = 100.0
+    max_gap_s: float = 0.1
+    max_wheel_speed: float = 600.0
+    min_speed_mps: float = 8.0
+    max_speed_mps: float = 45.0
+    mu_max: float = 0.15
+    slip_max: float = 0.03
+    brake_torque_nm: float = 20.0
+    ay_max_longitudinal: float = 2.0
+    ay_max_lateral: float = 4.0
+    gyro_stuck_s: float = 0.5
+    wheel_recover_s: float = 1.0
+    slip_noise_std: float = 1e-3
+    inv_stiffness_rw: float = 1e-4
+    delta_rw: float = 1e-5
+    inv_stiffness0_std: float = 0.05
+    delta0_std: float = 0.01
+    yaw_jerk_std: float = 2.0
+    gyro_noise_std: float = 0.01
+    wheel_yaw_noise_std: float = 0.02
+    gyro_offset_rw: float = 2e-5
+    gyro_offset0_std: float = 0.03
+    calibration_settle_s: float = 20.0
+    min_calibration_s: float = 20.0
+    radius_noise_floor: float = 2.5e-4
+    informative_std: float = 2e-3
+    z_flag: float = 3.0
+    z_full: float = 8.0
+
+    def __post_init__(self) -> None:
+        positive = ('nominal_radius_m', 'track_front_m', 'track_rear_m', 'sample_rate_hz',
+                    'max_gap_s', 'max_wheel_speed', 'max_speed_mps', 'mu_max', 'slip_max',
+                    'ay_max_longitudinal', 'ay_max_lateral', 'gyro_stuck_s', 'slip_noise_std',
+                    'inv_stiffness0_std', 'delta0_std', 'gyro_noise_std',
+                    'wheel_yaw_noise_std', 'gyro_offset0_std', 'min_calibration_s',
+                    'radius_noise_floor', 'informative_std', 'z_flag', 'z_full', 'yaw_jerk_std')
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'WheelRadiusParams.{name} must be finite and > 0, got {value}')
+        non_negative = ('min_speed_mps', 'brake_torque_nm', 'wheel_recover_s',
+                        'inv_stiffness_rw', 'delta_rw', 'gyro_offset_rw',
+                        'calibration_settle_s')
+        for name in non_negative:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'WheelRadiusParams.{name} must be finite and >= 0, got {value}')
+        loads = np.asarray(self.static_load_n, dtype=float)
+        if loads.shape != (N_TIRES,) or not np.all(np.isfinite(loads)) or np.any(loads <= 0):
+            raise ValueError(f'WheelRadiusParams.static_load_n must be 4 loads > 0 N, got '
+                             f'{self.static_load_n}')
+        if self.driven_axle not in ('front', 'rear'):
+            raise ValueError(f"WheelRadiusParams.driven_axle must be 'front' or 'rear', got "
+                             f'{self.driven_axle!r}')
+        if not self.min_speed_mps < self.max_speed_mps:
+            raise ValueError('WheelRadiusParams.min_speed_mps must be < max_speed_mps')
+        if not self.z_flag < self.z_full:
+            raise ValueError('WheelRadiusParams.z_flag must be < z_full')
+
+
+@dataclass(frozen=True)
+class WheelRadiusCalibration:
+    """Nominal pair offsets learned by calibration.
+
+    Attributes:
+        nominal_offsets: (4,) nominal delta_13, delta_24, delta_34, delta_12.
+        noise: (4,) std of each offset estimate over the calibration window.
+        duration_s: (4,) seconds of valid updates behind each nominal.
+    """
+
+    nominal_offsets: np.ndarray
+    noise: np.ndarray
+    duration_s: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, JSON/YAML-serialisable state."""
+        return {
+            'version': CALIBRATION_VERSION,
+            'method': 'wheel_radius',
+            'nominal_offsets': dict(zip(PAIR_NAMES, self.nominal_offsets.tolist(), strict=True)),
+            'noise': dict(zip(PAIR_NAMES, self.noise.tolist(), strict=True)),
+            'duration_s': dict(zip(PAIR_NAMES, self.duration_s.tolist(), strict=True)),
+        }
+
+    @classmethod
+    def from_dict(cls, state: Mapping[str, Any]) -> WheelRadiusCalibration:
+        """Rebuild from :meth:`to_dict` output; raises ValueError on anything corrupt."""
+        if not isinstance(state, Mapping):
+            raise ValueError(f'calibration state must be a mapping, got {type(state).__name__}')
+        if state.get('version') != CALIBRATION_VERSION or state.get('method') != 'wheel_radius':
+            raise ValueError(f'calibration state: expected version {CALIBRATION_VERSION} of '
+                             f'method wheel_radius, got {state.get("version")!r}/'
+                             f'{state.get("method")!r}')
+        arrays = []
+        for key, lower, upper in (('nominal_offsets', -0.1, 0.1), ('noise', 0.0, 0.1),
+                                  ('duration_s', 0.0, math.inf)):
+            table = state.get(key)
+            if not isinstance(table, Mapping) or set(table) != set(PAIR_NAMES):
+                raise ValueError(f'calibration state: {key!r} must map {PAIR_NAMES}')
+            try:
+                arr = np.array([float(table[name]) for name in PAIR_NAMES])
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f'calibration state: {key!r} is not numeric') from exc
+            # offsets of more than 10 % radius are no tire; noise and duration must be > 0
+            ok = np.isfinite(arr) & (arr > lower) & (arr < upper) if key != 'nominal_offsets' \
+                else np.isfinite(arr) & (np.abs(arr) < upper)
+            if not np.all(ok):
+                raise ValueError(f'calibration state: {key!r} out of range: {table!r}')
+            arrays.append(arr)
+        return cls(*arrays)
+
+
+@dataclass(frozen=True)
+class LowTireLocalisation:
+    """Which tires are low, from the pair offsets relative to nominal.
+
+    Attributes:
+        radius_drop: (4,) estimated relative radius drop rho_i >= 0 per tire.
+        sigma: (4,) its noise std.
+        z: (4,) rho / sigma.
+        flags: (4,) bool low tires (z >= z_flag).
+        confidence: (4,) clip(z / z_full, 0, 1).
+        residual: weighted residual of the fit; large = offsets inconsistent with only
+            losses (a tire larger than nominal, e.g. changed tire: re-calibrate).
+    """
+
+    radius_drop: np.ndarray
+    sigma: np.ndarray
+    z: np.ndarray
+    flags: np.ndarray
+    confidence: np.ndarray
+    residual: float
+
+
+@dataclass(frozen=True)
+class RadiusEstimate:
+    """State of the wheel radius analysis after a processed chunk.
+
+    Attributes:
+        offsets: (4,) delta_13, delta_24, delta_34, delta_12 (raw, not relative to nominal).
+        offsets_std: (4,) their posterior std.
+        gyro_offset: gyro offset in the IMU's REP 103 sign, rad/s.
+        inv_stiffness: (2,) 1/k left, right.
+        trace_stamps: (M,) stamps of the accepted samples, s.
+        trace: (M, 5) delta_13, delta_24, delta_34, delta_12, gyro_offset (REP 103) per
+            accepted sample.
+        counts: cumulative counters of rejected / gated samples by reason.
+        gyro_ok: False while the gyro is stopped (lateral filter paused).
+        calibrated: a calibration is in force.
+    """
+
+    offsets: np.ndarray
+    offsets_std: np.ndarray
+    gyro_offset: float
+    inv_stiffness: np.ndarray
+    trace_stamps: np.ndarray
+    trace: np.ndarray
+    counts: dict[str, int]
+    gyro_ok: bool
+    calibrated: bool
+
+
+def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
+                       params: WheelRadiusParams) -> LowTireLocalisation:
+    """Turn pair offsets relative to nominal into low tires with a confidence.
+
+    Pair offsets only see differences between tires: an equal loss in all four (diffusion) is
+    invisible, and "three low" looks like "one high". Tires lose pressure, they do not gain it,
+    so the drops rho >= 0 are found by non-negative least squares of
+    offset_change = -PAIR_SENSITIVITY @ rho weighted by 1/pair_std, with a tiny ridge that picks
+    the fewest/smallest drops among the equal fits (it removes the common mode). This names one
+    tire, two (same axle, same side, diagonal) or three.
+
+    Args:
+        offset_change: (4,) delta_13, delta_24, delta_34, delta_12 minus their nominals.
+        pair_std: (4,) noise std of each (inf or large: pair not informative).
+        params: decision parameters (z_flag, z_full, radius_noise_floor).
+    """
+    change = np.asarray(offset_change, dtype=float)
+    std = np.asarray(pair_std, dtype=float)
+    if change.shape != (4,) or std.shape != (4,):
+        raise ValueError('offset_change and pair_std must have shape (4,)')
+    if not np.all(np.isfinite(change)) or np.any(~(std > 0.0)):
+        raise ValueError('offset_change must be finite and pair_std > 0')
+    weight = 1.0 / np.maximum(std, params.radius_noise_floor)
+    design = -PAIR_SENSITIVITY * weight[:, None]
+    target = change * weight
+    ridge = 1e-6 * float(np.max(weight))
+    a_aug = np.vstack([design, ridge * np.eye(N_TIRES)])
+    b_aug = np.concatenate([target, np.zeros(N_TIRES)])
+    drop, _ = optimize.nnls(a_aug, b_aug)
+    residual = float(np.linalg.norm(design @ drop - target))
+    # per-tire std from the weighted normal matrix; pinv removes the unobservable common mode
+    cov = np.linalg.pinv(design.T @ design)
+    sigma = np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), params.radius_noise_floor)
+    z = drop / sigma
+    return LowTireLocalisation(
+        radius_drop=drop, sigma=sigma, z=z, flags=z >= params.z_flag,
+        confidence=np.clip(z / params.z_full, 0.0, 1.0), residual=residual)
+
+
+class WheelRadiusAnalyzer:
+    """Longitudinal and lateral radius filters, calibration and low-tire indication."""
+
+    def __init__(self, params: WheelRadiusParams | None = None) -> None:
+        self.params = params if params is not None else WheelRadiusParams()
+        p = self.params
+        front = p.driven_axle == 'front'
+        # (driven, non-driven) wheel of the left and right side
+        self._driven = np.array([0, 1]) if front else np.array([2, 3])
+        self._nondriven = np.array([2, 3]) if front else np.array([0, 1])
+        self._loads = np.asarray(p.static_load_n, dtype=float)
+        self._calibration: WheelRadiusCalibration | None = None
+        self._calibrating = False
+        self.counts: dict[str, int] = dict.fromkeys(
+            ('accepted', 'out_of_order', 'gap', 'bad_wheel_speed', 'bad_torque', 'bad_gyro',
+             'gyro_stuck', 'long_gated', 'lat_gated'), 0)
+        self.reset()
+
+    def reset(self) -> None:
+        """Restart both filters from their priors; keeps the calibration."""
+        p = self.params
+        self._long_x = [[0.0, 0.0], [0.0, 0.0]]         # per side: 1/k, delta
+        self._long_p = [[p.inv_stiffness0_std ** 2, 0.0, p.delta0_std ** 2] for _ in range(2)]
+        self._lat_x = np.zeros(5)
+        self._lat_p = np.diag([0.1 ** 2, 0.5 ** 2, p.gyro_offset0_std ** 2,
+                               p.delta0_std ** 2, p.delta0_std ** 2])
+        self._last_stamp: float | None = None
+        self._last_gyro = math.nan
+        self._gyro_repeat_s = 0.0
+        self._last_bad_wheel = np.full(N_TIRES, -math.inf)
+        self._cal_sum = np.zeros((3, 4))                # count, sum, sum of squares per pair
+        self._cal_start: float | None = None
+
+    # ----------------------------------------------------------- calibration
+    @property
+    def calibration(self) -> WheelRadiusCalibration | None:
+        """The calibration in force, or None."""
+        return self._calibration
+
+    def start_calibration(self) -> None:
+        """Start learning the nominal pair offsets from the data processed from now on."""
+        self._calibrating = True
+        self._cal_sum[:] = 0.0
+        self._cal_start = None
+
+    def finish_calibration(self) -> WheelRadiusCalibration:
+        """End calibration and put it in force.
+
+        Raises:
+            ValueError: not calibrating, or a pair has less than ``min_calibration_s`` of valid
+                updates after settling (the previous calibration stays in force).
+        """
+        if not self._calibrating:
+            raise ValueError('finish_calibration called without start_calibration')
+        count, total, total_sq = self._cal_sum
+        duration = count / self.params.sample_rate_hz
+        if np.any(duration < self.params.min_calibration_s):
+            raise ValueError(f'calibration too short: {np.round(duration, 1)} s of valid '
+                             f'updates for {PAIR_NAMES}, need {self.params.min_calibration_s} s')
+        mean = total / count
+        std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+        std = np.maximum(std, 1e-9)
+        self._calibration = WheelRadiusCalibration(mean, std, duration)
+        self._calibrating = False
+        return self._calibration
+
+    def calibration_state(self) -> dict[str, Any]:
+        """Calibration as a plain dict (to persist); raises ValueError if not calibrated."""
+        if self._calibration is None:
+            raise ValueError('not calibrated')
+        return self._calibration.to_dict()
+
+    def load_calibration_state(self, state: Mapping[str, Any]) -> None:
+        """Put a persisted calibration in force; raises ValueError if it is corrupt."""
+        self._calibration = WheelRadiusCalibration.from_dict(state)
+
+    # ------------------------------------------------------------ processing
+    def process(self, stamps_s: np.ndarray, omega: np.ndarray, yaw_rate: np.ndarray,
+                wheel_torque: np.ndarray, steering_angle: np.ndarray | None = None
+                ) -> RadiusEstimate:
+        """Process a chunk of synchronised samples at about ``sample_rate_hz``.
+
+        Args:
+            stamps_s: (N,) sample times, s. Samples not later than the latest accepted one are
+                rejected (out of order / repeated).
+            omega: (N, 4) wheel angular speeds, rad/s (e.g. the mean over each 10 ms).
+            yaw_rate: (N,) IMU angular_velocity.z, rad/s, REP 103 (positive turning left).
+            wheel_torque: (N, 4) wheel torques, N m, drive +, brake -.
+            steering_angle: (N,) front road-wheel angle, rad, or None.
+        """
+        p = self.params
+        stamps = np.asarray(stamps_s, dtype=float)
+        n = stamps.shape[0] if stamps.ndim == 1 else -1
+        omega = np.asarray(omega, dtype=float)
+        gyro = np.asarray(yaw_rate, dtype=float)
+        torque = np.asarray(wheel_torque, dtype=float)
+        steer = np.zeros(n) if steering_angle is None else np.asarray(steering_angle, float)
+        if n < 0 or omega.shape != (n, N_TIRES) or gyro.shape != (n,) or \
+                torque.shape != (n, N_TIRES) or steer.shape != (n,):
+            raise ValueError(
+                f'process: expected stamps_s (N,), omega (N, 4), yaw_rate (N,), wheel_torque '
+                f'(N, 4), steering_angle (N,); got {stamps.shape}, {omega.shape}, '
+                f'{gyro.shape}, {torque.shape}, {steer.shape}')
+
+        # ---- accept stamps strictly after every earlier one (NaN stamps rejected too)
+        last = -math.inf if self._last_stamp is None else self._last_stamp
+        finite_stamps = np.where(np.isfinite(stamps), stamps, -math.inf)
+        prev_max = np.maximum.accumulate(np.concatenate([[last], finite_stamps]))[:-1]
+        accepted = np.isfinite(stamps) & (stamps > prev_max)
+        self.counts['out_of_order'] += int(n - accepted.sum())
+        stamps, omega, gyro, torque, steer = (stamps[accepted], omega[accepted], gyro[accepted],
+                                              torque[accepted], steer[accepted])
+        m = stamps.shape[0]
+        self.counts['accepted'] += m
+        if m == 0:
+            return self._estimate(np.zeros(0), np.zeros((0, 5)))
+        dt = np.diff(np.concatenate([[stamps[0] - 1.0 / p.sample_rate_hz if
+                                      self._last_stamp is None else self._last_stamp],
+                                     stamps]))
+        gap = dt > p.max_gap_s
+        self.counts['gap'] += int(gap.sum())
+        self._last_stamp = float(stamps[-1])
+
+        # ---- per-sample validity and measurements, vectorised
+        with np.errstate(invalid='ignore'):
+            wheel_ok = np.isfinite(omega) & (omega >= 0.0) & (omega <= p.max_wheel_speed)
+        self.counts['bad_wheel_speed'] += int((~wheel_ok).sum())
+        bad_rows = ~wheel_ok
+        if bad_rows.any():
+            last_bad = np.where(bad_rows, stamps[:, None], -math.inf).max(axis=0)
+            self._last_bad_wheel = np.maximum(self._last_bad_wheel, last_bad)
+        w = np.where(wheel_ok, omega, 0.0)
+        torque_ok = np.all(np.isfinite(torque), axis=1)
+        self.counts['bad_torque'] += int((~torque_ok).sum())
+        gyro_finite = np.isfinite(gyro)
+        self.counts['bad_gyro'] += int((~gyro_finite).sum())
+        gyro_stuck = self._gyro_stuck(gyro, dt)
+        self.counts['gyro_stuck'] += int(gyro_stuck.sum())
+        steer_ok = np.isfinite(steer) & (np.abs(steer) < 1.0)
+        cos_steer = np.cos(np.where(steer_ok, steer, 0.0))
+
+        r_n = p.nominal_radius_m
+        rear_ok = wheel_ok[:, 2] & wheel_ok[:, 3]
+        front_ok = wheel_ok[:, 0] & wheel_ok[:, 1] & steer_ok
+        # wheel-based yaw rates, SAE sign (v_left - v_right) / track
+        yaw_rear = r_n * (w[:, 2] - w[:, 3]) / p.track_rear_m
+        yaw_front = r_n * (w[:, 0] - w[:, 1]) / (p.track_front_m * cos_steer)
+        c_rear = r_n * w[:, 2] / p.track_rear_m
+        c_front = r_n * w[:, 0] / (p.track_front_m * cos_steer)
+        n_ok = wheel_ok.sum(axis=1)
+        speed = r_n * w.sum(axis=1) / np.maximum(n_ok, 1)
+        yaw_wheels = np.where(rear_ok, yaw_rear, yaw_front)
+        lateral_acc = np.abs(speed * yaw_wheels)
+        in_band = (n_ok > 0) & (speed >= p.min_speed_mps) & (speed <= p.max_speed_mps)
+
+        # longitudinal: slip of driven vs non-driven wheel per side, mu of the driven wheel
+        wd = w[:, self._driven]
+        wn = w[:, self._nondriven]
+        side_ok = wheel_ok[:, self._driven] & wheel_ok[:, self._nondriven] & (wn > 0.0)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            slip = np.where(side_ok, wd / wn - 1.0, 0.0)
+        mu = np.where(torque_ok[:, None], torque[:, self._driven], 0.0) / (
+            r_n * self._loads[self._driven])
+        braking = np.any(np.where(torque_ok[:, None], torque, 0.0) < -p.brake_torque_nm, axis=1)
+        long_cond = (in_band & torque_ok & ~braking
+                     & (lateral_acc <= p.ay_max_longitudinal))[:, None]
+        long_valid = side_ok & long_cond & (np.abs(mu) <= p.mu_max) & (np.abs(slip) <= p.slip_max)
+        self.counts['long_gated'] += int((side_ok & ~long_valid).sum())
+
+        lat_cond = in_band & (lateral_acc <= p.ay_max_lateral) & ~gyro_stuck
+        use_gyro = lat_cond & gyro_finite & (rear_ok | front_ok)
+        use_rear = lat_cond & rear_ok
+        use_front = lat_cond & front_ok
+        self.counts['lat_gated'] += int((~lat_cond & (rear_ok | front_ok)).sum())
+        y_gyro = np.where(gyro_finite, -gyro, 0.0)      # REP 103 -> SAE sign
+
+        trace = self._run_filters(dt, gap, slip, mu, long_valid, y_gyro, yaw_rear, yaw_front,
+                                  c_rear, c_front, use_gyro, use_rear, use_front)
+        if self._calibrating:
+            self._accumulate_calibration(stamps, trace, long_valid, use_rear, use_front)
+        trace[:, 4] = -trace[:, 4]                        # gyro offset back to REP 103
+        return self._estimate(stamps, trace)
+
+    def _gyro_stuck(self, gyro: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Flag samples where the gyro has repeated the exact same value too long."""
+        same = np.concatenate([[self._last_gyro], gyro[:-1]]) == gyro
+        # running time of repeats, reset at each change; cumulative sums keep it vectorised
+        elapsed = np.cumsum(np.where(same, dt, 0.0))
+        reset_at = np.maximum.accumulate(np.where(~same, elapsed, 0.0))
+        repeat_time = elapsed - reset_at
+        repeat_time = np.where(np.cumsum(~same) == 0, repeat_time + self._gyro_repeat_s,
+                               repeat_time)
+        stuck = repeat_time >= self.params.gyro_stuck_s
+        self._gyro_repeat_s = float(repeat_time[-1])
+        self._last_gyro = float(gyro[-1])
+        return stuck
+
+    def _run_filters(self, dt: np.ndarray, gap: np.ndarray, slip: np.ndarray, mu: np.ndarray,
+                     long_valid: np.ndarray, y_gyro: np.ndarray, yaw_rear: np.ndarray,
+                     yaw_front: np.ndarray, c_rear: np.ndarray, c_front: np.ndarray,
+                     use_gyro: np.ndarray, use_rear: np.ndarray, use_front: np.ndarray
+                     ) -> np.ndarray:
+        """The recursion: one predict and up to five scalar updates per sample."""
+        p = self.params
+        m = dt.shape[0]
+        trace = np.empty((m, 5))
+        q_k = p.inv_stiffness_rw ** 2
+        q_d = p.delta_rw ** 2
+        q_o = p.gyro_offset_rw ** 2
+        q_jerk = p.yaw_jerk_std ** 2
+        r_slip = p.slip_noise_std ** 2
+        r_gyro = p.gyro_noise_std ** 2
+        r_wheel = p.wheel_yaw_noise_std ** 2
+        rw_diag = np.array([0.0, 0.0, q_o, q_d, q_d])
+        yaw_prior = np.array([0.1 ** 2, 0.5 ** 2])
+        long_x, long_p = self._long_x, self._long_p
+        x, cov = self._lat_x, self._lat_p
+        # python lists and floats: the 2-state filters are cheaper unrolled than as 2x2 arrays
+        slip_l, mu_l, valid_l = slip.tolist(), mu.tolist(), long_valid.tolist()
+        dt_l, gap_l = dt.tolist(), gap.tolist()
+        flags = np.stack([use_gyro, use_rear, use_front], axis=1).tolist()
+        y_l = np.stack([y_gyro, yaw_rear, yaw_front], axis=1).tolist()
+        c_rear_l, c_front_l = c_rear.tolist(), c_front.tolist()
+        for i in range(m):
+            ts = dt_l[i]
+            # ---- longitudinal, per side: x = (1/k, delta), P = [p11, p12, p22]
+            for side in (0, 1):
+                ps = long_p[side]
+                ps[0] += q_k * ts
+                ps[2] += q_d * ts
+                if valid_l[i][side]:
+                    xs = long_x[side]
+                    mu_i = mu_l[i][side]
+                    ph1 = ps[0] * mu_i + ps[1]
+                    ph2 = ps[1] * mu_i + ps[2]
+                    s_inv = 1.0 / (mu_i * ph1 + ph2 + r_slip)
+                    innov = (slip_l[i][side] - mu_i * xs[0] - xs[1]) * s_inv
+                    xs[0] += ph1 * innov
+                    xs[1] += ph2 * innov
+                    ps[0] -= ph1 * ph1 * s_inv
+                    ps[1] -= ph1 * ph2 * s_inv
+                    ps[2] -= ph2 * ph2 * s_inv
+            # ---- lateral predict with F's structure
+            if gap_l[i]:
+                # a gap breaks the yaw dynamics: restart yaw rate/acceleration from the prior
+                x[:2] = 0.0
+                cov[:2, :] = 0.0
+                cov[:, :2] = 0.0
+                cov[0, 0], cov[1, 1] = yaw_prior
+            else:
+                x[0] += ts * x[1]
+                cov[0, :] += ts * cov[1, :]
+                cov[:, 0] += ts * cov[:, 1]
+                ts2 = ts * ts
+                cov[0, 0] += q_jerk * ts2 * ts2 * 0.25
+                cov[0, 1] += q_jerk * ts2 * ts * 0.5
+                cov[1, 0] += q_jerk * ts2 * ts * 0.5
+                cov[1, 1] += q_jerk * ts2
+            cov += np.diag(rw_diag * ts)
+            use = flags[i]
+            y = y_l[i]
+            # ---- sequential scalar updates (R diagonal => equal to the joint update)
+            if use[0]:            # h = (1, 0, 1, 0, 0)
+                ph = cov[:, 0] + cov[:, 2]
+                s = ph[0] + ph[2] + r_gyro
+                x += ph * ((y[0] - x[0] - x[2]) / s)
+                cov -= np.outer(ph, ph) * (1.0 / s)
+            if use[1]:            # h = (1, 0, 0, -c3, 0)
+                c = c_rear_l[i]
+                ph = cov[:, 0] - c * cov[:, 3]
+                s = ph[0] - c * ph[3] + r_wheel
+                x += ph * ((y[1] - x[0] + c * x[3]) / s)
+                cov -= np.outer(ph, ph) * (1.0 / s)
+            if use[2]:            # h = (1, 0, 0, 0, -c1)
+                c = c_front_l[i]
+                ph = cov[:, 0] - c * cov[:, 4]
+                s = ph[0] - c * ph[4] + r_wheel
+                x += ph * ((y[2] - x[0] + c * x[4]) / s)
+                cov -= np.outer(ph, ph) * (1.0 / s)
+            trace[i, 0] = long_x[0][1]
+            trace[i, 1] = long_x[1][1]
+            trace[i, 2] = x[3]
+            trace[i, 3] = x[4]
+            trace[i, 4] = x[2]
+        if p.driven_axle == 'rear':
+            # filter delta = 1 - r_rear / r_front; paper's delta_13 = 1 - r1 / r3 = -d / (1 - d)
+            trace[:, :2] = -trace[:, :2] / (1.0 - trace[:, :2])
+        return trace
+
+    def _accumulate_calibration(self, stamps: np.ndarray, trace: np.ndarray,
+                                long_valid: np.ndarray, use_rear: np.ndarray,
+                                use_front: np.ndarray) -> None:
+        if self._cal_start is None:
+            self._cal_start = float(stamps[0])
+        settled = stamps >= self._cal_start + self.params.calibration_settle_s
+        valid = np.stack([long_valid[:, 0], long_valid[:, 1], use_rear, use_front], axis=1)
+        valid &= settled[:, None]
+        vals = np.where(valid, trace[:, :4], 0.0)
+        self._cal_sum += np.stack([valid.sum(axis=0), vals.sum(axis=0),
+                                   (vals * vals).sum(axis=0)])
+
+    def _offsets_std(self) -> np.ndarray:
+        lp = self._long_p
+        std = np.sqrt([lp[0][2], lp[1][2], self._lat_p[3, 3], self._lat_p[4, 4]])
+        if self.params.driven_axle == 'rear':
+            std[:2] /= (1.0 - np.array([self._long_x[0][1], self._long_x[1][1]])) ** 2
+        return std
+
+    def _estimate(self, stamps: np.ndarray, trace: np.ndarray) -> RadiusEstimate:
+        offsets = self.offsets()
+        return RadiusEstimate(
+            offsets=offsets,
+            offsets_std=self._offsets_std(),
+            gyro_offset=-float(self._lat_x[2]),
+            inv_stiffness=np.array([self._long_x[0][0], self._long_x[1][0]]),
+            trace_stamps=stamps,
+            trace=trace,
+            counts=dict(self.counts),
+            gyro_ok=self._gyro_repeat_s < self.params.gyro_stuck_s,
+            calibrated=self._calibration is not None,
+        )
+
+    def offsets(self) -> np.ndarray:
+        """(4,) current delta_13, delta_24, delta_34, delta_12 (raw)."""
+        d_left, d_right = self._long_x[0][1], self._long_x[1][1]
+        if self.params.driven_axle == 'rear':
+            d_left, d_right = -d_left / (1.0 - d_left), -d_right / (1.0 - d_right)
+        return np.array([d_left, d_right, self._lat_x[3], self._lat_x[4]])
+
+    @property
+    def lateral_covariance(self) -> np.ndarray:
+        """Copy of the lateral filter's 5x5 covariance (for health checks)."""
+        return self._lat_p.copy()
+
+    # ------------------------------------------------------------ indication
+    def localise(self) -> LowTireLocalisation | None:
+        """Low tires from the current offsets relative to the calibration (None: uncalibrated)."""
+        cal = self._calibration
+        if cal is None:
+            return None
+        std = np.sqrt(self._offsets_std() ** 2 + cal.noise ** 2)
+        return localise_low_tires(self.offsets() - cal.nominal_offsets, std, self.params)
+
+    def indication(self, stamp_s: float) -> TpmsIndication:
+        """Per-tire flag and confidence (all unknown before calibration).
+
+        A tire is unknown while its wheel speed was bad within ``wheel_recover_s`` or when no
+        pair it belongs to is informative (posterior std above ``informative_std``).
+        """
+        loc = self.localise()
+        if loc is None:
+            zeros = np.zeros(N_TIRES)
+            return TpmsIndication('wheel_radius', stamp_s, zeros.astype(bool), zeros,
+                                  zeros.astype(bool))
+        informative_pair = self._offsets_std() <= self.params.informative_std
+        informative = np.zeros(N_TIRES, dtype=bool)
+        for pair, tires in enumerate(PAIR_TIRES):
+            if informative_pair[pair]:
+                informative[list(tires)] = True
+        sensor_ok = stamp_s - self._last_bad_wheel >= self.params.wheel_recover_s
+        known = informative & sensor_ok
+        return TpmsIndication(
+            method='wheel_radius',
+            stamp_s=stamp_s,
+            underinflated=loc.flags & known,
+            confidence=np.where(known, loc.confidence, 0.0),
+            known=known,
+        )

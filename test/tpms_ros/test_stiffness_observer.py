@@ -1,0 +1,365 @@
+"""Tests of the Umeno tire-stiffness observer core on wheel speeds synthesised in the test.
+
+Truth: each wheel is the two-inertia model of ``tire_model`` (ZOH-discretised at 1 kHz) driven
+by seeded white road torque. The road torque is high-passed at 5 Hz because the model has no
+longitudinal tire force: without it the rigid-body mode would random-walk the wheel speed,
+which a rolling wheel does not. A small white sensor noise is added to the speed.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import scipy.signal as sig
+
+from tpms_ros.stiffness_observer import (
+    PressureRelation,
+    StiffnessObserverParams,
+    TireStiffnessObserver,
+    batch_least_squares,
+    design_observer,
+    extended_system,
+)
+from tpms_ros.tire_model import TorsionalTire
+
+FS = 1000.0
+BLOCK = 250
+MODEL = TorsionalTire()            # 40 Hz: the paper's tire at 200 kPa
+OMEGA0 = 55.0                      # rad/s, ~59 km/h with r = 0.3 m
+_HIGHPASS = sig.butter(2, 5.0, 'highpass', fs=FS, output='sos')
+
+
+def _tire_response(tire: TorsionalTire, road: np.ndarray,
+                   rim: np.ndarray | None) -> np.ndarray:
+    """Wheel-speed perturbation of one tire for road torque and optional rim torque."""
+    a, b = tire.state_space()
+    ad, bd, cd, dd, _ = sig.cont2discrete((a, b, np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 2))),
+                                          1.0 / FS, method='zoh')
+    num, den = sig.ss2tf(ad, bd, cd, dd, input=1)
+    out = sig.lfilter(num[0], den, road)
+    if rim is not None:
+        num, den = sig.ss2tf(ad, bd, cd, dd, input=0)
+        out += sig.lfilter(num[0], den, rim)
+    return out
+
+
+def synthesize(stiffness: np.ndarray, seconds: float, seed: int, *, noise: float = 0.01,
+               road_std: float = 20.0, driveline: tuple[float, float] | None = None,
+               driven: tuple[int, ...] = (2, 3), driveline_on_rim: bool = False) -> np.ndarray:
+    """(N, 4) wheel speeds; ``stiffness`` is (4,) or (N, 4) piecewise-constant true K.
+
+    ``driveline = (frequency_hz, torque_std)`` adds one common in-phase resonant torque
+    (a differential/suspension-member resonance) to the ``driven`` wheels. It acts where the
+    paper's eq. 12 puts it, additively with the road torque on the belt side (the
+    suspension's fore-aft motion reaches the tire through the contact patch); the caller can
+    put it on the rim instead with ``driveline_on_rim``.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(seconds * FS)
+    k = np.broadcast_to(np.asarray(stiffness, dtype=float), (n, 4))
+    common = None
+    if driveline is not None:
+        f0, std = driveline
+        w0, zeta = 2 * np.pi * f0, 0.1
+        num, den = sig.bilinear([2 * zeta * w0, 0.0], [1.0, 2 * zeta * w0, w0 ** 2], FS)
+        common = sig.lfilter(num, den, rng.normal(0.0, std, n))
+    rim = common if driveline_on_rim else None
+    omega = np.empty((n, 4))
+    for w in range(4):
+        road = sig.sosfilt(_HIGHPASS, rng.normal(0.0, road_std, n))
+        if common is not None and w in driven and not driveline_on_rim:
+            road = road + common
+        # Piecewise-constant K: simulate each constant segment and stitch (state restarts are
+        # negligible against the test durations; the estimator is told nothing of them).
+        values, starts = np.unique(k[:, w], return_index=True)
+        order = np.argsort(starts)
+        bounds = np.append(starts[order], n)
+        pert = np.empty(n)
+        for i, kv in enumerate(values[order]):
+            s, e = bounds[i], bounds[i + 1]
+            tire = TorsionalTire(MODEL.j1, MODEL.j2, float(kv), MODEL.d)
+            pert[s:e] = _tire_response(tire, road[s:e],
+                                       rim[s:e] if rim is not None and w in driven else None)
+        omega[:, w] = OMEGA0 + pert + rng.normal(0.0, noise, n)
+    return omega
+
+
+def run(observer: TireStiffnessObserver, omega: np.ndarray, chunk: int = BLOCK,
+        stamps: np.ndarray | None = None) -> list:
+    """Feed in chunks, return the estimate after each chunk."""
+    out = []
+    for s in range(0, omega.shape[0], chunk):
+        st = None if stamps is None else stamps[s:s + chunk]
+        out.append(observer.update(omega[s:s + chunk], stamps=st))
+    return out
+
+
+def test_pressure_relation_default_matches_paper_figures():
+    """Default slope 0.586 maps the paper's 35/40 Hz stiffness ratio to 120/200 kPa."""
+    rel = PressureRelation()
+    assert rel.slope == pytest.approx(0.5859375)
+    assert 200.0 * rel.pressure_ratio(np.array((35.0 / 40.0) ** 2)) == pytest.approx(120.0)
+    with pytest.raises(ValueError, match='slope'):
+        PressureRelation(slope=0.0)
+
+
+def test_observer_structure_and_poles():
+    """Extended system comes from the tire model; eq. 8 error poles are where placed."""
+    a, b = MODEL.state_space()
+    a_ext, b_ext = extended_system(MODEL)
+    np.testing.assert_array_equal(a_ext[:3, :3], a)
+    np.testing.assert_array_equal(a_ext[:3, 3], -b[:, 1])
+    np.testing.assert_array_equal(a_ext[3], 0.0)
+    design = design_observer(MODEL, 3.0, FS)
+    radius = 2 * np.pi * 3.0 * MODEL.resonance_hz
+    eig = np.sort_complex(np.linalg.eigvals(design.error_matrix))
+    want = np.sort_complex(radius * np.array([-1.0, np.exp(2j * np.pi / 3),
+                                              np.exp(-2j * np.pi / 3)]))
+    np.testing.assert_allclose(eig, want, rtol=1e-8)
+    # Discrete filters are stable.
+    assert np.all(np.abs(np.roots(design.denominator)) < 1.0)
+    with pytest.raises(ValueError, match='observer_pole_factor'):
+        design_observer(MODEL, 20.0, FS)
+
+
+def test_params_validation_names_parameter():
+    """Non-physical parameters are refused with the parameter's name."""
+    with pytest.raises(ValueError, match='forgetting_factor'):
+        StiffnessObserverParams(forgetting_factor=1.0)
+    with pytest.raises(ValueError, match='band_hz'):
+        StiffnessObserverParams(band_hz=(60.0, 25.0))
+    with pytest.raises(ValueError, match='driven_axle'):
+        StiffnessObserverParams(driven_axle='middle')  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='omega'):
+        TireStiffnessObserver().update(np.zeros((10, 3)))
+
+
+def test_batch_least_squares_exact_on_noise_free_data():
+    """Eq. 10 recovers the coefficients of an exact linear relation for each problem."""
+    rng = np.random.default_rng(3)
+    zeta = rng.normal(size=(500, 4, 2)) * np.array([1e-4, 3e-2])
+    coef = np.array([[-3000.0, 2.0], [0.0, 0.0], [100.0, -1.0], [5.0, 0.5]])
+    w = np.einsum('nwp,wp->nw', zeta, coef)
+    np.testing.assert_allclose(batch_least_squares(zeta, w), coef, rtol=1e-9, atol=1e-9)
+
+
+def test_recovers_15pct_stiffness_drop_without_cross_talk():
+    """FR 15 % softer than the 200 kPa model: dK within 10 % of the truth, others stay put."""
+    k_true = MODEL.k * np.array([1.0, 0.85, 1.0, 1.0])
+    omega = synthesize(k_true, 120.0, seed=11)
+    est = run(TireStiffnessObserver(), omega)
+    dk = np.array([e.delta_k for e in est[len(est) // 3:]])   # after ~3 time constants
+    assert est[-1].valid.all(), est[-1].status
+    true_dk = k_true - MODEL.k
+    mean_dk = dk.mean(axis=0)
+    # measured: FR -3221 vs -3248; others -10, 10, 62 N m/rad (<= 0.3 % of K)
+    assert abs(mean_dk[1] - true_dk[1]) < 0.1 * abs(true_dk[1])
+    assert np.all(np.abs(mean_dk[[0, 2, 3]]) < 0.02 * MODEL.k)
+
+
+def test_batch_and_rls_agree_on_stationary_data():
+    """Batch LS over 100 blocks and RLS with rho = 0.98 give the same K within noise."""
+    k_true = MODEL.k * np.array([1.0, 0.85, 0.9, 1.0])
+    omega = synthesize(k_true, 60.0, seed=12)
+    rls = run(TireStiffnessObserver(StiffnessObserverParams(ls_mode='rls')), omega)[-1]
+    batch = run(TireStiffnessObserver(StiffnessObserverParams(ls_mode='batch')), omega)[-1]
+    assert rls.valid.all() and batch.valid.all()
+    # measured: RLS - batch -28..-84 N m/rad (<= 0.4 % of K); batch - truth -101..237
+    np.testing.assert_allclose(rls.stiffness, batch.stiffness, atol=0.015 * MODEL.k)
+    np.testing.assert_allclose(batch.stiffness, k_true, rtol=0.03)
+
+
+def test_chunked_equals_one_shot_with_bad_samples():
+    """Random chunk sizes, NaN and gaps included: same result as one chunk to 1e-9."""
+    rng = np.random.default_rng(5)
+    omega = synthesize(MODEL.k * np.array([1.0, 0.9, 1.0, 0.85]), 40.0, seed=13)
+    omega[7000:7010, 1] = np.nan
+    omega[15000, 3] = -1.0
+    stamps = np.arange(omega.shape[0]) / FS
+    stamps[20000:] += 0.05   # a 50 ms gap
+    params = StiffnessObserverParams(calibration_s=10.0, driven_axle='rear')
+    one = TireStiffnessObserver(params)
+    one.start_calibration()
+    whole = one.update(omega, stamps=stamps)
+    many = TireStiffnessObserver(params)
+    many.start_calibration()
+    s = 0
+    while s < omega.shape[0]:
+        step = int(rng.integers(1, 700))
+        part = many.update(omega[s:s + step], stamps=stamps[s:s + step])
+        s += step
+    np.testing.assert_allclose(part.stiffness, whole.stiffness, rtol=1e-9)
+    np.testing.assert_allclose(part.delta_d, whole.delta_d, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(part.pressure_std_kpa, whole.pressure_std_kpa, rtol=1e-9)
+    assert part.status == whole.status and part.calibrated and whole.calibrated
+    assert one.counters == many.counters
+
+
+def _driven_pressure_error(axle: str) -> np.ndarray:
+    """Pressure RMS error (kPa) after calibration, RL 15 % softer, driveline changing meanwhile."""
+    cal = synthesize(np.full(4, MODEL.k), 60.0, seed=21, driveline=(15.0, 300.0))
+    k_test = MODEL.k * np.array([1.0, 1.0, 0.85, 1.0])
+    # The driveline resonance wanders with conditions (paper §3.1), so calibration alone
+    # cannot absorb it.
+    test = synthesize(k_test, 60.0, seed=22, driveline=(19.0, 300.0))
+    observer = TireStiffnessObserver(StiffnessObserverParams(driven_axle=axle,
+                                                             calibration_s=40.0))
+    observer.start_calibration()
+    run(observer, cal)
+    assert observer.estimate().calibrated
+    est = run(observer, test)
+    p_true = 200.0 * PressureRelation().pressure_ratio(k_test / MODEL.k)
+    pressure = np.array([e.pressure_kpa for e in est[len(est) // 2:]])
+    return np.sqrt(np.mean((pressure - p_true) ** 2, axis=0))
+
+
+def test_drive_wheel_compensation_on_unchanged_driven_wheel():
+    """An in-phase driveline torque fakes a drop on the unchanged driven wheel; eq. 14 removes it.
+
+    Known limit (asserted so a change shows): the softened driven wheel keeps a bias with or
+    without compensation, because the driveline-driven torsion enters the regressor th at
+    ~19 Hz, where the paper's ``dK th`` term has a different effective gain than at the
+    tire resonance.
+    """
+    without = _driven_pressure_error('none')
+    with_comp = _driven_pressure_error('rear')
+    # measured RMS (kPa, FL FR RL RR): without [3.4, 1.3, 14.8, 19.6], with [3.4, 1.3, 24.5, 3.0]
+    np.testing.assert_array_equal(without[:2], with_comp[:2])   # front untouched
+    assert with_comp[3] < 5.0 and without[3] > 3.0 * with_comp[3]
+    assert without[2] > 10.0 and with_comp[2] > 10.0
+
+
+def test_45hz_tire_after_calibration_flags_low_tires():
+    """A 45 Hz tire with the 40 Hz model: after calibration the pressures are right.
+
+    FR and RL drop 15 % in K (-> 148.8 kPa): flagged with high confidence; FL and RR stay at
+    200 kPa unflagged. The reported pressure noise matches the observed spread (factor 2).
+    """
+    k0 = MODEL.with_resonance(45.0).k
+    cal = synthesize(np.full(4, k0), 40.0, seed=31)
+    k_test = k0 * np.array([1.0, 0.85, 0.85, 1.0])
+    test = synthesize(k_test, 60.0, seed=32)
+    observer = TireStiffnessObserver(StiffnessObserverParams(calibration_s=30.0))
+    observer.start_calibration()
+    run(observer, cal)
+    state = observer.calibration_state()
+    np.testing.assert_allclose(state['k_nominal'], k0, rtol=0.02)   # measured within 1.2 %
+    est = run(observer, test)
+    tail = est[len(est) // 2:]
+    pressure = np.array([e.pressure_kpa for e in tail])
+    p_true = 200.0 * PressureRelation().pressure_ratio(k_test / k0)
+    np.testing.assert_allclose(pressure.mean(axis=0), p_true, atol=10.0)
+    last = est[-1]
+    assert last.calibrated and last.valid.all()
+    np.testing.assert_array_equal(last.underinflated, [False, True, True, False])
+    assert np.all(last.confidence[[1, 2]] > 0.99) and np.all(last.confidence[[0, 3]] < 0.01)
+    # measured: means 200.8, 149.1, 153.6, 197.1 kPa; spread 1.0-2.1 vs reported 2.0-2.2 kPa
+    ratio = pressure.std(axis=0) / last.pressure_std_kpa
+    assert np.all((ratio > 0.3) & (ratio < 2.0)), ratio
+
+
+def test_four_tire_diffusion_is_flagged():
+    """Equal 15 % stiffness loss on all four tires (diffusion) flags all four."""
+    cal = synthesize(np.full(4, MODEL.k), 40.0, seed=41)
+    test = synthesize(np.full(4, 0.85 * MODEL.k), 40.0, seed=42)
+    observer = TireStiffnessObserver(StiffnessObserverParams(calibration_s=30.0))
+    observer.start_calibration()
+    run(observer, cal)
+    last = run(observer, test)[-1]
+    assert last.underinflated.all() and np.all(last.confidence > 0.9)
+
+
+def test_bad_samples_do_not_corrupt_and_mark_unknown():
+    """NaN, negative and absurd samples, a stuck run and a dead end on FR only.
+
+    FR's estimate stays close to the clean run's; the other wheels are unaffected to 1e-9; a
+    dead FR at the end is 'unknown' (dead_sensor), not flagged, despite a low-looking value.
+    """
+    omega = synthesize(MODEL.k * np.array([1.0, 1.0, 0.9, 1.0]), 60.0, seed=51)
+    clean = TireStiffnessObserver()
+    clean_est = run(clean, omega)[-1]
+    bad = omega.copy()
+    bad[5000:5400, 1] = np.nan
+    bad[12000, 1] = -3.0
+    bad[18000, 1] = np.inf
+    bad[25000, 1] = 1e6
+    bad[30000:30300, 1] = bad[30000, 1]          # stuck sensor for 0.3 s
+    observer = TireStiffnessObserver()
+    est = run(observer, bad)[-1]
+    assert est.valid.all(), est.status
+    np.testing.assert_allclose(est.stiffness[[0, 2, 3]], clean_est.stiffness[[0, 2, 3]],
+                               rtol=1e-9)
+    # measured: FR differs from the clean run by 0.6 N m/rad; its noise is ~100
+    assert abs(est.stiffness[1] - clean_est.stiffness[1]) < 0.01 * MODEL.k
+    counts = observer.counters
+    assert counts['invalid_sample'][1] == 403 and counts['invalid_sample'][0] == 0
+    assert counts['stuck_sensor'][1] > 0
+    # Now calibrate, then the FR sensor dies (reads 0): unknown, never low.
+    observer.start_calibration(20.0)
+    run(observer, omega[:25000])
+    dead = omega[:3000].copy()
+    dead[:, 1] = 0.0
+    est = run(observer, dead)[-1]
+    assert est.calibrated
+    assert est.status[1] == 'dead_sensor' and not est.valid[1]
+    assert not est.underinflated[1] and est.confidence[1] == 0.0
+    nan_tail = omega[:1000].copy()
+    nan_tail[:, 1] = np.nan
+    est = run(observer, nan_tail)[-1]
+    assert est.status[1] == 'invalid_sample' and not est.underinflated.any()
+
+
+def test_timing_faults_reset_and_are_counted():
+    """Out-of-order/repeated stamps are dropped; gaps and a wrong dt hold the wheels unknown."""
+    omega = synthesize(np.full(4, MODEL.k), 20.0, seed=61)
+    stamps = np.arange(omega.shape[0]) / FS
+    stamps[3000] = stamps[2999]                  # repeated
+    stamps[4000] = stamps[3990]                  # out of order
+    observer = TireStiffnessObserver()
+    est = observer.update(omega, stamps=stamps)
+    counts = observer.counters
+    # Each dropped sample leaves a 2 ms interval: a timing break (filters reset), not a glitch.
+    assert counts['out_of_order'] == (2, 2, 2, 2) and counts['timing_breaks'] == (2,) * 4
+    assert est.valid.all()
+    # A gap: every wheel resets and settles; the block right after says why.
+    est = observer.update(omega[:2 * BLOCK],
+                          stamps=stamps[-1] + 1.0 + np.arange(2 * BLOCK) / FS)
+    assert observer.counters['timing_breaks'] == (3,) * 4
+    assert est.status == ('timing',) * 4 and not est.underinflated.any()
+    # Samples at twice the rate are refused (filters are built for 1 kHz).
+    before = observer.counters['resets']
+    est = observer.update(omega[:BLOCK], dt=0.5e-3)
+    assert observer.counters['timing'][0] >= BLOCK and observer.counters['resets'] == before
+
+
+def test_calibration_roundtrip_and_corrupt_dict_refused():
+    """The calibration survives JSON; corrupt or mismatching dicts raise ValueError."""
+    omega = synthesize(np.full(4, MODEL.k), 30.0, seed=71)
+    observer = TireStiffnessObserver(StiffnessObserverParams(calibration_s=20.0))
+    with pytest.raises(ValueError, match='not all tires'):
+        observer.calibration_state()
+    observer.start_calibration()
+    est = run(observer, omega)[-1]
+    state = json.loads(json.dumps(observer.calibration_state()))
+    other = TireStiffnessObserver(StiffnessObserverParams(calibration_s=20.0))
+    other.load_calibration(state)
+    est2 = run(other, omega)[-1]
+    np.testing.assert_allclose(est2.pressure_kpa, est.pressure_kpa, rtol=1e-12)
+    np.testing.assert_allclose(est2.pressure_std_kpa, est.pressure_std_kpa, rtol=1e-12)
+    corrupt = [
+        ({**state, 'k_nominal': state['k_nominal'][:3]}, 'k_nominal'),
+        ({**state, 'k_nominal': [float('nan')] * 4}, 'k_nominal'),
+        ({**state, 'k_block_std': 'abc'}, 'k_block_std'),
+        ({**state, 'version': 99}, 'version'),
+        ({k: v for k, v in state.items() if k != 'block_s'}, 'block_s'),
+        ({**state, 'model_k': [1.0, 1.0, 1.0, 1.0]}, 'model_k'),
+        ({**state, 'k_nominal': [v * 10 for v in state['k_nominal']]}, 'k_nominal'),
+        (['not', 'a', 'dict'], 'mapping'),
+    ]
+    fresh = TireStiffnessObserver()
+    for bad, key in corrupt:
+        with pytest.raises(ValueError, match=key):
+            fresh.load_calibration(bad)  # type: ignore[arg-type]
+    assert not fresh.estimate().calibrated
