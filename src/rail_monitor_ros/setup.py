@@ -26,7 +26,7 @@ setup(
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'rail_simulator = vehicle_monitor_common.player:ScenarioPlayer',
+            'rail_simulator = rail_monitor_ros.rail_simulator_node:RailSimulator',
         ],
     },
 )

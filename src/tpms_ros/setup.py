@@ -23,10 +23,16 @@ setup(
     entry_points={
         'console_scripts': [
             'vehicle_simulator = tpms_ros.vehicle_simulator_node:main',
+            'vibration_analyzer = tpms_ros.vibration_analyzer_node:main',
+            'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:main',
+            'tpms_voter = tpms_ros.tpms_voter_node:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'vehicle_simulator = vehicle_monitor_common.player:ScenarioPlayer',
+            'vehicle_simulator = tpms_ros.vehicle_simulator_node:VehicleSimulator',
+            'vibration_analyzer = tpms_ros.vibration_analyzer_node:VibrationAnalyzerNode',
+            'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',
+            'tpms_voter = tpms_ros.tpms_voter_node:TpmsVoterNode',
         ],
     },
 )

@@ -153,7 +153,7 @@ def test_rate_change_at_runtime_is_validated(
 
 
 @pytest.mark.parametrize('args, match', [
-    ([], 'parameter bag is required'),
+    ([], 'or bag (a recording to replay) is required'),
     (['-p', 'bag:=/no/such/bag'], 'no such bag'),
     (['-p', 'rate:=-1.0'], 'parameter rate'),
 ])

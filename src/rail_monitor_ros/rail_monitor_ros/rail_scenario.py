@@ -23,12 +23,13 @@ from rail_monitor_ros.rail_model import (
     RailVehicleParams,
 )
 from rail_monitor_ros.track_irregularity import TRACK_SPECTRA
+from vehicle_monitor_common.resources import share_dir, shipped_file
 
 MAX_SPEED = 150.0  # m/s; beyond any rail vehicle, and far beyond the linear model's validity
 EVENT_QUANTITIES = ('spring_ratio', 'damper_ratio', 'creep_factor', 'speed')
 BOGIE_NAMES = {'front': (0,), 'rear': (1,), 'both': (0, 1)}
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / 'scenarios'
+SCENARIO_DIR = share_dir('rail_monitor_ros', 'scenarios')
 
 
 @dataclass(frozen=True)
@@ -184,11 +185,11 @@ def load_rail_scenario(path: str | Path) -> RailScenario:
 
 
 def shipped_scenario(name: str) -> RailScenario:
-    """One of the scenarios shipped in ``src/rail_monitor_ros/scenarios`` (without '.yaml')."""
-    path = SCENARIO_DIR / f'{name}.yaml'
-    if not path.is_file():
-        available = sorted(p.stem for p in SCENARIO_DIR.glob('*.yaml'))
-        raise ValueError(f'no shipped scenario {name!r}; available: {available}')
+    """One of the scenarios the package ships in ``scenarios/`` (name without '.yaml')."""
+    try:
+        path = shipped_file('rail_monitor_ros', 'scenarios', name)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from None
     return load_rail_scenario(path)
 
 

@@ -16,6 +16,7 @@ x[k+1] = Phi x[k] + Psi U[k], so the only loop is one matrix-vector product per 
 from __future__ import annotations
 
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
@@ -30,6 +31,7 @@ from rail_monitor_ros.rail_scenario import (
     RailScenario,
     SensorConfig,
     evaluate_profiles,
+    load_rail_scenario,
 )
 from rail_monitor_ros.track_irregularity import TRACK_SPECTRA, generate_track_profile
 from vehicle_monitor_common.series import TopicSeries, stamps_from_seconds
@@ -273,6 +275,14 @@ RAIL_LATERAL_STATES_TYPE = 'vehicle_monitor_msgs/msg/RailLateralStates'
 TRACK_IRREGULARITY_TYPE = 'vehicle_monitor_msgs/msg/TrackIrregularity'
 SUSPENSION_STATE_TYPE = 'vehicle_monitor_msgs/msg/SuspensionState'
 CREEP_FACTOR_TYPE = 'vehicle_monitor_msgs/msg/CreepFactor'
+
+
+def scenario_topics(path: str | Path, seed: int | None = None) -> dict[str, TopicSeries]:
+    """Simulate a scenario file (optionally with another seed) straight to its topics."""
+    scenario = load_rail_scenario(path)
+    if seed is not None:
+        scenario = dataclasses.replace(scenario, seed=seed)
+    return to_topic_series(simulate(scenario))
 
 
 def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float = 0.5,

@@ -25,6 +25,7 @@ No ROS import: the ``vehicle_simulator`` node and the bag writer sit on top of t
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
@@ -410,6 +411,14 @@ def simulate_file(path: str | Path,
                   handling_model: HandlingModel | None = None) -> RoadSimulationResult:
     """Load a scenario file and run it."""
     return simulate_scenario(load_scenario(path), handling_model)
+
+
+def scenario_topics(path: str | Path, seed: int | None = None) -> dict[str, TopicSeries]:
+    """Simulate a scenario file (optionally with another seed) straight to its topics."""
+    scenario = load_scenario(path)
+    if seed is not None:
+        scenario = dataclasses.replace(scenario, seed=seed)
+    return to_topic_series(simulate_scenario(scenario))
 
 
 def to_topic_series(result: RoadSimulationResult) -> dict[str, TopicSeries]:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 from rosbags.interfaces import Connection, Nodetype
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -114,7 +114,7 @@ def _column_value(store: Typestore, node: tuple[Any, Any], value: Any) -> Any:
     if nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE):
         inner, length = detail
         if inner[0] == Nodetype.BASE and inner[1][0] in _NUMPY_DTYPES:
-            array: np.ndarray = np.asarray(value, dtype=_NUMPY_DTYPES[inner[1][0]])
+            array: np.ndarray = np.ascontiguousarray(value, dtype=_NUMPY_DTYPES[inner[1][0]])
             if nodetype == Nodetype.ARRAY and array.shape != (length,):
                 raise ValueError(f'expected {length} values, got shape {array.shape}')
             return array
@@ -223,16 +223,19 @@ class BagWriter:
 
     Use as a context manager; the bag appears at ``path`` only when the ``with`` block exits
     without an exception. An existing bag at ``path`` is replaced only if ``overwrite``.
+    ``compress`` zstd-compresses the storage file (rosbag2 file compression, which ``ros2 bag``
+    and rosbags read; about 4x smaller for the shipped scenarios).
     """
 
     def __init__(self, path: str | os.PathLike[str], *, storage: str = 'mcap',
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, compress: bool = False) -> None:
         self.path = Path(path)
         if storage not in ('mcap', 'sqlite3'):
             raise BagError(f'storage must be mcap or sqlite3, got {storage!r}')
         if self.path.exists() and not overwrite:
             raise BagError(f'{self.path} exists (pass overwrite=True to replace it)')
         self._storage = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+        self._compress = compress
         self._store = typestore()
         self._connections: dict[str, Connection] = {}
         self._tmpdir: Path | None = None
@@ -244,6 +247,8 @@ class BagWriter:
         # The inner bag keeps the final name, so its storage file is named after the bag.
         self._writer = Writer(self._tmpdir / self.path.name, version=9,
                               storage_plugin=self._storage)
+        if self._compress:
+            self._writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
         self._writer.open()
         return self
 
@@ -283,7 +288,7 @@ class BagWriter:
 
 
 def write_bag(path: str | os.PathLike[str], series: Mapping[str, TopicSeries], *,
-              storage: str = 'mcap', overwrite: bool = False) -> Path:
+              storage: str = 'mcap', overwrite: bool = False, compress: bool = False) -> Path:
     """Write topics given as column-wise series to a bag, merged in time order.
 
     Ties in time keep the caller's topic order, so a replay publishes e.g. the inputs of an
@@ -298,7 +303,7 @@ def write_bag(path: str | os.PathLike[str], series: Mapping[str, TopicSeries], *
             yield int(stamp), order, topic, topic_series, msg
 
     streams = [stream(order, topic, s) for order, (topic, s) in enumerate(series.items())]
-    with BagWriter(path, storage=storage, overwrite=overwrite) as writer:
+    with BagWriter(path, storage=storage, overwrite=overwrite, compress=compress) as writer:
         for stamp, _, topic, topic_series, msg in heapq.merge(
                 *streams, key=lambda item: (item[0], item[1])):
             writer.write(topic, topic_series.msgtype, stamp, msg)

@@ -20,6 +20,7 @@ dropped from the pacing rather than hanging the replay.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 import functools
 import importlib
@@ -92,27 +93,32 @@ def message_class(msgtype: str) -> Any:
 
 
 class ScenarioPlayer(Node):
-    """Replays a bag; ``done`` is set when it ended, ``error`` holds a failure to report."""
+    """Replays a bag; ``done`` is set when it ended, ``error`` holds a failure to report.
+
+    Subclasses (the simulators) extend ``parameters_class`` and override :meth:`_prepare_bag`
+    to produce the bag they replay.
+    """
+
+    parameters_class: type[PlayerParameters] = PlayerParameters
 
     def __init__(self, node_name: str = 'scenario_player', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, PlayerParameters, on_change=self._on_change)
+        self._typed = TypedParameters(self, self.parameters_class, on_change=self._on_change)
         p = self._typed.value
-        if not p.bag:
-            raise ConfigurationError('parameter bag is required (path of a rosbag2 directory)')
+        self.bag = self._prepare_bag(p)
         try:
-            available = bag_topics(p.bag)
-            reader = open_reader(p.bag)
+            available = bag_topics(self.bag)
+            reader = open_reader(self.bag)
             self._bag_start_ns = reader.start_time
             reader.close()
             missing = [t for t in p.topics if t not in available]
             if missing:
-                raise BagError(f'topic {missing[0]} is not in bag {p.bag} '
+                raise BagError(f'topic {missing[0]} is not in bag {self.bag} '
                                f'(it has: {", ".join(sorted(available))})')
             selected = {name: info for name, info in available.items()
                         if not p.topics or name in p.topics}
             if not selected:
-                raise BagError(f'bag {p.bag} holds no messages')
+                raise BagError(f'bag {self.bag} holds no messages')
             classes = {name: message_class(info.msgtype) for name, info in selected.items()}
         except BagError as exc:
             raise ConfigurationError(str(exc)) from None
@@ -136,6 +142,12 @@ class ScenarioPlayer(Node):
         self._thread.start()
 
     # -- parameters --------------------------------------------------------------------------
+
+    def _prepare_bag(self, p: PlayerParameters) -> str:
+        """The bag to replay."""
+        if not p.bag:
+            raise ConfigurationError('parameter bag is required (path of a rosbag2 directory)')
+        return p.bag
 
     def _on_change(self, _: PlayerParameters) -> None:
         # A new rate applies from now: restart the wall-clock schedule at the current message.
@@ -230,7 +242,7 @@ class ScenarioPlayer(Node):
         next_clock_ns = start_ns
         anchor_wall, anchor_bag = time.monotonic(), start_ns
         stamp = start_ns
-        for topic, _, stamp, data in iter_raw(p.bag, self.topic_counts, start_ns=start_ns):
+        for topic, _, stamp, data in iter_raw(self.bag, self.topic_counts, start_ns=start_ns):
             if self._stop.is_set():
                 break
             p = self.parameters
@@ -261,13 +273,13 @@ class ScenarioPlayer(Node):
         super().destroy_node()
 
 
-def run_player(node_name: str, args: list[str] | None = None) -> int:
-    """main() of a simulator's replay mode: play, exit 0 when done, 1 on a replay error."""
+def run_player(factory: Callable[[], ScenarioPlayer], args: list[str] | None = None) -> int:
+    """main() of a player/simulator executable: play, exit 0 when done, 1 on a replay error."""
     rclpy.init(args=args)
     player = None
     code = 0
     try:
-        player = ScenarioPlayer(node_name)
+        player = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(player)
         started = time.monotonic()

@@ -1,0 +1,232 @@
+"""Persistence of calibration state: a plain dict as a YAML file, written atomically.
+
+Shared by every node that learns a calibration (nominal tire resonances, radius offsets,
+stiffness). The nodes must survive whatever they find on disk: a missing file is a first start,
+an unreadable or corrupt one is reported with its reason and ignored (the node then runs
+uncalibrated and asks for a recalibration), never an exception out of a callback. Writes go to a
+temporary file in the same directory, are flushed to disk and then renamed over the target with
+``os.replace``, so a crash or power loss mid-write leaves the previous file intact, never a
+half-written one.
+
+Whether the *content* is a valid calibration is the estimator's business (its
+``load_calibration_state`` raises ValueError); this module only guarantees a mapping.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import contextlib
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import tempfile
+from typing import Any, Protocol
+
+import yaml
+
+
+@dataclass(frozen=True)
+class LoadedCalibration:
+    """Outcome of :func:`load_calibration`.
+
+    Attributes:
+        state: the stored mapping, or None (no file, or a problem).
+        problem: why the file could not be used ('' when it loaded or did not exist).
+        exists: a file was found at the path.
+    """
+
+    state: dict[str, Any] | None
+    problem: str
+    exists: bool
+
+
+def resolve_path(path: str | os.PathLike[str]) -> Path:
+    """The calibration path with ``~`` and environment variables expanded."""
+    return Path(os.path.expandvars(os.path.expanduser(os.fspath(path))))
+
+
+def load_calibration(path: str | os.PathLike[str]) -> LoadedCalibration:
+    """Read a calibration mapping from a YAML file; never raises.
+
+    Args:
+        path: the file; ``~`` and ``$VARS`` are expanded.
+
+    Returns:
+        The mapping, or the reason it is unusable (unreadable, not YAML, not a mapping).
+        A missing file is not a problem: ``state`` None, ``problem`` '', ``exists`` False.
+    """
+    file = resolve_path(path)
+    if not file.exists():
+        return LoadedCalibration(None, '', False)
+    try:
+        text = file.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as exc:
+        return LoadedCalibration(None, f'cannot read {file}: {exc}', True)
+    try:
+        state = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return LoadedCalibration(None, f'{file} is not valid YAML: {first}', True)
+    if not isinstance(state, Mapping):
+        return LoadedCalibration(
+            None, f'{file} does not hold a mapping (got {type(state).__name__})', True)
+    return LoadedCalibration(dict(state), '', True)
+
+
+def save_calibration(path: str | os.PathLike[str], state: Mapping[str, Any],
+                     comment: str = '') -> str:
+    """Write ``state`` as YAML atomically (temp file, fsync, ``os.replace``); never raises.
+
+    Args:
+        path: the target file; missing parent directories are created.
+        state: plain data (str, int, float, bool, lists and mappings of these).
+        comment: optional text written as ``#`` comment lines at the top.
+
+    Returns:
+        '' on success, else the reason the file was not written (the previous file, if any,
+        is left untouched).
+    """
+    file = resolve_path(path)
+    try:
+        text = yaml.safe_dump(dict(state), sort_keys=False, default_flow_style=None)
+    except (yaml.YAMLError, TypeError, ValueError) as exc:
+        return f'calibration state is not plain data: {exc}'
+    if comment:
+        text = ''.join(f'# {line}\n' for line in comment.splitlines()) + text
+    tmp_name = ''
+    try:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f'.{file.name}.', suffix='.tmp', dir=file.parent)
+        with os.fdopen(fd, 'w', encoding='utf-8') as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, file)
+        tmp_name = ''
+    except OSError as exc:
+        return f'cannot write {file}: {exc}'
+    finally:
+        if tmp_name:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp_name)
+    return ''
+
+
+class Calibratable(Protocol):
+    """What a calibrating estimator offers (the TPMS cores' method names)."""
+
+    def start_calibration(self) -> None:
+        """Start learning from the data processed from now on."""
+
+    def finish_calibration(self) -> Any:
+        """Put the learned calibration in force; ValueError when there was not enough data."""
+
+    def calibration_state(self) -> dict[str, Any]:
+        """The calibration in force as plain data."""
+
+    def load_calibration_state(self, state: Mapping[str, Any]) -> None:
+        """Put a persisted calibration in force; ValueError when it is corrupt."""
+
+
+class CalibrationManager:
+    """Runs an estimator's calibration over a window of *data* time and persists the result.
+
+    The window is measured on the stamps of the processed input, not on a clock, so a replay at
+    any speed (or with ``use_sim_time``) calibrates on the same data. No ROS import: the node
+    wires :meth:`request` to its ``~/calibrate`` service and calls :meth:`update` after each
+    processed chunk.
+
+    States: ``uncalibrated``, ``loaded`` (from the file), ``calibrating``, ``calibrated`` (by a
+    run in this process), ``failed`` (the last run had too little valid data; the previous
+    calibration, if any, stays in force), ``file_corrupt`` (the file was unusable: the node runs
+    uncalibrated and a recalibration is required).
+    """
+
+    def __init__(self, estimator: Calibratable, path: str, label: str) -> None:
+        self._estimator = estimator
+        self.path = path
+        self._label = label
+        self.state = 'uncalibrated'
+        self.detail = 'no calibration: call ~/calibrate with nominal tire pressures'
+        self.save_problem = ''
+        self._duration_s = 0.0
+        self._start_s: float | None = None
+        self._pending = False
+
+    @property
+    def calibrating(self) -> bool:
+        """A run was requested or is in progress."""
+        return self._pending
+
+    def load(self) -> None:
+        """Load the file at ``path`` (if set) into the estimator; problems go to ``detail``."""
+        if not self.path:
+            return
+        loaded = load_calibration(self.path)
+        if loaded.state is None:
+            if loaded.problem:
+                self.state = 'file_corrupt'
+                self.detail = (f'calibration file unusable ({loaded.problem}): running '
+                               'uncalibrated, recalibration required (~/calibrate)')
+            return
+        try:
+            self._estimator.load_calibration_state(loaded.state)
+        except ValueError as exc:
+            self.state = 'file_corrupt'
+            self.detail = (f'calibration file {self.path} rejected ({exc}): running '
+                           'uncalibrated, recalibration required (~/calibrate)')
+            return
+        self.state = 'loaded'
+        self.detail = f'calibration loaded from {self.path}'
+
+    def request(self, duration_s: float) -> tuple[bool, str]:
+        """Ask for a calibration over the next ``duration_s`` of data; (accepted, message)."""
+        if self._pending:
+            return False, f'{self._label}: a calibration is already running'
+        self._pending = True
+        self._duration_s = duration_s
+        self._start_s = None
+        self.state = 'calibrating'
+        self.detail = f'calibration requested over {duration_s:g} s of data'
+        return True, f'{self._label}: calibration started over {duration_s:g} s of data'
+
+    def progress_s(self, stamp_s: float) -> float:
+        """Seconds of data since the running calibration started (0 when none)."""
+        return 0.0 if self._start_s is None else max(stamp_s - self._start_s, 0.0)
+
+    def before_chunk(self) -> None:
+        """Call before processing a chunk: a requested run starts on the estimator here."""
+        if self._pending and self._start_s is None:
+            self._estimator.start_calibration()
+
+    def update(self, first_stamp_s: float, last_stamp_s: float) -> str:
+        """Call after processing a chunk spanning these stamps; returns an event or ''."""
+        if not self._pending:
+            return ''
+        if self._start_s is None:
+            self._start_s = first_stamp_s
+        if last_stamp_s - self._start_s < self._duration_s:
+            self.detail = (f'calibrating: {last_stamp_s - self._start_s:.1f} / '
+                           f'{self._duration_s:g} s of data')
+            return ''
+        self._pending = False
+        try:
+            self._estimator.finish_calibration()
+        except ValueError as exc:
+            self.state = 'failed'
+            self.detail = f'calibration failed: {exc}'
+            return self.detail
+        self.state = 'calibrated'
+        self.detail = 'calibrated'
+        if self.path:
+            self.save_problem = save_calibration(
+                self.path, self._estimator.calibration_state(),
+                comment=f'{self._label} calibration (written by the node; delete to forget)')
+            self.detail = (f'calibrated, NOT saved: {self.save_problem}' if self.save_problem
+                           else f'calibrated, saved to {self.path}')
+        return self.detail
+
+    def restart(self) -> None:
+        """The estimator restarted its filters (data gap): a running window starts again."""
+        if self._pending:
+            self._start_s = None

@@ -1,0 +1,88 @@
+"""Simulator node: synthesises a scenario (or takes a recording) and replays it on the graph.
+
+Both simulators are this node with their domain's scenario synthesis: ``scenario`` (a YAML path
+or the name of a scenario the package ships) is simulated to a rosbag2 with inputs and
+``/truth/*``, then replayed by the player in real (``rate: 1``) or accelerated time, or as fast as
+the graph keeps up; ``bag`` replays a recording instead. ``output_bag`` keeps the synthesised
+bag. One replay path for synthetic and recorded data: what a test drive recorded plays exactly
+like a scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+import shutil
+import tempfile
+import time
+from typing import Any
+
+from vehicle_monitor_common.bag_io import BagError, write_bag
+from vehicle_monitor_common.node_helpers import ConfigurationError, param
+from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer
+from vehicle_monitor_common.resources import shipped_file
+from vehicle_monitor_common.series import TopicSeries
+
+# (scenario file, seed override or None) -> topics with their samples.
+Synthesis = Callable[[Path, 'int | None'], Mapping[str, TopicSeries]]
+
+
+@dataclass(frozen=True)
+class SimulatorParameters(PlayerParameters):
+    """Replay parameters plus the synthetic mode's."""
+
+    scenario: str = param('', 'scenario to synthesise: a YAML path or the name of one the '
+                          'package ships (exclusive with bag)', read_only=True)
+    seed: int = param(-1, 'random seed replacing the scenario file\'s; -1 keeps the file\'s',
+                      low=-1, high=2**31 - 1, read_only=True)
+    output_bag: str = param('', 'keep the synthesised scenario as this rosbag2 (MCAP); empty: '
+                            'a temporary bag', read_only=True)
+
+
+class SimulatorNode(ScenarioPlayer):
+    """A simulator: its package (where shipped scenarios live) and its synthesis."""
+
+    parameters_class = SimulatorParameters
+    package = ''
+
+    def __init__(self, node_name: str, synthesis: Synthesis, **kwargs: Any) -> None:
+        self._synthesis = synthesis
+        self._temporary: Path | None = None
+        super().__init__(node_name, **kwargs)
+
+    def _prepare_bag(self, p: PlayerParameters) -> str:
+        assert isinstance(p, SimulatorParameters)
+        if p.bag and p.scenario:
+            raise ConfigurationError('give either bag (replay) or scenario (synthesis), not both')
+        if p.bag:
+            return p.bag
+        if not p.scenario:
+            raise ConfigurationError(
+                'parameter scenario (a scenario to synthesise) or bag (a recording to replay) '
+                'is required')
+        try:
+            path = shipped_file(self.package, 'scenarios', p.scenario)
+            started = time.monotonic()
+            series = self._synthesis(path, None if p.seed < 0 else p.seed)
+        except (FileNotFoundError, ValueError) as exc:
+            raise ConfigurationError(f'scenario {p.scenario}: {exc}') from None
+        if p.output_bag:
+            bag = Path(p.output_bag)
+        else:
+            self._temporary = Path(tempfile.mkdtemp(prefix='scenario_'))
+            bag = self._temporary / path.stem
+        try:
+            write_bag(bag, series, overwrite=bool(p.output_bag))
+        except BagError as exc:
+            raise ConfigurationError(str(exc)) from None
+        self.get_logger().info(
+            f'synthesised {path.stem} ({sum(len(s) for s in series.values())} messages) in '
+            f'{time.monotonic() - started:.1f} s -> {bag}')
+        return str(bag)
+
+    def destroy_node(self) -> None:
+        """Stop the replay, then remove a temporary bag."""
+        super().destroy_node()
+        if self._temporary is not None:
+            shutil.rmtree(self._temporary, ignore_errors=True)
