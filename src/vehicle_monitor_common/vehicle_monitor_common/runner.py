@@ -5,7 +5,8 @@ benchmarks and the integration tests bring graphs up with it. Nodes are named by
 ``<package>/<node>`` as registered under the ``vehicle_monitor.nodes`` entry-point group of the
 packages' setup.py (like rclcpp_components), or ``module:Class``. A graph file::
 
-    executor: single            # single | multi (MultiThreadedExecutor, one thread per core)
+    executor: events            # events (rclpy's EventsExecutor, default: ~5x less overhead
+                                # per callback), single, or multi (one thread per core)
     use_sim_time: true          # applied to every node but the players, which publish /clock
     nodes:
       - plugin: tpms_ros/vehicle_simulator
@@ -40,6 +41,7 @@ from rclpy.executors import (
     MultiThreadedExecutor,
     SingleThreadedExecutor,
 )
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 import yaml
@@ -49,6 +51,15 @@ from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
 
 NODE_GROUP = 'vehicle_monitor.nodes'
+# The EventsExecutor (experimental in Jazzy) costs about a fifth of the SingleThreadedExecutor
+# per callback (benchmarks/bench_replay.py): the difference between a 2x and a 12x real-time
+# replay of a 1 kHz graph. Tests use the SingleThreadedExecutor, which re-raises callback errors.
+EXECUTORS: dict[str, Callable[[Context | None], Executor]] = {
+    'events': lambda context: EventsExecutor(context=context),
+    'single': lambda context: SingleThreadedExecutor(context=context),
+    'multi': lambda context: MultiThreadedExecutor(num_threads=os.cpu_count() or 2,
+                                                   context=context),
+}
 
 
 @dataclass(frozen=True)
@@ -67,12 +78,13 @@ class GraphSpec:
     """A graph: its nodes and how they are executed."""
 
     nodes: tuple[NodeSpec, ...]
-    executor: str = 'single'
+    executor: str = 'events'
     use_sim_time: bool = False
 
     def __post_init__(self) -> None:
-        if self.executor not in ('single', 'multi'):
-            raise ConfigurationError(f'executor must be single or multi, got {self.executor!r}')
+        if self.executor not in EXECUTORS:
+            raise ConfigurationError(
+                f'executor must be one of {", ".join(EXECUTORS)}, got {self.executor!r}')
         if not self.nodes:
             raise ConfigurationError('a graph needs at least one node')
 
@@ -97,7 +109,7 @@ def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
                               parameters=dict(entry.get('parameters') or {}),
                               remappings={str(k): str(v) for k, v in
                                           (entry.get('remappings') or {}).items()}))
-    return GraphSpec(nodes=tuple(nodes), executor=str(data.get('executor', 'single')),
+    return GraphSpec(nodes=tuple(nodes), executor=str(data.get('executor', 'events')),
                      use_sim_time=bool(data.get('use_sim_time', False)))
 
 
@@ -135,9 +147,7 @@ class Graph:
     def __init__(self, spec: GraphSpec, context: Context | None = None) -> None:
         self.spec = spec
         self.context = context
-        self.executor: Executor = (
-            MultiThreadedExecutor(num_threads=os.cpu_count() or 2, context=context)
-            if spec.executor == 'multi' else SingleThreadedExecutor(context=context))
+        self.executor: Executor = EXECUTORS[spec.executor](context)
         self.nodes: list[Node] = []
         try:
             for node_spec in spec.nodes:
