@@ -108,6 +108,22 @@ def test_start_offset_and_topic_selection(
     assert len(received) == 100
 
 
+def test_loop_replays_again(
+        small_bag: tuple[Path, dict[str, TopicSeries]], make_node: Callable[..., Any],
+        spin_until: Callable[..., bool]) -> None:
+    """With loop, the bag starts over: the first stamp comes back and the replay goes on."""
+    path, series = small_bag
+    received: list[tuple[str, int, Any]] = []
+    _listen(make_node('listener'), received)
+    player = make_node(ScenarioPlayer, parameter_overrides=[
+        Parameter('bag', value=str(path)), Parameter('wait_for_subscribers', value=1),
+        Parameter('rate', value=50.0), Parameter('loop', value=True),
+        Parameter('topics', value=['/vehicle/imu'])])
+    first = int(series['/vehicle/imu'].stamps_ns[0])
+    assert spin_until(lambda: [s for _, s, _ in received].count(first) >= 2, timeout_s=20.0)
+    assert not player.done.is_set()
+
+
 def test_namespace_moves_replayed_topics(
         small_bag: tuple[Path, dict[str, TopicSeries]], make_node: Callable[..., Any],
         spin_until: Callable[..., bool]) -> None:
