@@ -1,0 +1,297 @@
+"""``tpms_voter``: voting fusion of the TPMS methods' indications (Persson 2002, SPEC §3.3).
+
+Subscribes ``tpms/indication/<method>`` (TpmsIndication) for each name in the read-only
+``methods`` parameter and publishes ``tpms/warning`` (TpmsWarning) on each accepted indication
+and at ``publish_rate_hz``, plus ``/diagnostics``. Per method ``<method>.enabled`` switches it
+on/off and ``<method>.threshold`` is its own h_i (> ``h0``); the rule, hold-off and hysteresis
+are the core's (:class:`tpms_ros.tpms_voting.TpmsVoter`).
+
+Time. The voter runs in *data time*, the stamps of the indications: an indication is voted at
+its own stamp, so hold-off, set-off and staleness are measured on the data and a replay at any
+speed decides the same. Between indications, the periodic output extrapolates data time with
+the node clock (the newest stamp plus the clock time since it arrived), so a method that falls
+silent ages out after ``max_age_s`` (and the warning keeps being published). Each warning is
+stamped with the newest indication the decision used (the evaluation time if none was fresh).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import functools
+import math
+import re
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
+from vehicle_monitor_msgs.msg import TpmsWarning
+
+from tpms_ros.tpms_voting import TIRE_NAMES, TpmsIndication, TpmsVoter, VoterParams
+from vehicle_monitor_common.node_helpers import (
+    ERROR,
+    OK,
+    OUTPUT_QOS,
+    SENSOR_QOS,
+    WARN,
+    ConfigurationError,
+    Diagnostics,
+    StampCheck,
+    TypedParameters,
+    param,
+    run_node,
+    stamp_ns,
+)
+
+_D = VoterParams()
+_METHOD_NAME = re.compile(r'^[a-z][a-z0-9_]*$')
+_DEFAULT_THRESHOLD = 0.8
+
+
+@dataclass(frozen=True)
+class TpmsVoterParameters:
+    """Parameters of the tpms_voter node (per-method ones are declared from ``methods``)."""
+
+    methods: tuple[str, ...] = param(('stiffness', 'vibration', 'wheel_radius'),
+                                     'methods voted: subscribes tpms/indication/<method>; each '
+                                     'has <method>.enabled and <method>.threshold',
+                                     read_only=True)
+    h0: float = param(_D.h0, 'threshold on the mean confidence when the counted methods agree '
+                      '(below every <method>.threshold)', low=0.01, high=0.99)
+    max_age_s: float = param(_D.max_age_s, 'an indication older than this (data time) is '
+                             'stale and not voted, s', low=0.01, high=3600.0)
+    set_on_s: float = param(_D.set_on_s, 'hold-off: the warning condition must hold this long '
+                            '(net) before a warning, s', low=0.0, high=3600.0)
+    set_off_s: float = param(_D.set_off_s, 'the evidence must stay below the clear threshold '
+                             'this long (net) to clear a warning, s', low=0.0, high=3600.0)
+    clear_ratio: float = param(_D.clear_ratio, 'clear threshold = clear_ratio x the set '
+                               'threshold (hysteresis)', low=0.01, high=1.0)
+    publish_rate_hz: float = param(2.0, 'rate of the periodic tpms/warning between '
+                                   'indications, Hz', low=0.01, high=100.0, read_only=True)
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
+                                        high=60.0, read_only=True)
+
+    def __post_init__(self) -> None:
+        if not self.methods:
+            raise ValueError('methods must name at least one TPMS method')
+        for name in self.methods:
+            if not _METHOD_NAME.match(name):
+                raise ValueError(f'methods: {name!r} is not a valid method name '
+                                 '([a-z][a-z0-9_]*, it becomes a topic name)')
+        if len(set(self.methods)) != len(self.methods):
+            raise ValueError(f'methods: duplicate names in {list(self.methods)}')
+
+
+class TpmsVoterNode(Node):
+    """Wraps :class:`TpmsVoter`: indication topics in, warnings and diagnostics out."""
+
+    def __init__(self, node_name: str = 'tpms_voter', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._typed = TypedParameters(self, TpmsVoterParameters, on_change=self._on_change)
+        p = self._typed.value
+        self._thresholds: dict[str, float] = {}
+        self._enabled: dict[str, bool] = {}
+        for method in p.methods:
+            self._thresholds[method] = self._declare(
+                f'{method}.threshold', _DEFAULT_THRESHOLD, ParameterDescriptor(
+                    description=f'own threshold h_i of {method} when the methods disagree or '
+                    'it is alone (> h0)',
+                    floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
+            self._enabled[method] = self._declare(
+                f'{method}.enabled', True, ParameterDescriptor(
+                    description=f'vote the {method} indications'))
+        try:
+            self._voter = TpmsVoter(self._voter_params(p.h0, self._thresholds, p))
+        except ValueError as exc:
+            raise ConfigurationError(f'invalid parameters: {exc}') from None
+        for method, enabled in self._enabled.items():
+            self._voter.set_enabled(method, enabled)
+        self.add_on_set_parameters_callback(self._validate_methods)
+        self.add_post_set_parameters_callback(self._apply_methods)
+
+        self._checks = {m: StampCheck(max_gap_s=math.inf) for m in p.methods}
+        self._received = dict.fromkeys(p.methods, 0)
+        self._rate_counts = dict.fromkeys(p.methods, 0)
+        self._rejected = dict.fromkeys(('invalid', 'method_mismatch', 'out_of_order',
+                                        'repeated'), 0)
+        self._rate_since_ns = self.get_clock().now().nanoseconds
+        # data-time anchor: newest indication stamp and the node-clock time it arrived
+        self._anchor: tuple[float, int] | None = None
+        self._last_eval_s = -math.inf
+        self._last_result: Any = None
+        self._latest_stamp: dict[str, float] = {}
+        self._publisher = self.create_publisher(TpmsWarning, 'tpms/warning', OUTPUT_QOS)
+        overrides = QoSOverridingOptions.with_default_policies()
+        for method in p.methods:
+            self.create_subscription(
+                IndicationMsg, f'tpms/indication/{method}',
+                functools.partial(self._on_indication, method), SENSOR_QOS,
+                qos_overriding_options=overrides)
+        self.create_timer(1.0 / p.publish_rate_hz, self._on_timer)
+        self._diagnostics = Diagnostics(self, 'tpms/voter', p.diagnostics_period_s)
+        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._update_diagnostics()
+
+    @property
+    def parameters(self) -> TpmsVoterParameters:
+        """The current, validated node-level parameters."""
+        return self._typed.value
+
+    @property
+    def voter(self) -> TpmsVoter:
+        """The core voter (read access for tests and tools)."""
+        return self._voter
+
+    # -- parameters ----------------------------------------------------------------------------
+
+    def _declare(self, name: str, default: Any, descriptor: ParameterDescriptor) -> Any:
+        try:
+            return self.declare_parameter(name, default, descriptor).value
+        except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+            raise ConfigurationError(f'parameter {name}: {str(exc).splitlines()[0]}') from None
+
+    @staticmethod
+    def _voter_params(h0: float, thresholds: dict[str, float],
+                      p: TpmsVoterParameters) -> VoterParams:
+        return VoterParams(h0=h0, method_thresholds=dict(thresholds), max_age_s=p.max_age_s,
+                           set_on_s=p.set_on_s, set_off_s=p.set_off_s,
+                           clear_ratio=p.clear_ratio)
+
+    def _candidate(self, parameters: list[Parameter]) -> tuple[float, dict[str, float]]:
+        h0 = self.parameters.h0
+        thresholds = dict(self._thresholds)
+        for prm in parameters:
+            if prm.name == 'h0':
+                h0 = float(prm.value)
+            elif prm.name.endswith('.threshold') and prm.name[:-10] in thresholds:
+                thresholds[prm.name[:-10]] = float(prm.value)
+        return h0, thresholds
+
+    def _validate_methods(self, parameters: list[Parameter]) -> SetParametersResult:
+        # cross-field rule of the voting: every h_i > h0 (TypedParameters checks the rest)
+        h0, thresholds = self._candidate(parameters)
+        try:
+            self._voter_params(h0, thresholds, self.parameters)
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_methods(self, parameters: list[Parameter]) -> None:
+        _, self._thresholds = self._candidate(parameters)
+        for prm in parameters:
+            if prm.name.endswith('.enabled') and prm.name[:-8] in self._enabled:
+                self._enabled[prm.name[:-8]] = bool(prm.value)
+                self._voter.set_enabled(prm.name[:-8], bool(prm.value))
+        self._on_change(self.parameters)
+
+    def _on_change(self, p: TpmsVoterParameters) -> None:
+        # the voter reads its params at each evaluation; the method set is read-only
+        self._voter.params = self._voter_params(p.h0, self._thresholds, p)
+
+    # -- voting --------------------------------------------------------------------------------
+
+    def _on_indication(self, method: str, msg: IndicationMsg) -> None:
+        self._received[method] += 1
+        self._rate_counts[method] += 1
+        if msg.method != method:
+            self._rejected['method_mismatch'] += 1
+            return
+        stamp = stamp_ns(msg.header.stamp)
+        verdict = self._checks[method].check(stamp)
+        if verdict in ('out_of_order', 'repeated'):
+            self._rejected[verdict] += 1
+            return
+        try:
+            indication = TpmsIndication(
+                method=method, stamp_s=stamp * 1e-9,
+                underinflated=np.asarray(msg.underinflated, dtype=bool),
+                confidence=np.asarray(msg.confidence, dtype=float),
+                known=np.asarray(msg.known, dtype=bool))
+        except ValueError:
+            # NaN or out-of-range confidence, wrong sizes: the method counts as silent
+            self._rejected['invalid'] += 1
+            return
+        if not self._voter.submit(indication):
+            return
+        self._latest_stamp[method] = indication.stamp_s
+        now_ns = self.get_clock().now().nanoseconds
+        if self._anchor is None or indication.stamp_s >= self._anchor[0]:
+            self._anchor = (indication.stamp_s, now_ns)
+        self._evaluate(max(indication.stamp_s, self._last_eval_s))
+
+    def _on_timer(self) -> None:
+        if self._anchor is None:
+            return           # no data time yet: nothing to decide on
+        stamp_s, arrived_ns = self._anchor
+        now_s = stamp_s + (self.get_clock().now().nanoseconds - arrived_ns) * 1e-9
+        self._evaluate(max(now_s, self._last_eval_s))
+
+    def _evaluate(self, now_s: float) -> None:
+        result = self._voter.evaluate(now_s)
+        self._last_eval_s = now_s
+        self._last_result = result
+        used = [self._latest_stamp[m] for m in result.methods_used]
+        stamp_s = max(used) if used else now_s
+        msg = TpmsWarning()
+        sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
+        msg.header.stamp = Time(sec=sec, nanosec=nanosec)
+        msg.warning = result.warning.tolist()
+        msg.active = result.active
+        msg.confidence = result.confidence.tolist()
+        msg.reasons = list(result.reasons)
+        msg.methods = list(result.methods_used)
+        self._publisher.publish(msg)
+
+    # -- diagnostics ---------------------------------------------------------------------------
+
+    def _update_diagnostics(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        elapsed = (now - self._rate_since_ns) * 1e-9
+        values: dict[str, Any] = {
+            f'input_rate_hz.{m}': (n / elapsed if elapsed > 0 else 0.0)
+            for m, n in self._rate_counts.items()}
+        self._rate_counts = dict.fromkeys(self._rate_counts, 0)
+        self._rate_since_ns = now
+        values.update({f'received.{m}': n for m, n in self._received.items()})
+        values.update({f'enabled.{m}': e for m, e in self._enabled.items()})
+        values.update({f'rejected_{k}': v for k, v in self._rejected.items()})
+        values.update({f'rejected_core_{k}': v for k, v in self._voter.rejected.items()})
+        result = self._last_result
+        enabled = [m for m, e in self._enabled.items() if e]
+        if result is None:
+            self._diagnostics.set(WARN, 'waiting for indications', values)
+            return
+        warned = [TIRE_NAMES[i] for i in np.flatnonzero(result.warning)]
+        values.update({
+            'fresh_methods': list(result.methods_used),
+            'stale_methods': list(result.stale_methods),
+            'active_warnings': warned,
+            'confidence': result.confidence.tolist(),
+            'evaluated_at_s': result.stamp_s,
+        })
+        for method in enabled:
+            held = self._latest_stamp.get(method)
+            values[f'age_s.{method}'] = result.stamp_s - held if held is not None else math.inf
+        if not result.methods_used:
+            level, message = ERROR, 'no fresh indication from any enabled method'
+        elif warned:
+            level, message = WARN, f'tire pressure warning: {", ".join(warned)}'
+        elif result.stale_methods:
+            level, message = WARN, f'stale methods: {", ".join(result.stale_methods)}'
+        else:
+            level, message = OK, 'ok'
+        self._diagnostics.set(level, message, values)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of the ``tpms_voter`` executable."""
+    raise SystemExit(run_node(TpmsVoterNode, args))
+
+
+if __name__ == '__main__':
+    main()

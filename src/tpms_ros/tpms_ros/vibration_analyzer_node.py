@@ -1,0 +1,365 @@
+"""``vibration_analyzer``: TPMS by tire torsional resonance (Persson 2002, SPEC §3.1) on ROS.
+
+Subscribes ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz) and publishes ``tpms/tire_resonance``
+(TireResonance) and ``tpms/indication/vibration`` (TpmsIndication), both stamped with the last
+wheel-speed sample of the block they answer, plus ``/diagnostics``. Service ``~/calibrate``
+(std_srvs/Trigger) learns each tire's nominal resonance over ``calibration_duration_s`` of data;
+the result is saved to ``calibration_file`` and reloaded at start.
+
+Samples are buffered into blocks of ``block_s`` (the core is vectorised over a block; one call
+per sample would cost ~100x more). Stamps: an out-of-order or repeated sample is rejected; a
+few missing samples (at most ``max_gap_s``) are filled with NaN rows, which the core treats as
+bad samples (held, skipped by the regression), so the block stays uniformly sampled; a longer
+gap restarts the filters. A wheel with a bad sample (non-finite, negative, above
+``max_wheel_speed``, stuck) is unknown for ``bad_hold_s`` afterwards, never flagged low.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from std_srvs.srv import Trigger
+from vehicle_monitor_msgs.msg import TireResonance, WheelSpeeds
+from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
+
+from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
+from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
+from vehicle_monitor_common.calibration_store import CalibrationManager
+from vehicle_monitor_common.node_helpers import (
+    ERROR,
+    OK,
+    OUTPUT_QOS,
+    SENSOR_QOS,
+    WARN,
+    ConfigurationError,
+    Diagnostics,
+    StampCheck,
+    TypedParameters,
+    param,
+    run_node,
+    stamp_ns,
+)
+
+_DEFAULTS = VibrationParams()
+# Core parameters the analyzer reads at each call (safe to change at runtime); the others shape
+# its filters at construction and are read-only.
+_RUNTIME_CORE = ('min_wheel_speed', 'max_wheel_speed', 'min_valid_fraction',
+                 'calibration_settle_s', 'min_calibration_s', 'z_flag', 'z_full',
+                 'rel_noise_floor')
+
+
+@dataclass(frozen=True)
+class VibrationAnalyzerParameters:
+    """Parameters of the vibration_analyzer node (core ones: see VibrationParams)."""
+
+    sample_rate_hz: float = param(_DEFAULTS.sample_rate_hz, 'wheel-speed sample rate, Hz',
+                                  low=50.0, high=20000.0, read_only=True)
+    mode_band_hz: tuple[float, ...] = param(
+        _DEFAULTS.mode_band_hz, '[low, high] band of the torsional tire mode at nominal '
+        'pressure, Hz', read_only=True)
+    band_margin: float = param(_DEFAULTS.band_margin, 'relative widening of mode_band_hz for '
+                               'the band-pass', low=0.01, high=0.99, read_only=True)
+    filter_order: int = param(_DEFAULTS.filter_order, 'Butterworth order of the band-pass',
+                              low=1, high=8, read_only=True)
+    analysis_rate_hz: float = param(_DEFAULTS.analysis_rate_hz, 'rate of the AR(2) fit after '
+                                    'decimation, Hz', low=10.0, high=20000.0, read_only=True)
+    memory_s: float = param(_DEFAULTS.memory_s, 'RLS memory (forgetting), s', low=0.1,
+                            high=600.0, read_only=True)
+    rls_regularization: float = param(_DEFAULTS.rls_regularization, 'RLS initial '
+                                      'regularisation P0^-1, (rad/s)^2', low=1e-15, high=1.0,
+                                      read_only=True)
+    min_wheel_speed: float = param(_DEFAULTS.min_wheel_speed, 'below this wheel speed the '
+                                   'road excitation is too weak: samples are gated, rad/s',
+                                   low=0.0, high=1000.0)
+    max_wheel_speed: float = param(_DEFAULTS.max_wheel_speed, 'wheel speeds above this are '
+                                   'non-physical and rejected, rad/s', low=1.0, high=5000.0)
+    stuck_s: float = param(_DEFAULTS.stuck_s, 'an exactly repeated wheel speed for this long '
+                           'is a stuck sensor, s', low=1e-3, high=60.0, read_only=True)
+    guard_s: float = param(_DEFAULTS.guard_s, 'the regression skips this long after a bad '
+                           'sample (filter transient), s', low=0.0, high=5.0, read_only=True)
+    min_valid_fraction: float = param(_DEFAULTS.min_valid_fraction, 'a tire is known only if '
+                                      'this fraction of the RLS memory is valid', low=0.01,
+                                      high=1.0)
+    calibration_settle_s: float = param(_DEFAULTS.calibration_settle_s, 'first part of a '
+                                        'calibration window not used, s', low=0.0, high=3600.0)
+    min_calibration_s: float = param(_DEFAULTS.min_calibration_s, 'least seconds of known '
+                                     'estimates per tire for a calibration, s', low=0.1,
+                                     high=3600.0)
+    z_flag: float = param(_DEFAULTS.z_flag, 'flag a tire when its frequency drop exceeds this '
+                          'many noise sigmas', low=0.1, high=100.0)
+    z_full: float = param(_DEFAULTS.z_full, 'frequency drop in sigmas at which the confidence '
+                          'reaches 1', low=0.1, high=100.0)
+    rel_noise_floor: float = param(_DEFAULTS.rel_noise_floor, 'floor of the frequency noise '
+                                   'relative to the nominal frequency', low=1e-5, high=0.5)
+    block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
+                           'duration, s', low=0.005, high=5.0, read_only=True)
+    max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '
+                             'filters; shorter ones are filled as missing samples, s',
+                             low=1e-4, high=10.0)
+    bad_hold_s: float = param(1.0, 'a wheel stays unknown this long after a bad sample, s',
+                              low=0.0, high=600.0)
+    publish_rate_hz: float = param(10.0, 'highest output rate (in data time); outputs follow '
+                                   'processed blocks, Hz', low=0.01, high=1000.0)
+    calibration_duration_s: float = param(60.0, 'length of a calibration run, s of data',
+                                          low=0.1, high=36000.0)
+    calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
+                                     'if tire pressures are known to be nominal)')
+    calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from '
+                                  'at start; empty: not persisted', read_only=True)
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
+                                        high=60.0, read_only=True)
+
+    def __post_init__(self) -> None:
+        self.core()      # the core's own cross-field rules (band, rates, z_flag < z_full)
+        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
+            raise ValueError(
+                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
+                f'calibration_settle_s + min_calibration_s '
+                f'({self.calibration_settle_s + self.min_calibration_s:g})')
+
+    def core(self) -> VibrationParams:
+        """The core's parameters."""
+        if len(self.mode_band_hz) != 2:
+            raise ValueError(f'mode_band_hz must be [low, high], got {list(self.mode_band_hz)}')
+        values: dict[str, Any] = {name: getattr(self, name)
+                                  for name in VibrationParams.__dataclass_fields__}
+        values['mode_band_hz'] = tuple(float(v) for v in self.mode_band_hz)
+        return VibrationParams(**values)
+
+
+class VibrationAnalyzerNode(Node):
+    """Wraps :class:`VibrationAnalyzer` (four tires) with ROS topics, calibration, diagnostics."""
+
+    def __init__(self, node_name: str = 'vibration_analyzer', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._typed = TypedParameters(self, VibrationAnalyzerParameters,
+                                      on_change=self._on_change)
+        p = self._typed.value
+        try:
+            self._analyzer = VibrationAnalyzer(p.core())
+        except ValueError as exc:        # already checked by the dataclass; belt and braces
+            raise ConfigurationError(str(exc)) from None
+        self._period_ns = round(1e9 / p.sample_rate_hz)
+        self._block_len = max(1, round(p.block_s * p.sample_rate_hz))
+        self._stamps = StampCheck(max_gap_s=p.max_gap_s)
+        self._buffer: list[np.ndarray] = []
+        self._buffer_first_ns = 0
+        self._buffer_last_ns = 0
+        self._counts = dict.fromkeys(('received', 'processed_blocks', 'wrong_size', 'gaps',
+                                      'missing_samples'), 0)
+        self._missing_per_wheel = 0          # NaN rows the node inserted (core counts them)
+        self._block_missing = 0              # ... of which in the current buffer
+        self._last_bad_s = np.full(N_TIRES, -math.inf)
+        self._last_publish_s = -math.inf
+        self._last_stamp_s = math.nan
+        self._last_known = np.zeros(N_TIRES, dtype=bool)
+        self._last_flags = np.zeros(N_TIRES, dtype=bool)
+        self._rate_count = 0
+        self._rate_since_ns = self.get_clock().now().nanoseconds
+
+        self._calibration = CalibrationManager(self._analyzer, p.calibration_file, 'vibration')
+        self._calibration.load()
+        if self._calibration.state == 'file_corrupt':
+            self.get_logger().warning(self._calibration.detail)
+        if p.calibrate_on_start:
+            self._calibration.request(p.calibration_duration_s)
+
+        self._resonance_pub = self.create_publisher(TireResonance, 'tpms/tire_resonance',
+                                                    OUTPUT_QOS)
+        self._indication_pub = self.create_publisher(IndicationMsg, 'tpms/indication/vibration',
+                                                     OUTPUT_QOS)
+        self.create_subscription(
+            WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds, SENSOR_QOS,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.create_service(Trigger, '~/calibrate', self._on_calibrate)
+        self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s)
+        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._update_diagnostics()
+
+    @property
+    def parameters(self) -> VibrationAnalyzerParameters:
+        """The current, validated parameters."""
+        return self._typed.value
+
+    @property
+    def analyzer(self) -> VibrationAnalyzer:
+        """The core estimator (read access for tests and tools)."""
+        return self._analyzer
+
+    def _on_change(self, p: VibrationAnalyzerParameters) -> None:
+        # only the parameters the core reads per call can change (the rest are read-only)
+        self._analyzer.params = p.core()
+        self._stamps.max_gap_s = p.max_gap_s
+
+    # -- input ---------------------------------------------------------------------------------
+
+    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+        self._counts['received'] += 1
+        self._rate_count += 1
+        omega = np.asarray(msg.omega, dtype=float)
+        if omega.shape != (N_TIRES,):
+            # unreachable over DDS for a float64[4] field, but an in-process caller can
+            self._counts['wrong_size'] += 1
+            return
+        stamp = stamp_ns(msg.header.stamp)
+        verdict = self._stamps.check(stamp)
+        if verdict in ('repeated', 'out_of_order'):
+            return
+        if verdict == 'gap':
+            self._counts['gaps'] += 1
+            self._process_buffer()
+            self._analyzer.reset_filters()
+            self._calibration.restart()
+        elif self._buffer_last_ns:
+            # bridge a few missing samples with NaN rows: the block stays uniformly sampled
+            missing = round((stamp - self._buffer_last_ns) / self._period_ns) - 1
+            if missing > 0:
+                self._counts['missing_samples'] += missing
+                self._missing_per_wheel += missing
+                self._block_missing += missing
+                self._buffer.extend(np.full(N_TIRES, np.nan) for _ in range(missing))
+        if not self._buffer:
+            self._buffer_first_ns = stamp
+        self._buffer.append(omega)
+        self._buffer_last_ns = stamp
+        if len(self._buffer) >= self._block_len:
+            self._process_buffer()
+
+    def _process_buffer(self) -> None:
+        if not self._buffer:
+            return
+        block = np.vstack(self._buffer)
+        first_s, last_s = self._buffer_first_ns * 1e-9, self._buffer_last_ns * 1e-9
+        self._buffer = []
+        inserted, self._block_missing = self._block_missing, 0
+        rejected_before = self._analyzer.rejected.copy()
+        self._calibration.before_chunk()
+        estimate = self._analyzer.process(block)
+        self._counts['processed_blocks'] += 1
+        # a wheel whose block held a rejected sample is unknown for bad_hold_s: its latest
+        # estimate may predate the fault. The NaN rows bridging missing samples are not faults.
+        self._last_bad_s[self._analyzer.rejected - rejected_before > inserted] = last_s
+        event = self._calibration.update(first_s, last_s)
+        if event:
+            self.get_logger().info(event)
+        self._last_stamp_s = last_s
+        if last_s - self._last_publish_s >= 1.0 / self.parameters.publish_rate_hz - 1e-9:
+            self._publish(estimate.frequency_hz, estimate.known, self._buffer_last_ns, last_s)
+
+    # -- output --------------------------------------------------------------------------------
+
+    def _publish(self, frequency: np.ndarray, core_known: np.ndarray, stamp: int,
+                 stamp_s: float) -> None:
+        self._last_publish_s = stamp_s
+        sensor_ok = stamp_s - self._last_bad_s >= self.parameters.bad_hold_s
+        valid = core_known & sensor_ok
+        cal = self._analyzer.calibration
+        header_stamp = _to_time(stamp)
+
+        resonance = TireResonance()
+        resonance.header.stamp = header_stamp
+        resonance.frequency_hz = np.where(valid, frequency, np.nan).tolist()
+        if cal is not None:
+            sigma = np.maximum(cal.noise_hz,
+                               self.parameters.rel_noise_floor * cal.nominal_frequency_hz)
+            resonance.frequency_std_hz = np.where(valid, sigma, np.nan).tolist()
+            resonance.nominal_frequency_hz = cal.nominal_frequency_hz.tolist()
+        else:
+            resonance.frequency_std_hz = [math.nan] * N_TIRES
+            resonance.nominal_frequency_hz = [math.nan] * N_TIRES
+        resonance.valid = valid.tolist()
+        resonance.calibrated = cal is not None
+        self._resonance_pub.publish(resonance)
+
+        core = self._analyzer.indication(stamp_s)
+        known = core.known & sensor_ok
+        indication = IndicationMsg()
+        indication.header.stamp = header_stamp
+        indication.method = 'vibration'
+        indication.underinflated = (core.underinflated & known).tolist()
+        indication.confidence = np.where(known, core.confidence, 0.0).tolist()
+        indication.known = known.tolist()
+        self._indication_pub.publish(indication)
+        self._last_known = known
+        self._last_flags = core.underinflated & known
+
+    # -- calibration ---------------------------------------------------------------------------
+
+    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = self._calibration.request(
+            self.parameters.calibration_duration_s)
+        return response
+
+    @property
+    def calibration_state(self) -> str:
+        """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
+        return self._calibration.state
+
+    # -- diagnostics ---------------------------------------------------------------------------
+
+    def _update_diagnostics(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        elapsed = (now - self._rate_since_ns) * 1e-9
+        rate = self._rate_count / elapsed if elapsed > 0 else 0.0
+        self._rate_count, self._rate_since_ns = 0, now
+        rejected_values = self._analyzer.rejected - self._missing_per_wheel
+        cal = self._calibration
+        values: dict[str, Any] = {
+            'input_rate_hz': rate,
+            'received': self._counts['received'],
+            'processed_blocks': self._counts['processed_blocks'],
+            'rejected_out_of_order': self._stamps.rejected.get('out_of_order', 0),
+            'rejected_repeated': self._stamps.rejected.get('repeated', 0),
+            'rejected_wrong_size': self._counts['wrong_size'],
+            'rejected_bad_value_per_wheel': rejected_values.tolist(),
+            'gated_low_speed_per_wheel': self._analyzer.gated.tolist(),
+            'missing_samples': self._counts['missing_samples'],
+            'gaps': self._counts['gaps'],
+            'known': self._last_known.tolist(),
+            'calibration_state': cal.state,
+            'calibration': cal.detail,
+            'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
+            'last_stamp_s': self._last_stamp_s,
+        }
+        rejected_total = (sum(self._stamps.rejected.values()) + self._counts['wrong_size']
+                          + int(rejected_values.sum()))
+        # every problem is listed; the worst sets the level
+        problems: list[tuple[int, str]] = []
+        if self._counts['received'] == 0:
+            problems.append((WARN, 'waiting for vehicle/wheel_speeds'))
+        elif rate == 0.0:
+            problems.append((ERROR, 'vehicle/wheel_speeds silent'))
+        if self._counts['missing_samples'] > self._counts['received']:
+            problems.append((WARN, 'wheel speeds arrive slower than sample_rate_hz: check the '
+                                   'parameter'))
+        if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
+            problems.append((WARN, cal.detail))
+        elif self._counts['received'] and not self._last_known.all():
+            unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
+            problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
+        if self._last_flags.any():
+            problems.append((WARN, f'low tires indicated: {", ".join(values["low_tires"])}'))
+        level = max((lv for lv, _ in problems), default=OK)
+        message = '; '.join(text for _, text in problems) or (
+            f'ok ({rejected_total} samples rejected so far)' if rejected_total else 'ok')
+        self._diagnostics.set(level, message, values)
+
+
+def _to_time(stamp: int) -> Time:
+    sec, nanosec = divmod(stamp, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of the ``vibration_analyzer`` executable."""
+    raise SystemExit(run_node(VibrationAnalyzerNode, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,473 @@
+"""``wheel_radius_analyzer``: TPMS by relative rolling radii (Persson 2002, SPEC §3.2) on ROS.
+
+Subscribes ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz), ``vehicle/imu`` (sensor_msgs/Imu,
+``angular_velocity.z`` = yaw rate, REP 103) and ``vehicle/driver_inputs`` (DriverInputs: wheel
+torques, steering angle); publishes ``tpms/wheel_radius`` (WheelRadiusOffsets) and
+``tpms/indication/wheel_radius`` (TpmsIndication) plus ``/diagnostics``. Service
+``~/calibrate`` (std_srvs/Trigger) learns the nominal pair offsets over
+``calibration_duration_s`` of data, saved to ``calibration_file`` and reloaded at start.
+
+Time alignment. The core runs at ~100 Hz on synchronised samples. Each IMU sample at t_k closes
+a bin (t_prev, t_k] (at most one ``1 / sample_rate_hz`` long; IMU samples closer than 0.75 of
+that to the previous bin end are skipped, so a faster IMU is decimated): the wheel speeds
+stamped in the bin are averaged, and the driver input used is the newest one stamped at or
+before t_k. A bin waits until a wheel speed stamped at or after t_k has arrived (topics arrive
+in any order); if none comes within ``max_latency_s`` of IMU time, it is processed with the
+wheel speeds it has, or as missing (NaN) if it has none. A wheel whose bin holds a bad sample
+(non-finite, negative, above ``max_wheel_speed``) is NaN in the bin: the core rejects it and
+keeps the tire unknown for ``wheel_recover_s``. A driver input older than ``max_input_age_s``
+is stale: the torque becomes NaN (longitudinal filters pause) and the steering angle NaN (the
+front-axle lateral measurement pauses). Without the IMU no bin closes: the analysis pauses and
+the diagnostics say so (its indication then goes stale at the voter).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
+from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets, WheelSpeeds
+from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
+
+from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
+from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusParams
+from vehicle_monitor_common.calibration_store import CalibrationManager
+from vehicle_monitor_common.node_helpers import (
+    ERROR,
+    OK,
+    OUTPUT_QOS,
+    SENSOR_QOS,
+    WARN,
+    Diagnostics,
+    StampCheck,
+    TypedParameters,
+    param,
+    run_node,
+    stamp_ns,
+)
+
+_D = WheelRadiusParams()
+# core order delta_13, delta_24, delta_34, delta_12 -> message order delta_13, delta_24,
+# delta_12, delta_34
+_MSG_ORDER = [0, 1, 3, 2]
+# a wheel buffer never holds more than this much wheel-speed time (IMU silent), ns
+_WHEEL_HORIZON_NS = 2_000_000_000
+
+
+@dataclass(frozen=True)
+class WheelRadiusAnalyzerParameters:
+    """Parameters of the wheel_radius_analyzer node (core ones: see WheelRadiusParams)."""
+
+    nominal_radius_m: float = param(_D.nominal_radius_m, 'nominal rolling radius r_n, m',
+                                    low=0.1, high=2.0, read_only=True)
+    track_front_m: float = param(_D.track_front_m, 'front track width, m', low=0.5, high=4.0,
+                                 read_only=True)
+    track_rear_m: float = param(_D.track_rear_m, 'rear track width, m', low=0.5, high=4.0,
+                                read_only=True)
+    static_load_n: tuple[float, ...] = param(_D.static_load_n, 'static wheel loads FL, FR, '
+                                             'RL, RR, N', read_only=True)
+    driven_axle: str = param(_D.driven_axle, 'driven axle', choices=('front', 'rear'),
+                             read_only=True)
+    sample_rate_hz: float = param(_D.sample_rate_hz, 'analysis rate: wheel speeds are '
+                                  'averaged into bins of 1 / this, Hz', low=10.0, high=1000.0,
+                                  read_only=True)
+    max_gap_s: float = param(_D.max_gap_s, 'a larger gap between bins restarts the yaw '
+                             'states, s', low=1e-3, high=10.0)
+    max_wheel_speed: float = param(_D.max_wheel_speed, 'wheel speeds above this are rejected, '
+                                   'rad/s', low=1.0, high=5000.0)
+    min_speed_mps: float = param(_D.min_speed_mps, 'lower end of the speed band, m/s',
+                                 low=0.0, high=100.0)
+    max_speed_mps: float = param(_D.max_speed_mps, 'upper end of the speed band, m/s',
+                                 low=0.1, high=150.0)
+    mu_max: float = param(_D.mu_max, 'traction limit |Fx/Fz| of the linear slip model',
+                          low=1e-3, high=2.0)
+    slip_max: float = param(_D.slip_max, '|slip| above this is spin/lock', low=1e-4, high=1.0)
+    brake_torque_nm: float = param(_D.brake_torque_nm, 'any wheel torque below -this is '
+                                   'braking: the longitudinal model pauses, N m', low=0.0,
+                                   high=1e5)
+    ay_max_longitudinal: float = param(_D.ay_max_longitudinal, 'cornering limit of the '
+                                       'longitudinal model, m/s^2', low=0.01, high=20.0)
+    ay_max_lateral: float = param(_D.ay_max_lateral, 'cornering limit of the lateral model, '
+                                  'm/s^2', low=0.01, high=20.0)
+    gyro_stuck_s: float = param(_D.gyro_stuck_s, 'a yaw rate repeated this long is a stopped '
+                                'gyro: the lateral filter pauses, s', low=0.01, high=60.0)
+    wheel_recover_s: float = param(_D.wheel_recover_s, 'a tire stays unknown this long after '
+                                   'its last bad wheel speed, s', low=0.0, high=600.0)
+    slip_noise_std: float = param(_D.slip_noise_std, 'slip measurement noise', low=1e-7,
+                                  high=1.0)
+    inv_stiffness_rw: float = param(_D.inv_stiffness_rw, 'random walk of 1/k, per sqrt(s)',
+                                    low=0.0, high=1.0)
+    delta_rw: float = param(_D.delta_rw, 'random walk of the radius offsets, per sqrt(s)',
+                            low=0.0, high=1.0)
+    inv_stiffness0_std: float = param(_D.inv_stiffness0_std, 'initial std of 1/k', low=1e-6,
+                                      high=10.0, read_only=True)
+    delta0_std: float = param(_D.delta0_std, 'initial std of the offsets', low=1e-6, high=1.0,
+                              read_only=True)
+    yaw_jerk_std: float = param(_D.yaw_jerk_std, 'yaw jerk process noise, rad/s^3', low=1e-4,
+                                high=1000.0)
+    gyro_noise_std: float = param(_D.gyro_noise_std, 'gyro noise per sample, rad/s', low=1e-6,
+                                  high=1.0)
+    wheel_yaw_noise_std: float = param(_D.wheel_yaw_noise_std, 'noise of the wheel-speed yaw '
+                                       'rates per sample, rad/s', low=1e-6, high=1.0)
+    gyro_offset_rw: float = param(_D.gyro_offset_rw, 'random walk of the gyro offset, rad/s '
+                                  'per sqrt(s)', low=0.0, high=1.0)
+    gyro_offset0_std: float = param(_D.gyro_offset0_std, 'initial std of the gyro offset, '
+                                    'rad/s', low=1e-6, high=1.0, read_only=True)
+    calibration_settle_s: float = param(_D.calibration_settle_s, 'first part of a calibration '
+                                        'window not used, s', low=0.0, high=3600.0)
+    min_calibration_s: float = param(_D.min_calibration_s, 'least seconds of valid updates '
+                                     'per pair for a calibration, s', low=0.1, high=3600.0)
+    radius_noise_floor: float = param(_D.radius_noise_floor, 'floor of the per-tire relative '
+                                      'radius noise', low=1e-7, high=0.1)
+    informative_std: float = param(_D.informative_std, 'a pair whose posterior std exceeds '
+                                   'this carries no information', low=1e-6, high=1.0)
+    z_flag: float = param(_D.z_flag, 'flag a tire whose radius drop exceeds this many sigmas',
+                          low=0.1, high=100.0)
+    z_full: float = param(_D.z_full, 'radius drop in sigmas at which the confidence reaches 1',
+                          low=0.1, high=100.0)
+    max_latency_s: float = param(0.2, 'an IMU sample waits at most this long (IMU time) for '
+                                 'the wheel speeds of its bin, s', low=0.0, high=10.0)
+    max_input_age_s: float = param(0.1, 'a driver input older than this at a bin is stale, s',
+                                   low=1e-3, high=10.0)
+    validity_hold_s: float = param(1.0, 'longitudinal_valid / lateral_valid: a filter updated '
+                                   'within this long, s', low=0.01, high=600.0)
+    publish_rate_hz: float = param(10.0, 'highest output rate (in data time), Hz', low=0.01,
+                                   high=1000.0)
+    calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
+                                          low=0.1, high=36000.0)
+    calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
+                                     'if tire pressures are known to be nominal)')
+    calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from '
+                                  'at start; empty: not persisted', read_only=True)
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
+                                        high=60.0, read_only=True)
+
+    def __post_init__(self) -> None:
+        self.core()      # the core's cross-field rules (loads, speed band, z_flag < z_full)
+        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
+            raise ValueError(
+                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
+                f'calibration_settle_s + min_calibration_s '
+                f'({self.calibration_settle_s + self.min_calibration_s:g})')
+
+    def core(self) -> WheelRadiusParams:
+        """The core's parameters."""
+        if len(self.static_load_n) != N_TIRES:
+            raise ValueError(f'static_load_n must hold 4 loads, got {list(self.static_load_n)}')
+        values = {name: getattr(self, name) for name in WheelRadiusParams.__dataclass_fields__}
+        values['static_load_n'] = tuple(float(v) for v in self.static_load_n)
+        return WheelRadiusParams(**values)
+
+
+class WheelRadiusAnalyzerNode(Node):
+    """Wraps :class:`WheelRadiusAnalyzer` with input alignment, calibration and diagnostics."""
+
+    def __init__(self, node_name: str = 'wheel_radius_analyzer', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._typed = TypedParameters(self, WheelRadiusAnalyzerParameters,
+                                      on_change=self._on_change)
+        p = self._typed.value
+        self._analyzer = WheelRadiusAnalyzer(p.core())
+        self._bin_ns = round(1e9 / p.sample_rate_hz)
+        # stream checks: only order matters here (the core handles gaps between bins)
+        self._checks = {topic: StampCheck(max_gap_s=math.inf)
+                        for topic in ('wheel_speeds', 'imu', 'driver_inputs')}
+        self._wheels: deque[tuple[int, np.ndarray]] = deque()
+        self._imu: deque[tuple[int, float]] = deque()
+        self._driver: deque[tuple[int, float, np.ndarray]] = deque()
+        self._last_bin_end: int | None = None
+        self._counts = dict.fromkeys(('wrong_size', 'empty_bins', 'stale_driver_inputs',
+                                      'skipped_imu_samples', 'bins'), 0)
+        self._received = dict.fromkeys(self._checks, 0)
+        self._rate_counts = dict.fromkeys(self._checks, 0)
+        self._rate_since_ns = self.get_clock().now().nanoseconds
+        self._last_trace: np.ndarray | None = None
+        self._last_long_update = -math.inf
+        self._last_lat_update = -math.inf
+        self._last_publish_s = -math.inf
+        self._last_stamp_s = math.nan
+        self._gyro_ok = True
+        self._last_known = np.zeros(N_TIRES, dtype=bool)
+        self._last_flags = np.zeros(N_TIRES, dtype=bool)
+
+        self._calibration = CalibrationManager(self._analyzer, p.calibration_file,
+                                               'wheel_radius')
+        self._calibration.load()
+        if self._calibration.state == 'file_corrupt':
+            self.get_logger().warning(self._calibration.detail)
+        if p.calibrate_on_start:
+            self._calibration.request(p.calibration_duration_s)
+
+        self._radius_pub = self.create_publisher(WheelRadiusOffsets, 'tpms/wheel_radius',
+                                                 OUTPUT_QOS)
+        self._indication_pub = self.create_publisher(
+            IndicationMsg, 'tpms/indication/wheel_radius', OUTPUT_QOS)
+        overrides = QoSOverridingOptions.with_default_policies()
+        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
+                                 SENSOR_QOS, qos_overriding_options=overrides)
+        self.create_subscription(Imu, 'vehicle/imu', self._on_imu, SENSOR_QOS,
+                                 qos_overriding_options=overrides)
+        self.create_subscription(DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs,
+                                 SENSOR_QOS, qos_overriding_options=overrides)
+        self.create_service(Trigger, '~/calibrate', self._on_calibrate)
+        self._diagnostics = Diagnostics(self, 'tpms/wheel_radius', p.diagnostics_period_s)
+        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._update_diagnostics()
+
+    @property
+    def parameters(self) -> WheelRadiusAnalyzerParameters:
+        """The current, validated parameters."""
+        return self._typed.value
+
+    @property
+    def analyzer(self) -> WheelRadiusAnalyzer:
+        """The core estimator (read access for tests and tools)."""
+        return self._analyzer
+
+    @property
+    def calibration_state(self) -> str:
+        """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
+        return self._calibration.state
+
+    def _on_change(self, p: WheelRadiusAnalyzerParameters) -> None:
+        # the read-only parameters are the ones the core captures at construction
+        self._analyzer.params = p.core()
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def _accept(self, topic: str, stamp: Any) -> int | None:
+        self._received[topic] += 1
+        self._rate_counts[topic] += 1
+        ns = stamp_ns(stamp)
+        return ns if self._checks[topic].check(ns) in ('ok', 'gap') else None
+
+    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+        omega = np.asarray(msg.omega, dtype=float)
+        if omega.shape != (N_TIRES,):
+            self._received['wheel_speeds'] += 1
+            self._counts['wrong_size'] += 1
+            return
+        ns = self._accept('wheel_speeds', msg.header.stamp)
+        if ns is None:
+            return
+        self._wheels.append((ns, omega))
+        while self._wheels and self._wheels[0][0] < ns - _WHEEL_HORIZON_NS:
+            self._wheels.popleft()
+        self._drain()
+
+    def _on_imu(self, msg: Imu) -> None:
+        ns = self._accept('imu', msg.header.stamp)
+        if ns is None:
+            return
+        # a NaN yaw rate goes through: the core counts it and skips the gyro update
+        self._imu.append((ns, float(msg.angular_velocity.z)))
+        self._drain()
+
+    def _on_driver_inputs(self, msg: DriverInputs) -> None:
+        torque = np.asarray(msg.wheel_torque, dtype=float)
+        if torque.shape != (N_TIRES,):
+            self._received['driver_inputs'] += 1
+            self._counts['wrong_size'] += 1
+            return
+        ns = self._accept('driver_inputs', msg.header.stamp)
+        if ns is None:
+            return
+        self._driver.append((ns, float(msg.steering_angle), torque))
+
+    # -- alignment -----------------------------------------------------------------------------
+
+    def _drain(self) -> None:
+        """Close every IMU bin whose wheel speeds are complete (or waited long enough)."""
+        if not self._imu:
+            return
+        p = self.parameters
+        newest_wheel = self._wheels[-1][0] if self._wheels else None
+        newest_imu = self._imu[-1][0]
+        latency_ns = int(p.max_latency_s * 1e9)
+        rows: list[tuple[float, np.ndarray, float, float, np.ndarray]] = []
+        while self._imu:
+            t_k, yaw = self._imu[0]
+            complete = newest_wheel is not None and newest_wheel >= t_k
+            if not complete and newest_imu - t_k <= latency_ns:
+                break
+            self._imu.popleft()
+            if self._last_bin_end is not None and t_k - self._last_bin_end < 0.75 * self._bin_ns:
+                self._counts['skipped_imu_samples'] += 1
+                continue
+            start = t_k - self._bin_ns if self._last_bin_end is None else \
+                max(self._last_bin_end, t_k - self._bin_ns)
+            self._last_bin_end = t_k
+            rows.append((t_k * 1e-9, self._bin_mean(start, t_k), yaw,
+                         *self._driver_at(t_k)))
+        if rows:
+            self._process(rows)
+
+    def _bin_mean(self, start: int, end: int) -> np.ndarray:
+        """Mean wheel speeds stamped in (start, end]; NaN for a wheel with a bad sample."""
+        while self._wheels and self._wheels[0][0] <= start:
+            self._wheels.popleft()
+        samples = []
+        while self._wheels and self._wheels[0][0] <= end:
+            samples.append(self._wheels.popleft()[1])
+        self._counts['bins'] += 1
+        if not samples:
+            self._counts['empty_bins'] += 1
+            return np.full(N_TIRES, np.nan)
+        block = np.vstack(samples)
+        with np.errstate(invalid='ignore'):
+            bad = ~np.isfinite(block) | (block < 0.0) | (block > self.parameters.max_wheel_speed)
+        return np.where(bad.any(axis=0), np.nan, block.mean(axis=0))
+
+    def _driver_at(self, t_k: int) -> tuple[float, np.ndarray]:
+        """Steering angle and torques of the newest driver input not newer than t_k."""
+        while len(self._driver) > 1 and self._driver[1][0] <= t_k:
+            self._driver.popleft()
+        if self._driver and self._driver[0][0] <= t_k and \
+                t_k - self._driver[0][0] <= self.parameters.max_input_age_s * 1e9:
+            _, steer, torque = self._driver[0]
+            return steer, torque
+        self._counts['stale_driver_inputs'] += 1
+        return math.nan, np.full(N_TIRES, np.nan)
+
+    # -- processing and output -----------------------------------------------------------------
+
+    def _process(self, rows: list[tuple[float, np.ndarray, float, float, np.ndarray]]) -> None:
+        stamps = np.array([r[0] for r in rows])
+        omega = np.vstack([r[1] for r in rows])
+        yaw = np.array([r[2] for r in rows])
+        steer = np.array([r[3] for r in rows])
+        torque = np.vstack([r[4] for r in rows])
+        self._calibration.before_chunk()
+        estimate = self._analyzer.process(stamps, omega, yaw, torque, steer)
+        self._gyro_ok = estimate.gyro_ok
+        if estimate.trace.shape[0]:
+            self._track_updates(estimate.trace_stamps, estimate.trace)
+            event = self._calibration.update(float(estimate.trace_stamps[0]),
+                                             float(estimate.trace_stamps[-1]))
+            if event:
+                self.get_logger().info(event)
+        last_s = float(stamps[-1])
+        self._last_stamp_s = last_s
+        if last_s - self._last_publish_s >= 1.0 / self.parameters.publish_rate_hz - 1e-9:
+            self._publish(estimate, rows[-1][0])
+
+    def _track_updates(self, stamps: np.ndarray, trace: np.ndarray) -> None:
+        """A filter was updated where its states moved (a predict alone leaves x unchanged)."""
+        previous = trace[0] if self._last_trace is None else self._last_trace
+        moved = np.diff(np.vstack([previous, trace]), axis=0) != 0.0
+        long_rows = np.flatnonzero(moved[:, :2].any(axis=1))
+        lat_rows = np.flatnonzero(moved[:, 2:].any(axis=1))
+        if long_rows.size:
+            self._last_long_update = float(stamps[long_rows[-1]])
+        if lat_rows.size:
+            self._last_lat_update = float(stamps[lat_rows[-1]])
+        self._last_trace = trace[-1].copy()
+
+    def _publish(self, estimate: Any, stamp_s: float) -> None:
+        p = self.parameters
+        self._last_publish_s = stamp_s
+        sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
+        header_stamp = Time(sec=sec, nanosec=nanosec)
+        cal = self._analyzer.calibration
+
+        radius = WheelRadiusOffsets()
+        radius.header.stamp = header_stamp
+        offsets = estimate.offsets[_MSG_ORDER]
+        radius.delta_13, radius.delta_24, radius.delta_12, radius.delta_34 = offsets.tolist()
+        radius.gyro_offset = float(estimate.gyro_offset)
+        radius.nominal = (cal.nominal_offsets[_MSG_ORDER].tolist() if cal is not None
+                          else [math.nan] * 4)
+        radius.std_dev = estimate.offsets_std[_MSG_ORDER].tolist()
+        radius.longitudinal_valid = stamp_s - self._last_long_update <= p.validity_hold_s
+        radius.lateral_valid = (stamp_s - self._last_lat_update <= p.validity_hold_s
+                                and estimate.gyro_ok)
+        radius.calibrated = cal is not None
+        self._radius_pub.publish(radius)
+
+        core = self._analyzer.indication(stamp_s)
+        indication = IndicationMsg()
+        indication.header.stamp = header_stamp
+        indication.method = 'wheel_radius'
+        indication.underinflated = (core.underinflated & core.known).tolist()
+        indication.confidence = np.where(core.known, core.confidence, 0.0).tolist()
+        indication.known = core.known.tolist()
+        self._indication_pub.publish(indication)
+        self._last_known = core.known.copy()
+        self._last_flags = core.underinflated & core.known
+
+    # -- calibration and diagnostics -----------------------------------------------------------
+
+    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = self._calibration.request(
+            self.parameters.calibration_duration_s)
+        return response
+
+    def _update_diagnostics(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        elapsed = (now - self._rate_since_ns) * 1e-9
+        rates = {topic: (count / elapsed if elapsed > 0 else 0.0)
+                 for topic, count in self._rate_counts.items()}
+        self._rate_counts = dict.fromkeys(self._rate_counts, 0)
+        self._rate_since_ns = now
+        cal = self._calibration
+        counts = self._analyzer.counts
+        values: dict[str, Any] = {f'input_rate_hz.{t}': r for t, r in rates.items()}
+        values.update({f'received.{t}': n for t, n in self._received.items()})
+        for topic, check in self._checks.items():
+            for reason in ('out_of_order', 'repeated'):
+                values[f'rejected_{reason}.{topic}'] = check.rejected.get(reason, 0)
+        values['rejected_wrong_size'] = self._counts['wrong_size']
+        for key in ('bad_wheel_speed', 'bad_torque', 'bad_gyro', 'gyro_stuck', 'gap',
+                    'long_gated', 'lat_gated', 'accepted'):
+            values[f'core.{key}'] = counts[key]
+        for key in ('bins', 'empty_bins', 'stale_driver_inputs',
+                    'skipped_imu_samples'):
+            values[key] = self._counts[key]
+        values.update({
+            'gyro_ok': self._gyro_ok,
+            'known': self._last_known.tolist(),
+            'calibration_state': cal.state,
+            'calibration': cal.detail,
+            'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
+            'last_stamp_s': self._last_stamp_s,
+        })
+        # every problem is listed; the worst sets the level
+        problems: list[tuple[int, str]] = []
+        received = any(self._received.values())
+        silent = [t for t in ('wheel_speeds', 'imu') if rates[t] == 0.0]
+        if not received:
+            problems.append((WARN, 'waiting for inputs'))
+        elif silent:
+            problems.append((ERROR, f'vehicle/{" and vehicle/".join(silent)} silent: analysis '
+                                    'paused'))
+        if received and not self._gyro_ok:
+            problems.append((WARN, 'gyro stopped: lateral filter paused'))
+        if received and rates['driver_inputs'] == 0.0:
+            problems.append((WARN, 'vehicle/driver_inputs silent: longitudinal filters paused'))
+        if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
+            problems.append((WARN, cal.detail))
+        elif received and not self._last_known.all():
+            unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
+            problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
+        if self._last_flags.any():
+            problems.append((WARN, f'low tires indicated: {", ".join(values["low_tires"])}'))
+        level = max((lv for lv, _ in problems), default=OK)
+        message = '; '.join(text for _, text in problems) or 'ok'
+        self._diagnostics.set(level, message, values)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of the ``wheel_radius_analyzer`` executable."""
+    raise SystemExit(run_node(WheelRadiusAnalyzerNode, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,604 @@
+"""ROS nodes of issue 6: vibration_analyzer, wheel_radius_analyzer, tpms_voter (in-process).
+
+Inputs are published from a test node with reliable QoS (the nodes' sensor subscriptions are
+made reliable through the standard qos_overrides parameters, as a replay does) in chunks, and
+each chunk waits on the node's outputs with a deadline. Rates are scaled down (200 Hz wheel
+speeds, short calibration windows) to keep the file fast; the estimators themselves are tested
+in the cores' tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from scipy import signal
+from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
+from vehicle_monitor_msgs.msg import (
+    DriverInputs,
+    TireResonance,
+    TpmsIndication,
+    TpmsWarning,
+    WheelRadiusOffsets,
+    WheelSpeeds,
+)
+import yaml
+
+from tpms_ros.tpms_voter_node import TpmsVoterNode
+from tpms_ros.vibration_analysis import VibrationCalibration
+from tpms_ros.vibration_analyzer_node import VibrationAnalyzerNode
+from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusCalibration
+from tpms_ros.wheel_radius_analyzer_node import WheelRadiusAnalyzerNode
+from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
+from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
+
+CONFIG = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros' / 'config'
+DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                  reliability=ReliabilityPolicy.RELIABLE)
+T0_NS = 1000 * 10**9
+FS = 200.0                       # wheel-speed rate of these tests, Hz
+NOMINAL_HZ = np.array([42.0, 43.0, 44.0, 45.0])
+
+
+def _reliable(*topics: str) -> list[Parameter]:
+    return [Parameter(f'qos_overrides./{t}.subscription.reliability', value='reliable')
+            for t in topics]
+
+
+def _shipped(name: str) -> list[Parameter]:
+    """The shipped config as overrides (nested keys joined by '.', as ROS names them).
+
+    Read with PyYAML, not rclpy's parameter_dict_from_yaml_file: that one turns small floats
+    such as 0.000001 into strings (it re-parses str(value) = '1e-06', not a YAML 1.1 float).
+    """
+    document = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
+    assert list(document) == [name]
+
+    def flatten(prefix: str, table: dict[str, Any]) -> list[Parameter]:
+        out = []
+        for key, value in table.items():
+            if isinstance(value, dict):
+                out += flatten(f'{prefix}{key}.', value)
+            else:
+                out.append(Parameter(f'{prefix}{key}', value=value))
+        return out
+
+    return flatten('', document[name]['ros__parameters'])
+
+
+def _time(ns: int) -> Time:
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+class Collector:
+    """Subscribes to output topics and /diagnostics of one node, keeps every message."""
+
+    def __init__(self, node: Node, topics: dict[str, Any]) -> None:
+        self.msgs: dict[str, list[Any]] = {t: [] for t in topics}
+        self.diagnostics: list[Any] = []
+        for topic, cls in topics.items():
+            node.create_subscription(cls, topic, self.msgs[topic].append, DEEP)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DEEP)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        self.diagnostics.extend(msg.status)
+
+    def last_stamp(self, topic: str) -> int:
+        return stamp_ns(self.msgs[topic][-1].header.stamp) if self.msgs[topic] else -1
+
+    def diag(self, name: str, predicate: Callable[[Any], bool]) -> Any:
+        """The newest status of ``name`` satisfying the predicate, or None."""
+        for status in reversed(self.diagnostics):
+            if status.name == name and predicate(status):
+                return status
+        return None
+
+
+def _values(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def _call_trigger(node: Node, service: str, spin_until: Callable[..., bool]) -> Any:
+    client = node.create_client(Trigger, service)
+    assert spin_until(client.service_is_ready, 10.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(future.done, 10.0)
+    return future.result()
+
+
+# ---------------------------------------------------------------- vibration_analyzer
+
+def _resonant_wheel_speeds(n: int, freqs: np.ndarray, seed: int) -> np.ndarray:
+    """(n, 4) wheel speeds at FS: 70 rad/s + an AR(2) resonance per wheel + sensor noise."""
+    rng = np.random.default_rng(seed)
+    out = np.empty((n, 4))
+    for wheel in range(4):
+        w = 2.0 * np.pi * freqs[wheel] / FS
+        rho = np.exp(-0.05 * w)
+        out[:, wheel] = signal.lfilter([0.01], [1.0, -2.0 * rho * np.cos(w), rho * rho],
+                                       rng.standard_normal(n))
+    return 70.0 + out + 0.002 * rng.standard_normal((n, 4))
+
+
+VIB_TEST = {'sample_rate_hz': FS, 'analysis_rate_hz': FS, 'memory_s': 2.0,
+            'calibration_settle_s': 1.0, 'min_calibration_s': 2.0,
+            'calibration_duration_s': 4.0, 'diagnostics_period_s': 0.1, 'bad_hold_s': 0.5}
+
+
+def _vibration_node(make_node: Callable[..., Any], calibration_file: Path,
+                    **extra: Any) -> Any:
+    values = {**VIB_TEST, 'calibration_file': str(calibration_file), **extra}
+    return make_node(VibrationAnalyzerNode, parameter_overrides=[
+        *_reliable('vehicle/wheel_speeds'), *[Parameter(k, value=v) for k, v in values.items()]])
+
+
+class WheelFeeder:
+    """Publishes WheelSpeeds rows at FS with consecutive stamps, chunk by chunk."""
+
+    def __init__(self, node: Node, collector: Collector, spin_until: Callable[..., bool]) -> None:
+        self.pub = node.create_publisher(WheelSpeeds, '/vehicle/wheel_speeds', DEEP)
+        self.collector = collector
+        self.spin_until = spin_until
+        self.next_ns = T0_NS
+        self.sent: list[int] = []
+
+    def feed(self, omega: np.ndarray, chunk: int = 100) -> None:
+        assert self.spin_until(lambda: self.pub.get_subscription_count() > 0, 10.0)
+        for start in range(0, len(omega), chunk):
+            for row in omega[start:start + chunk]:
+                msg = WheelSpeeds()
+                msg.header.stamp = _time(self.next_ns)
+                msg.omega = row.tolist()
+                self.pub.publish(msg)
+                self.sent.append(self.next_ns)
+                self.next_ns += round(1e9 / FS)
+            last = self.sent[-1]
+            assert self.spin_until(
+                lambda last=last: self.collector.last_stamp('/tpms/tire_resonance') >= last,
+                10.0), 'vibration_analyzer did not answer the chunk'
+
+
+def test_vibration_starts_with_defaults_and_shipped_config(make_node: Callable[..., Any],
+                                                           tmp_path: Path) -> None:
+    """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
+    node = make_node(VibrationAnalyzerNode)
+    assert node.parameters.sample_rate_hz == 1000.0 and node.calibration_state == 'uncalibrated'
+    shipped = make_node(VibrationAnalyzerNode, node_name='vibration_shipped',
+                        parameter_overrides=[*_shipped('vibration_analyzer'), Parameter(
+                            'calibration_file', value=str(tmp_path / 'v.yaml'))])
+    assert shipped.parameters.mode_band_hz == (40.0, 50.0)
+    with pytest.raises(ConfigurationError, match='memory_s'):
+        make_node(VibrationAnalyzerNode, node_name='bad1',
+                  parameter_overrides=[Parameter('memory_s', value=-1.0)])
+    with pytest.raises(ConfigurationError, match='calibration_duration_s'):
+        make_node(VibrationAnalyzerNode, node_name='bad2',
+                  parameter_overrides=[Parameter('calibration_duration_s', value=5.0)])
+    (result,) = node.set_parameters([Parameter('z_flag', value=9.0)])
+    assert not result.successful and 'z_flag must be < z_full' in result.reason
+    (result,) = node.set_parameters([Parameter('sample_rate_hz', value=500.0)])
+    assert not result.successful
+    (result,) = node.set_parameters([Parameter('z_flag', value=4.0)])
+    assert result.successful and node.analyzer.params.z_flag == 4.0
+
+
+def test_vibration_calibrates_persists_reloads_and_flags_a_low_tire(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Outputs carry input stamps; ~/calibrate learns the nominal, saves it, a new node loads it;
+    a tire whose resonance drops is flagged, the others are not."""
+    cal_file = tmp_path / 'vibration.yaml'
+    node = _vibration_node(make_node, cal_file)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    feeder = WheelFeeder(tester, out, spin_until)
+    feeder.feed(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=1))
+    response = _call_trigger(tester, '/vibration_analyzer/calibrate', spin_until)
+    assert response.success and node.calibration_state == 'calibrating'
+    feeder.feed(_resonant_wheel_speeds(int(4.2 * FS), NOMINAL_HZ, seed=2))
+    assert node.calibration_state == 'calibrated'
+    nominal = node.analyzer.calibration.nominal_frequency_hz
+    np.testing.assert_allclose(nominal, NOMINAL_HZ, atol=1.0)
+    stored = load_calibration(cal_file).state
+    assert stored is not None and np.allclose(stored['nominal_frequency_hz'], nominal)
+
+    sent = set(feeder.sent)
+    for topic in out.msgs:
+        assert {stamp_ns(m.header.stamp) for m in out.msgs[topic]} <= sent
+    last = out.msgs['/tpms/tire_resonance'][-1]
+    assert last.calibrated and all(last.valid)
+    np.testing.assert_allclose(last.frequency_hz, NOMINAL_HZ, atol=1.5)
+    assert not any(out.msgs['/tpms/indication/vibration'][-1].underinflated)
+
+    low = NOMINAL_HZ.copy()
+    low[1] *= 0.9                               # FR: ~25 % pressure loss
+    feeder.feed(_resonant_wheel_speeds(int(3 * FS), low, seed=3))
+    ind = out.msgs['/tpms/indication/vibration'][-1]
+    assert list(ind.underinflated) == [False, True, False, False], list(ind.confidence)
+    assert ind.confidence[1] > 0.5 and ind.method == 'vibration'
+
+    again = make_node(VibrationAnalyzerNode, node_name='vibration_again',
+                      parameter_overrides=[Parameter('calibration_file', value=str(cal_file))])
+    assert again.calibration_state == 'loaded'
+    np.testing.assert_array_equal(again.analyzer.calibration.nominal_frequency_hz, nominal)
+
+
+def test_vibration_bad_input_rejected_and_wheel_unknown(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """NaN, repeated/out-of-order stamps and a wrong-size array are counted; the NaN wheel is
+    unknown (never low) while the others stay known; the node keeps running."""
+    cal_file = tmp_path / 'vibration.yaml'
+    save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
+                                                    np.full(4, 10.0)).to_dict())
+    node = _vibration_node(make_node, cal_file)
+    assert node.calibration_state == 'loaded'
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    feeder = WheelFeeder(tester, out, spin_until)
+    feeder.feed(_resonant_wheel_speeds(600, NOMINAL_HZ, seed=4))
+    assert all(out.msgs['/tpms/indication/vibration'][-1].known)
+
+    omega = _resonant_wheel_speeds(100, NOMINAL_HZ, seed=5)
+    omega[50, 0] = np.nan
+    feeder.feed(omega)
+    ind = out.msgs['/tpms/indication/vibration'][-1]
+    assert list(ind.known) == [False, True, True, True]
+    assert not ind.underinflated[0] and ind.confidence[0] == 0.0
+    assert not out.msgs['/tpms/tire_resonance'][-1].valid[0]
+
+    # a repeated and an old stamp, then a 3-element array handed to the callback in-process
+    # (DDS pads a short float64[4] to four values, so that case cannot arrive over the wire)
+    for ns in (feeder.sent[-1], feeder.sent[-5]):
+        msg = WheelSpeeds()
+        msg.header.stamp = _time(ns)
+        msg.omega = [70.0] * 4
+        feeder.pub.publish(msg)
+    short = WheelSpeeds()
+    short.omega = [70.0, 70.0, 70.0]
+    node._on_wheel_speeds(short)
+    feeder.feed(_resonant_wheel_speeds(200, NOMINAL_HZ, seed=6))
+    assert all(out.msgs['/tpms/indication/vibration'][-1].known)   # recovered after bad_hold_s
+
+    def counted(status: Any) -> bool:
+        v = _values(status)
+        return (v['rejected_repeated'] == '1' and v['rejected_out_of_order'] == '1'
+                and v['rejected_wrong_size'] == '1'
+                and v['rejected_bad_value_per_wheel'] == '[1, 0, 0, 0]')
+
+    assert spin_until(lambda: out.diag('/vibration_analyzer', counted) is not None, 5.0)
+
+
+def test_vibration_corrupt_calibration_file_is_reported(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """A corrupt file: the node starts uncalibrated, says so on /diagnostics, tires unknown."""
+    cal_file = tmp_path / 'vibration.yaml'
+    cal_file.write_text('version: 1\nmethod: vibration\nnominal_frequency_hz: [1, 2\n')
+    node = _vibration_node(make_node, cal_file)
+    assert node.calibration_state == 'file_corrupt' and node.analyzer.calibration is None
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    WheelFeeder(tester, out, spin_until).feed(_resonant_wheel_speeds(200, NOMINAL_HZ, seed=7))
+    assert not any(out.msgs['/tpms/indication/vibration'][-1].known)
+    status = None
+
+    def reported() -> bool:
+        nonlocal status
+        status = out.diag('/vibration_analyzer',
+                          lambda s: 'recalibration required' in s.message)
+        return status is not None
+
+    assert spin_until(reported, 5.0)
+    assert status.level == b'\x01' and _values(status)['calibration_state'] == 'file_corrupt'
+
+
+# ---------------------------------------------------------------- wheel_radius_analyzer
+
+R_N = 0.31
+TRACK = 1.55
+RAD_TEST = {'calibration_settle_s': 0.5, 'min_calibration_s': 2.0,
+            'calibration_duration_s': 3.0, 'diagnostics_period_s': 0.1, 'publish_rate_hz': 100.0,
+            'wheel_recover_s': 0.5}
+
+
+def _drive(n_imu: int, seed: int, t0: float, eps: np.ndarray) -> dict[str, np.ndarray]:
+    """A drive at 20 m/s with gentle weaving: IMU/driver inputs at 100 Hz, wheels at 200 Hz.
+
+    ``eps`` are relative radius deviations per tire (a low tire has eps < 0).
+    """
+    rng = np.random.default_rng(seed)
+    t_w = t0 + np.arange(2 * n_imu) / FS + 1.0 / FS      # wheel stamps end on the last IMU one
+    t_imu = t0 + np.arange(n_imu) / 100.0 + 0.01
+    yaw = 0.05 * np.sin(2 * np.pi * 0.2 * t_w)           # REP 103, positive turning left
+    v = 20.0 + 5.0 * np.sin(2 * np.pi * 0.1 * t_w)     # speed changes separate gyro offset
+    side = np.array([-1.0, 1.0, -1.0, 1.0])              # left wheels inside a left turn
+    v_wheel = v[:, None] + side * yaw[:, None] * TRACK / 2
+    torque = np.zeros((n_imu, 4))
+    drive_nm = 100.0 + 60.0 * np.sin(2 * np.pi * 0.3 * t_w)    # front drive, varying mu
+    torque[:, :2] = drive_nm[1::2, None]
+    slip = np.zeros_like(v_wheel)
+    slip[:, :2] = (drive_nm / (R_N * 4200.0) / 20.0)[:, None]   # mu / k with k = 20
+    omega = v_wheel * (1.0 + slip) / (R_N * (1.0 + eps)) + 0.01 * rng.standard_normal(
+        v_wheel.shape)
+    gyro = np.interp(t_imu, t_w, yaw) + 0.002 + 0.003 * rng.standard_normal(n_imu)
+    return {'t_w': t_w, 'omega': omega, 't_imu': t_imu, 'gyro': gyro, 'torque': torque}
+
+
+class RadiusFeeder:
+    """Publishes wheel speeds, IMU and driver inputs of a drive in 0.2 s chunks."""
+
+    def __init__(self, node: Node, collector: Collector, spin_until: Callable[..., bool]) -> None:
+        self.wheel = node.create_publisher(WheelSpeeds, '/vehicle/wheel_speeds', DEEP)
+        self.imu = node.create_publisher(Imu, '/vehicle/imu', DEEP)
+        self.driver = node.create_publisher(DriverInputs, '/vehicle/driver_inputs', DEEP)
+        self.collector = collector
+        self.spin_until = spin_until
+        self.imu_sent: list[int] = []
+
+    def feed(self, drive: dict[str, np.ndarray]) -> None:
+        pubs = (self.wheel, self.imu, self.driver)
+        assert self.spin_until(lambda: all(p.get_subscription_count() for p in pubs), 10.0)
+        for k in range(0, len(drive['t_imu']), 20):
+            for i in range(2 * k, 2 * k + 40):
+                msg = WheelSpeeds()
+                msg.header.stamp = _time(round(drive['t_w'][i] * 1e9))
+                msg.omega = drive['omega'][i].tolist()
+                self.wheel.publish(msg)
+            for i in range(k, k + 20):
+                ns = round(drive['t_imu'][i] * 1e9)
+                driver = DriverInputs()
+                driver.header.stamp = _time(ns - 2_000_000)
+                driver.wheel_torque = drive['torque'][i].tolist()
+                self.driver.publish(driver)
+                imu = Imu()
+                imu.header.stamp = _time(ns)
+                imu.angular_velocity.z = float(drive['gyro'][i])
+                self.imu.publish(imu)
+                self.imu_sent.append(ns)
+            last = self.imu_sent[-1]
+            assert self.spin_until(
+                lambda last=last: self.collector.last_stamp('/tpms/wheel_radius') >= last,
+                10.0), 'wheel_radius_analyzer did not answer the chunk'
+
+
+def _radius_node(make_node: Callable[..., Any], calibration_file: Path, name: str =
+                 'wheel_radius_analyzer') -> Any:
+    values = {**RAD_TEST, 'calibration_file': str(calibration_file)}
+    return make_node(WheelRadiusAnalyzerNode, node_name=name, parameter_overrides=[
+        *_reliable('vehicle/wheel_speeds', 'vehicle/imu', 'vehicle/driver_inputs'),
+        *[Parameter(k, value=v) for k, v in values.items()]])
+
+
+def test_wheel_radius_starts_with_defaults_and_shipped_config(
+        make_node: Callable[..., Any], tmp_path: Path) -> None:
+    """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
+    node = make_node(WheelRadiusAnalyzerNode)
+    assert node.parameters.driven_axle == 'front'
+    shipped = make_node(WheelRadiusAnalyzerNode, node_name='radius_shipped',
+                        parameter_overrides=[*_shipped('wheel_radius_analyzer'), Parameter(
+                            'calibration_file', value=str(tmp_path / 'r.yaml'))])
+    assert shipped.parameters.static_load_n == (4200.0, 4200.0, 3300.0, 3300.0)
+    with pytest.raises(ConfigurationError, match='static_load_n'):
+        make_node(WheelRadiusAnalyzerNode, node_name='bad1', parameter_overrides=[
+            Parameter('static_load_n', value=[4000.0, 4000.0, 3000.0])])
+    with pytest.raises(ConfigurationError, match='driven_axle'):
+        make_node(WheelRadiusAnalyzerNode, node_name='bad2', parameter_overrides=[
+            Parameter('driven_axle', value='middle')])
+    (result,) = node.set_parameters([Parameter('min_speed_mps', value=50.0)])
+    assert not result.successful and 'min_speed_mps' in result.reason
+    (result,) = node.set_parameters([Parameter('mu_max', value=0.2)])
+    assert result.successful and node.analyzer.params.mu_max == 0.2
+
+
+def test_wheel_radius_aligns_calibrates_persists_and_reloads(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Outputs are stamped with IMU stamps; the offsets and the gyro offset are sane; the
+    calibration is learned via ~/calibrate, written, and reloaded by a new node."""
+    cal_file = tmp_path / 'radius.yaml'
+    node = _radius_node(make_node, cal_file)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/wheel_radius': WheelRadiusOffsets,
+                             '/tpms/indication/wheel_radius': TpmsIndication})
+    feeder = RadiusFeeder(tester, out, spin_until)
+    eps = np.array([0.0, 0.002, -0.001, 0.0])           # manufacturing spread
+    drives = [_drive(200, seed=1, t0=T0_NS * 1e-9, eps=eps),
+              _drive(400, seed=2, t0=T0_NS * 1e-9 + 2.0, eps=eps)]
+    feeder.feed(drives[0])
+    assert _call_trigger(tester, '/wheel_radius_analyzer/calibrate', spin_until).success
+    feeder.feed(drives[1])
+    assert node.calibration_state == 'calibrated', node._calibration.detail
+
+    stamps = {stamp_ns(m.header.stamp) for m in out.msgs['/tpms/wheel_radius']}
+    assert stamps <= set(feeder.imu_sent) and len(stamps) > 100
+    last = out.msgs['/tpms/wheel_radius'][-1]
+    assert last.calibrated and last.longitudinal_valid and last.lateral_valid
+    r = 1.0 + eps
+    truth = {'delta_13': 1.0 - r[0] / r[2], 'delta_24': 1.0 - r[1] / r[3],
+             'delta_34': r[2] / r[3] - 1.0, 'delta_12': r[0] / r[1] - 1.0}
+    for name, value in truth.items():
+        assert abs(getattr(last, name) - value) < 1e-3, (name, getattr(last, name), value)
+    # the alignment is exact: the core fed offline with the 10 ms means of the wheel speeds
+    # (two 200 Hz samples per IMU stamp) and the driver input before each IMU stamp agrees
+    offline = WheelRadiusAnalyzer(node.analyzer.params)
+    for drive in drives:
+        ref = offline.process(
+            drive['t_imu'], 0.5 * (drive['omega'][0::2] + drive['omega'][1::2]),
+            drive['gyro'], drive['torque'], np.zeros(len(drive['t_imu'])))
+    np.testing.assert_allclose([last.delta_13, last.delta_24, last.delta_34, last.delta_12],
+                               ref.offsets, rtol=1e-9, atol=1e-12)
+    assert abs(last.gyro_offset - ref.gyro_offset) < 1e-12
+    stored = load_calibration(cal_file).state
+    assert stored is not None and stored['method'] == 'wheel_radius'
+
+    again = _radius_node(make_node, cal_file, name='radius_again')
+    assert again.calibration_state == 'loaded'
+    np.testing.assert_allclose(again.analyzer.calibration.nominal_offsets,
+                               node.analyzer.calibration.nominal_offsets)
+
+
+def test_wheel_radius_nan_wheel_is_unknown_and_counted(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """A NaN wheel speed makes that tire unknown (never low) and is counted on /diagnostics;
+    a corrupt calibration file is reported and the node keeps running."""
+    cal_file = tmp_path / 'radius.yaml'
+    save_calibration(cal_file, WheelRadiusCalibration(
+        np.zeros(4), np.full(4, 2e-4), np.full(4, 30.0)).to_dict())
+    node = _radius_node(make_node, cal_file)
+    assert node.calibration_state == 'loaded'
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/wheel_radius': WheelRadiusOffsets,
+                             '/tpms/indication/wheel_radius': TpmsIndication})
+    feeder = RadiusFeeder(tester, out, spin_until)
+    drive = _drive(300, seed=3, t0=T0_NS * 1e-9, eps=np.zeros(4))
+    drive['omega'][560, 1] = np.nan                      # FR, 0.2 s before the end
+    feeder.feed(drive)
+    ind = out.msgs['/tpms/indication/wheel_radius'][-1]
+    assert not ind.known[1] and not ind.underinflated[1] and ind.confidence[1] == 0.0
+    assert ind.known[0] or ind.known[2]                  # the others stay informative
+    assert not any(ind.underinflated)
+    assert spin_until(lambda: out.diag(
+        '/wheel_radius_analyzer',
+        lambda s: _values(s)['core.bad_wheel_speed'] == '1') is not None, 5.0)
+
+    cal_file.write_text('version: 1\nmethod: wheel_radius\nnominal_offsets: 3\n')
+    broken = _radius_node(make_node, cal_file, name='radius_broken')
+    assert broken.calibration_state == 'file_corrupt'
+    assert spin_until(lambda: out.diag(
+        '/radius_broken', lambda s: 'recalibration required' in s.message) is not None, 5.0)
+
+
+# ---------------------------------------------------------------- tpms_voter
+
+VOTER_TEST = {'set_on_s': 0.5, 'set_off_s': 1.0, 'max_age_s': 0.5, 'diagnostics_period_s': 0.1,
+              'publish_rate_hz': 20.0}
+
+
+def _indication(method: str, ns: int, flags: list[bool], conf: list[float],
+                known: list[bool] | None = None) -> TpmsIndication:
+    msg = TpmsIndication()
+    msg.header.stamp = _time(ns)
+    msg.method = method
+    msg.underinflated = flags
+    msg.confidence = conf
+    msg.known = known if known is not None else [True] * 4
+    return msg
+
+
+def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., Any]) -> None:
+    """Defaults and the shipped YAML start; h_i <= h0 and bad method names are refused."""
+    node = make_node(TpmsVoterNode)
+    assert node.voter.params.method_thresholds == {
+        'stiffness': 0.8, 'vibration': 0.8, 'wheel_radius': 0.8}
+    shipped = make_node(TpmsVoterNode, node_name='voter_shipped',
+                        parameter_overrides=_shipped('tpms_voter'))
+    assert shipped.parameters.methods == ('stiffness', 'vibration', 'wheel_radius')
+    with pytest.raises(ConfigurationError, match='must be in \\(h0'):
+        make_node(TpmsVoterNode, node_name='bad1',
+                  parameter_overrides=[Parameter('vibration.threshold', value=0.4)])
+    with pytest.raises(ConfigurationError, match='not a valid method name'):
+        make_node(TpmsVoterNode, node_name='bad2',
+                  parameter_overrides=[Parameter('methods', value=['Vibration!'])])
+    (result,) = node.set_parameters([Parameter('vibration.threshold', value=0.3)])
+    assert not result.successful and 'h0' in result.reason
+    (result,) = node.set_parameters([Parameter('h0', value=0.85)])
+    assert not result.successful
+    (result,) = node.set_parameters([Parameter('wheel_radius.threshold', value=0.9)])
+    assert result.successful and node.voter.params.method_thresholds['wheel_radius'] == 0.9
+
+
+def test_voter_agreement_warns_single_weak_does_not_and_clears(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+    """Two methods agreeing on FR at 0.6 (> h0 0.5, < h_i 0.8) warn after the hold-off; one
+    method alone at 0.6 does not; the warning clears set_off_s after the evidence goes."""
+    node = make_node(TpmsVoterNode, parameter_overrides=[
+        *_reliable('tpms/indication/vibration', 'tpms/indication/wheel_radius',
+                   'tpms/indication/stiffness'),
+        *[Parameter(k, value=v) for k, v in {**VOTER_TEST, 'publish_rate_hz': 0.01}.items()],
+        Parameter('stiffness.enabled', value=False)])
+    # (no periodic output here: every warning answers one indication, in data time)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/warning': TpmsWarning})
+    pubs = {m: tester.create_publisher(TpmsIndication, f'/tpms/indication/{m}', DEEP)
+            for m in ('vibration', 'wheel_radius')}
+    assert spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()), 10.0)
+    weak = ([False, True, False, False], [0.0, 0.6, 0.0, 0.0])
+    clear = ([False] * 4, [0.0] * 4)
+
+    def send(t_s: float, per_method: dict[str, tuple[list[bool], list[float]]]) -> int:
+        ns = T0_NS + round(t_s * 1e9)
+        for method, (flags, conf) in per_method.items():
+            pubs[method].publish(_indication(method, ns, flags, conf))
+        expected = len(out.msgs['/tpms/warning']) + len(per_method)
+        assert spin_until(lambda: len(out.msgs['/tpms/warning']) >= expected, 5.0)
+        return ns
+
+    # one weak method (the other says "not low"): disagreement, 0.6 < own h 0.8 -> no warning
+    for k in range(20):
+        send(0.1 * k, {'vibration': weak, 'wheel_radius': clear})
+    assert not any(m.active for m in out.msgs['/tpms/warning'])
+    # both agree at 0.6: mean 0.6 > h0 -> warning once the 0.5 s hold-off has passed
+    onset = {}
+    for k in range(20, 40):
+        ns = send(0.1 * k, {'vibration': weak, 'wheel_radius': weak})
+        if out.msgs['/tpms/warning'][-1].active and not onset:
+            onset['t'] = 0.1 * k
+            warning = out.msgs['/tpms/warning'][-1]
+            assert stamp_ns(warning.header.stamp) == ns
+            assert list(warning.warning) == [False, True, False, False]
+            assert set(warning.methods) == {'vibration', 'wheel_radius'}
+            assert any('agree' in r for r in warning.reasons)
+    assert 2.0 + 0.5 - 1e-6 <= onset['t'] <= 2.0 + 0.7
+    # evidence gone: the warning holds for set_off_s, then clears
+    cleared = {}
+    for k in range(40, 70):
+        send(0.1 * k, {'vibration': clear, 'wheel_radius': clear})
+        if not out.msgs['/tpms/warning'][-1].active and not cleared:
+            cleared['t'] = 0.1 * k
+    assert 4.0 + 1.0 - 1e-6 <= cleared['t'] <= 4.0 + 1.2
+    assert node.voter.rejected == {'unknown_method': 0, 'out_of_order': 0, 'time_backwards': 0}
+
+
+def test_voter_stale_method_and_bad_indication_reported(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+    """A method silent longer than max_age_s is reported stale on /diagnostics and dropped from
+    the vote; a NaN confidence and a method mismatch are rejected and counted."""
+    make_node(TpmsVoterNode, parameter_overrides=[
+        *_reliable('tpms/indication/vibration', 'tpms/indication/wheel_radius'),
+        *[Parameter(k, value=v) for k, v in VOTER_TEST.items()]])
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/warning': TpmsWarning})
+    pub = tester.create_publisher(TpmsIndication, '/tpms/indication/vibration', DEEP)
+    radius = tester.create_publisher(TpmsIndication, '/tpms/indication/wheel_radius', DEEP)
+    assert spin_until(lambda: pub.get_subscription_count() and radius.get_subscription_count(),
+                      10.0)
+    radius.publish(_indication('wheel_radius', T0_NS, [False] * 4, [0.0] * 4))
+    radius.publish(_indication('vibration', T0_NS + 1, [False] * 4, [0.0] * 4))   # mismatch
+    pub.publish(_indication('vibration', T0_NS + 2, [False] * 4, [np.nan, 0, 0, 0]))
+    for k in range(1, 15):
+        pub.publish(_indication('vibration', T0_NS + k * 100_000_000, [False] * 4, [0.0] * 4))
+    assert spin_until(lambda: out.last_stamp('/tpms/warning') == T0_NS + 1_400_000_000, 5.0)
+    assert list(out.msgs['/tpms/warning'][-1].methods) == ['vibration']
+
+    def stale(status: Any) -> bool:
+        v = _values(status)
+        return ('wheel_radius' in v.get('stale_methods', '') and v['rejected_invalid'] == '1'
+                and v['rejected_method_mismatch'] == '1')
+
+    status = None
+
+    def found() -> bool:
+        nonlocal status
+        status = out.diag('/tpms_voter', stale)
+        return status is not None
+
+    assert spin_until(found, 5.0)
+    assert 'stiffness' in _values(status)['stale_methods'] and status.level == b'\x01'
