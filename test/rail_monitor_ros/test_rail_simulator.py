@@ -331,7 +331,7 @@ def test_shipped_scenarios_load(tmp_path: Path) -> None:
         load_rail_scenario(SCENARIO_DIR / f'{name}.yaml')
     healthy = shipped_scenario('rail_healthy')
     assert healthy.duration == 60.0 and healthy.events == ()
-    with pytest.raises(ValueError, match='no shipped scenario'):
+    with pytest.raises(ValueError, match='nor one of that name in rail_monitor_ros/scenarios'):
         shipped_scenario('nope')
     bad = tmp_path / 'bad.yaml'
     bad.write_text('duration: 5\nevents:\n  - {time: 1, speed: 0}\n')

@@ -1,0 +1,95 @@
+"""Real-time factor of the creep-factor EKF at 200 Hz, per observation pattern.
+
+Run: ``PYTHONPATH=src/vehicle_monitor_common:src/rail_monitor_ros python
+benchmarks/bench_creep_ekf.py [--repeat N] [--scenario NAME]``. Prints, per pattern, the best of
+N runs of :class:`CreepEkf` over the scenario (known track input; wall-clock and, as the
+shared machine's load varies, CPU-time real-time factors) and the ratio to the plainest
+per-sample implementation: an exact re-discretisation (matrix exponential and its Frechet
+derivative) at every sample and a textbook update with an explicit inverse of S. The plain
+filter runs on the first ``--plain-seconds`` only (it is slow); both estimates are compared
+there.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Small matrices: OpenBLAS threads only contend on a busy 2-core machine. Must be set before
+# numpy loads.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from rail_monitor_ros.creep_ekf import (  # noqa: E402
+    I_THETA,
+    CreepEkf,
+    CreepEkfParams,
+    simulation_inputs,
+)
+from rail_monitor_ros.rail_scenario import shipped_scenario  # noqa: E402
+from rail_monitor_ros.rail_simulator import simulate  # noqa: E402
+
+
+def plain_run(params: CreepEkfParams, y: np.ndarray, track: np.ndarray) -> np.ndarray:
+    """The plainest per-sample EKF on the same model: exact discretisation every sample,
+    S inverted explicitly, P = (I - K H) P. Returns the c estimate per sample."""
+    ekf = CreepEkf(params)              # for the model matrices, Q and R only
+    h = ekf._h[True]                    # noqa: SLF001 - benchmark reuses the model
+    r = np.diag(ekf._r[True])           # noqa: SLF001
+    q = ekf._q_x                        # noqa: SLF001
+    z, p = ekf.z.copy(), ekf.P.copy()
+    out = np.empty(y.shape[0])
+    for k in range(y.shape[0]):
+        obs = np.concatenate([y[k], track[k]])
+        s = h @ p @ h.T + r
+        gain = p @ h.T @ np.linalg.inv(s)
+        z = z + gain @ (obs - h @ z)
+        p = (np.eye(z.size) - gain @ h) @ p
+        out[k] = math.exp(z[I_THETA])
+        z, jac = ekf.transition(z, exact=True)
+        p = jac @ p @ jac.T + q
+    return out
+
+
+def main() -> None:
+    """Time the filter per pattern and print real-time factors and the speed-up."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--repeat', type=int, default=3, help='runs; the best is reported')
+    parser.add_argument('--scenario', default='rail_creep_steps', help='shipped scenario name')
+    parser.add_argument('--plain-seconds', type=float, default=3.0,
+                        help='seconds of data for the plain reference filter')
+    args = parser.parse_args()
+    result = simulate(shipped_scenario(args.scenario))
+    duration = float(result.time[-1] - result.time[0])
+    rate = result.scenario.output_rate
+    print(f'scenario {result.scenario.name}: {duration:.0f} s at {rate:.0f} Hz, known input')
+    print('pattern  us/sample  real-time factor (CPU time)  plain us/sample  speed-up  '
+          'max |dc| vs plain')
+    for pattern in 'ABCD':
+        params = CreepEkfParams(pattern=pattern, sample_rate_hz=rate)
+        y, track, speed = simulation_inputs(result, pattern)
+        times, cpu_times = [], []
+        for _ in range(max(1, args.repeat)):
+            start, cpu_start = time.perf_counter(), time.process_time()
+            run = CreepEkf(params).run(y, track, speed)
+            times.append(time.perf_counter() - start)
+            cpu_times.append(time.process_time() - cpu_start)
+        best, best_cpu = min(times), min(cpu_times)
+        n_plain = min(y.shape[0], int(args.plain_seconds * rate))
+        start = time.perf_counter()
+        plain = plain_run(params, y[:n_plain], track[:n_plain])
+        plain_time = time.perf_counter() - start
+        fast_us = best / y.shape[0] * 1e6
+        plain_us = plain_time / n_plain * 1e6
+        difference = float(np.max(np.abs(run.creep_factor[:n_plain] - plain)))
+        print(f'{pattern:>7}  {fast_us:9.1f}  {duration / best:15.0f}x '
+              f'({duration / best_cpu:5.0f}x)  {plain_us:15.1f}  {plain_us / fast_us:7.1f}x  '
+              f'{difference:.2e}')
+
+
+if __name__ == '__main__':
+    main()
