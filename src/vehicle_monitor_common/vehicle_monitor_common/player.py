@@ -32,6 +32,7 @@ from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -42,6 +43,11 @@ from vehicle_monitor_common.node_helpers import ConfigurationError, TypedParamet
 # Reliable with a deep queue: a replay must not lose messages to a slow reader.
 REPLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE)
+# Every this many messages on a topic, wait until its reliable readers acknowledged them, so the
+# writer's history (REPLAY_QOS depth) never overwrites a sample a loaded reader has not yet
+# received. What a reader does with its own queue stays its choice (sync_topics pace the rest).
+ACK_EVERY = 100
+ACK_TIMEOUT = Duration(seconds=5.0)
 PROGRESS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                           reliability=ReliabilityPolicy.RELIABLE)
 # CDR: 4-byte encapsulation header, then std_msgs/Header.stamp (int32 sec, uint32 nanosec).
@@ -260,8 +266,14 @@ class ScenarioPlayer(Node):
                 clock.clock.sec, clock.clock.nanosec = divmod(stamp, 1_000_000_000)
                 self._clock_publisher.publish(clock)
                 next_clock_ns = stamp + clock_period_ns
-            self._replay_publishers[topic].publish(bytes(data))
+            publisher = self._replay_publishers[topic]
+            publisher.publish(bytes(data))
             self.published[topic] += 1
+            if self.published[topic] % ACK_EVERY == 0 and not publisher.wait_for_all_acked(
+                    ACK_TIMEOUT):
+                self.get_logger().warning(
+                    f'{topic}: a subscriber did not acknowledge within '
+                    f'{ACK_TIMEOUT.nanoseconds * 1e-9:g} s; replay goes on', once=True)
         return stamp
 
     def destroy_node(self) -> None:
