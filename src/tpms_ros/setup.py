@@ -26,6 +26,8 @@ setup(
             'vibration_analyzer = tpms_ros.vibration_analyzer_node:main',
             'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:main',
             'tpms_voter = tpms_ros.tpms_voter_node:main',
+            'tire_stiffness_observer = tpms_ros.tire_stiffness_observer_node:main',
+            'lateral_force_observer = tpms_ros.lateral_force_observer_node:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
@@ -33,6 +35,8 @@ setup(
             'vibration_analyzer = tpms_ros.vibration_analyzer_node:VibrationAnalyzerNode',
             'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',
             'tpms_voter = tpms_ros.tpms_voter_node:TpmsVoterNode',
+            'tire_stiffness_observer = tpms_ros.tire_stiffness_observer_node:TireStiffnessObserverNode',
+            'lateral_force_observer = tpms_ros.lateral_force_observer_node:LateralForceObserverNode',
         ],
     },
 )

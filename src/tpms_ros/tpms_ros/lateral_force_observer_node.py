@@ -1,0 +1,420 @@
+"""``lateral_force_observer``: tire forces by SKFMEC (Kim & Huh 2000) on the ROS graph.
+
+Wraps :class:`tpms_ros.lateral_force_observer.LateralForceObserver` (SPEC §4).
+
+Topics (relative, so a namespace moves them):
+
+* in ``vehicle/imu`` (sensor_msgs/Imu, 100 Hz): ``linear_acceleration.x/.y`` = ax, ay,
+  ``angular_velocity.x`` = roll rate p, ``.z`` = yaw rate r. The IMU drives the filter.
+* in ``vehicle/wheel_speeds`` (WheelSpeeds, 1 kHz) and ``vehicle/driver_inputs``
+  (DriverInputs, 100 Hz).
+* out ``vehicle/tire_forces`` (TireForces: per-wheel fx, fy, fz; ``fy_front``/``fy_rear`` are
+  the axle-*average* per-tire forces Fyf, Fyr of the paper), ``/diagnostics``.
+
+Time alignment: each IMU sample (stamp t_k, previous one t_(k-1)) is one filter step with
+dt = t_k - t_(k-1) and is answered by one output stamped t_k.
+
+* Wheel speeds: the mean of the samples with t_(k-1) < stamp <= t_k (the wheel equation then
+  sees the interval's average speed); with none in the interval, the latest sample not newer
+  than t_k, if at most ``wheel_speeds_max_age_s`` old (sample and hold).
+* Driver inputs: the latest message not newer than t_k, if at most ``driver_inputs_max_age_s``
+  old (sample and hold).
+* An IMU sample waits until both other topics have delivered a sample at or after t_k, or
+  until the queued IMU samples span ``max_wait_s`` of IMU time (a topic is late or silent): it
+  is then processed with what is there. The wait is measured on stamps, not on a clock, so a
+  replay at any speed aligns the same way: in an as-fast-as-possible replay the executor takes
+  one message per topic in turn and the 100 Hz IMU runs ahead of the 1 kHz wheel speeds in
+  data time by up to the player's lead (0.5 s by default), which ``max_wait_s`` must exceed.
+  The price: while a topic is silent in real time, outputs lag by ``max_wait_s`` (and are
+  skipped as stale anyway). Stale wheel speeds or driver inputs skip the IMU sample (no filter
+  step, no output; the next step spans the skipped time) and are counted and reported.
+
+Bad input: out-of-order or repeated stamps on any topic, wheel speeds that are not four finite
+values, and driver inputs without four torques are rejected and counted here; non-finite or
+saturated IMU values, absurd wheel speeds, steer or torque are rejected by the core (the sample
+is skipped, its time carried into the next step), which also restarts after a gap longer than
+``max_dt`` and resets a covariance that lost positive definiteness (counted). Above the 0.5 g
+validity of the load-ratio relation the output says ``within_validity`` false and diagnostics
+warn.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Imu
+from vehicle_monitor_msgs.msg import DriverInputs, TireForces, WheelSpeeds
+
+from tpms_ros.lateral_force_observer import (
+    PAPER_SCALING,
+    G,
+    LateralForceEstimate,
+    LateralForceObserver,
+    ObserverTuning,
+    ObserverVehicleParams,
+)
+from vehicle_monitor_common.node_helpers import (
+    OK,
+    OUTPUT_QOS,
+    SENSOR_QOS,
+    STALE,
+    WARN,
+    Diagnostics,
+    StampCheck,
+    TypedParameters,
+    param,
+    run_node,
+    stamp_ns,
+)
+
+_DEFAULT_TUNING = ObserverTuning()
+_DEFAULT_VEHICLE = ObserverVehicleParams()
+# Diagnostics are refreshed every this much data time (and on the first validity excursion).
+_DIAGNOSTICS_PERIOD_S = 0.5
+# Input buffers: bounded so a topic without its IMU partner cannot grow memory.
+_MAX_BUFFERED = 5000
+
+
+def _vehicle(name: str, description: str, low: float | None = 0.0,
+             high: float | None = None) -> Any:
+    return param(float(getattr(_DEFAULT_VEHICLE, name)), description, low=low, high=high)
+
+
+@dataclass(frozen=True)
+class LateralForceNodeParameters:
+    """Parameters of the ``lateral_force_observer`` node (vehicle defaults: SPEC §4)."""
+
+    m: float = _vehicle('m', 'total vehicle mass, kg', 1.0, 1e5)
+    ms: float = _vehicle('ms', 'sprung mass, kg (<= m)', 1.0, 1e5)
+    iz: float = _vehicle('iz', 'yaw inertia, kg m^2', 1.0, 1e6)
+    ix: float = _vehicle('ix', 'roll inertia of the sprung mass about its CG, kg m^2', 1.0, 1e6)
+    iw: float = _vehicle('iw', 'wheel spin inertia, kg m^2', 1e-3, 100.0)
+    lf: float = _vehicle('lf', 'CG to front axle, m', 0.1, 10.0)
+    lr: float = _vehicle('lr', 'CG to rear axle, m', 0.1, 10.0)
+    h: float = _vehicle('h', 'CG height, m', 0.05, 5.0)
+    hf: float = _vehicle('hf', 'front roll centre height, m', -2.0, 5.0)
+    hr: float = _vehicle('hr', 'rear roll centre height, m', -2.0, 5.0)
+    e: float = _vehicle('e', 'roll axis to sprung-mass CG, m', -2.0, 5.0)
+    rw: float = _vehicle('rw', 'wheel rolling radius, m', 0.05, 2.0)
+    tf: float = _vehicle('tf', 'front HALF track, m', 0.1, 3.0)
+    tr: float = _vehicle('tr', 'rear HALF track, m', 0.1, 3.0)
+    kphi_f: float = _vehicle('kphi_f', 'front roll stiffness, N m/rad', 1.0, 1e8)
+    kphi_r: float = _vehicle('kphi_r', 'rear roll stiffness, N m/rad', 1.0, 1e8)
+    cphi_f: float = _vehicle('cphi_f', 'front roll damping, N m s/rad', 0.0, 1e7)
+    cphi_r: float = _vehicle('cphi_r', 'rear roll damping, N m s/rad', 0.0, 1e7)
+
+    scaled: bool = param(True, 'EKF on the scaled state x* = S x (false with mec false: the '
+                         'plain EKF)')
+    mec: bool = param(True, 'model error compensator (Gp on yaw rate, Gy on ay)')
+    scaling: tuple[float, ...] = param(PAPER_SCALING, 'state scaling S for [vx, vy, r, phi, p, '
+                                       'Fyf, Fyr]')
+    q_diag: tuple[float, ...] = param(_DEFAULT_TUNING.q_diag, 'process noise spectral density '
+                                      'per state, filter coordinates, per s')
+    p0_diag: tuple[float, ...] = param(_DEFAULT_TUNING.p0_diag, 'initial covariance per state, '
+                                       'filter coordinates')
+    r_std: tuple[float, ...] = param(_DEFAULT_TUNING.r_std, 'measurement noise std: ax, ay '
+                                     '(m/s^2), r, p (rad/s), vx from wheel speeds (m/s)')
+    gp: tuple[float, ...] = param(_DEFAULT_TUNING.gp, 'MEC gain yaw-rate error -> (Fyf*, Fyr*), '
+                                  'scaled units per (rad/s) per s')
+    gy: tuple[float, ...] = param(_DEFAULT_TUNING.gy, 'MEC gain ay error -> load transfer '
+                                  '(front, rear), kg')
+    imu_gravity_tilt: bool = param(True, 'the IMU is fixed to the rolling body (its ay reads '
+                                   'g sin(phi))')
+    wheel_accel_tau: float = param(_DEFAULT_TUNING.wheel_accel_tau, 'time constant of the '
+                                   'wheel-acceleration differentiator, s', low=1e-3, high=1.0)
+    validity_ay_g: float = param(0.5, 'the load-ratio relation holds below this |ay|, g',
+                                 low=0.05, high=2.0)
+    max_dt: float = param(_DEFAULT_TUNING.max_dt, 'an IMU gap longer than this restarts the '
+                          'filter, s', low=0.011, high=10.0)
+
+    wheel_speeds_max_age_s: float = param(0.05, 'held wheel speeds older than this are stale '
+                                          '(IMU sample skipped), s', low=1e-3, high=10.0)
+    driver_inputs_max_age_s: float = param(0.05, 'held driver inputs older than this are stale '
+                                           '(IMU sample skipped), s', low=1e-3, high=10.0)
+    max_wait_s: float = param(1.0, 'IMU samples wait for late wheel speeds / driver inputs '
+                              'until the IMU queue spans this much IMU time, s (must exceed a '
+                              "replay's lead)", low=0.0, high=10.0)
+
+    def __post_init__(self) -> None:
+        self.vehicle()
+        self.tuning()
+
+    def vehicle(self) -> ObserverVehicleParams:
+        """The observer's vehicle model (validated by the core)."""
+        return ObserverVehicleParams(
+            m=self.m, ms=self.ms, iz=self.iz, ix=self.ix, iw=self.iw, lf=self.lf, lr=self.lr,
+            h=self.h, hf=self.hf, hr=self.hr, e=self.e, rw=self.rw, tf=self.tf, tr=self.tr,
+            kphi_f=self.kphi_f, kphi_r=self.kphi_r, cphi_f=self.cphi_f, cphi_r=self.cphi_r)
+
+    def tuning(self) -> ObserverTuning:
+        """The filter settings (validated by the core)."""
+        return ObserverTuning(
+            scaled=self.scaled, mec=self.mec, scaling=tuple(self.scaling),
+            q_diag=tuple(self.q_diag), p0_diag=tuple(self.p0_diag), r_std=tuple(self.r_std),
+            gp=tuple(self.gp),  # type: ignore[arg-type]
+            gy=tuple(self.gy),  # type: ignore[arg-type]
+            imu_gravity_tilt=self.imu_gravity_tilt, wheel_accel_tau=self.wheel_accel_tau,
+            validity_ay=self.validity_ay_g * G, max_dt=self.max_dt)
+
+
+def _time_msg(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+class LateralForceObserverNode(Node):
+    """The ``lateral_force_observer`` node (see the module docstring)."""
+
+    def __init__(self, node_name: str = 'lateral_force_observer', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._typed = TypedParameters(self, LateralForceNodeParameters,
+                                      on_change=self._on_change)
+        p = self._typed.value
+        self._observer = LateralForceObserver(p.vehicle(), p.tuning())
+        self._checks = {topic: StampCheck(max_gap_s=math.inf)
+                        for topic in ('imu', 'wheel_speeds', 'driver_inputs')}
+        self.received = {topic: 0 for topic in self._checks}
+        # Rejections by this node (the core's own are in observer.health.rejected).
+        self.rejected: dict[str, int] = {}
+        self.skipped = {'stale_wheel_speeds': 0, 'stale_driver_inputs': 0}
+        self.published = 0
+        self.beyond_validity = 0
+        self._imu: deque[tuple[int, float, float, float, float]] = deque()
+        self._wheels: deque[tuple[int, np.ndarray]] = deque(maxlen=_MAX_BUFFERED)
+        self._driver: deque[tuple[int, float, np.ndarray]] = deque(maxlen=_MAX_BUFFERED)
+        self._newest = {'wheel_speeds': -1, 'driver_inputs': -1}
+        self._last_step_ns: int | None = None
+        self._last_diag_ns: int | None = None
+        self._last: LateralForceEstimate | None = None
+        self._last_ay = math.nan
+        self._period_events: dict[str, int] = {}
+        self._filter_rejected_seen = 0
+
+        overrides = QoSOverridingOptions.with_default_policies()
+        self._publisher = self.create_publisher(TireForces, 'vehicle/tire_forces', OUTPUT_QOS)
+        self.create_subscription(Imu, 'vehicle/imu', self._on_imu, SENSOR_QOS,
+                                 qos_overriding_options=overrides)
+        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
+                                 SENSOR_QOS, qos_overriding_options=overrides)
+        self.create_subscription(DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs,
+                                 SENSOR_QOS, qos_overriding_options=overrides)
+        self._diagnostics = Diagnostics(self, hardware_id='vehicle_imu')
+        self._update_diagnostics()
+
+    @property
+    def parameters(self) -> LateralForceNodeParameters:
+        """The current, validated parameters."""
+        return self._typed.value
+
+    @property
+    def observer(self) -> LateralForceObserver:
+        """The estimator core in use."""
+        return self._observer
+
+    def _on_change(self, p: LateralForceNodeParameters) -> None:
+        vehicle, tuning = p.vehicle(), p.tuning()
+        if vehicle != self._observer.params or tuning != self._observer.tuning:
+            # A new model: restart the filter from the next IMU sample; keep the counters.
+            health = self._observer.health
+            self._observer = LateralForceObserver(vehicle, tuning)
+            self._observer.health = health
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        self._period_events[reason] = self._period_events.get(reason, 0) + 1
+
+    def _accept_stamp(self, topic: str, msg: Any) -> int | None:
+        self.received[topic] += 1
+        stamp = stamp_ns(msg.header.stamp)
+        verdict = self._checks[topic].check(stamp)
+        if verdict in ('repeated', 'out_of_order'):
+            self._reject(f'{topic}_{verdict}')
+            return None
+        return stamp
+
+    def _on_imu(self, msg: Imu) -> None:
+        stamp = self._accept_stamp('imu', msg)
+        if stamp is None:
+            return
+        acc, rate = msg.linear_acceleration, msg.angular_velocity
+        self._imu.append((stamp, float(acc.x), float(acc.y), float(rate.z), float(rate.x)))
+        self._drain()
+
+    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+        stamp = self._accept_stamp('wheel_speeds', msg)
+        if stamp is None:
+            return
+        omega = np.asarray(msg.omega, dtype=float)
+        if omega.shape != (4,) or not np.all(np.isfinite(omega)):
+            # A bad sample must not enter the interval mean; the others still do.
+            self._reject('wheel_speeds_invalid')
+            return
+        self._wheels.append((stamp, omega))
+        self._newest['wheel_speeds'] = stamp
+        self._drain()
+
+    def _on_driver_inputs(self, msg: DriverInputs) -> None:
+        stamp = self._accept_stamp('driver_inputs', msg)
+        if stamp is None:
+            return
+        torque = np.asarray(msg.wheel_torque, dtype=float)
+        if torque.shape != (4,):
+            self._reject('driver_inputs_invalid')
+            return
+        self._driver.append((stamp, float(msg.steering_angle), torque))
+        self._newest['driver_inputs'] = stamp
+        self._drain()
+
+    def _drain(self) -> None:
+        """Process the queued IMU samples whose inputs are complete or waited long enough."""
+        wait_ns = self.parameters.max_wait_s * 1e9
+        while self._imu:
+            stamp = self._imu[0][0]
+            caught_up = min(self._newest.values()) >= stamp
+            if not (caught_up or self._imu[-1][0] - stamp >= wait_ns
+                    or len(self._imu) >= _MAX_BUFFERED):
+                return
+            self._step(*self._imu.popleft())
+
+    # -- alignment and filtering -------------------------------------------------------------
+
+    def _wheel_speed_at(self, stamp: int) -> np.ndarray | None:
+        """Mean over (previous IMU stamp, stamp], else the held sample if fresh enough."""
+        start = self._last_step_ns if self._last_step_ns is not None else stamp - 1
+        interval = [omega for s, omega in self._wheels if start < s <= stamp]
+        held = None
+        while self._wheels and self._wheels[0][0] <= stamp:
+            held = self._wheels.popleft()
+        if held is not None:
+            self._wheels.appendleft(held)  # kept for a later sample-and-hold
+        if interval:
+            return np.mean(interval, axis=0)
+        if held is not None and stamp - held[0] <= self.parameters.wheel_speeds_max_age_s * 1e9:
+            return held[1]
+        return None
+
+    def _driver_at(self, stamp: int) -> tuple[float, np.ndarray] | None:
+        """The latest driver inputs not newer than ``stamp``, if fresh enough."""
+        held = None
+        while self._driver and self._driver[0][0] <= stamp:
+            held = self._driver.popleft()
+        if held is None:
+            return None
+        self._driver.appendleft(held)
+        if stamp - held[0] > self.parameters.driver_inputs_max_age_s * 1e9:
+            return None
+        return held[1], held[2]
+
+    def _step(self, stamp: int, ax: float, ay: float, r: float, p: float) -> None:
+        omega = self._wheel_speed_at(stamp)
+        driver = self._driver_at(stamp)
+        if omega is None or driver is None:
+            reason = 'stale_wheel_speeds' if omega is None else 'stale_driver_inputs'
+            self.skipped[reason] += 1
+            self._period_events[reason] = self._period_events.get(reason, 0) + 1
+            self._maybe_update_diagnostics(stamp)
+            return
+        steer, torque = driver
+        # The first call's dt is ignored by the core; later ones span any skipped samples.
+        dt = 0.0 if self._last_step_ns is None else (stamp - self._last_step_ns) * 1e-9
+        self._last_step_ns = stamp
+        estimate = self._observer.step(ax, ay, r, p, omega.tolist(), torque.tolist(), steer, dt)
+        if estimate is None or not estimate.accepted:
+            self._maybe_update_diagnostics(stamp)
+            return
+        self._last = estimate
+        self._last_ay = ay
+        if not estimate.within_validity:
+            if 'beyond_validity' not in self._period_events:
+                self._last_diag_ns = None  # report the excursion now, not at the period end
+            self.beyond_validity += 1
+            self._period_events['beyond_validity'] = (
+                self._period_events.get('beyond_validity', 0) + 1)
+        self._publish(estimate, stamp)
+        self._maybe_update_diagnostics(stamp)
+
+    # -- outputs -----------------------------------------------------------------------------
+
+    def _publish(self, est: LateralForceEstimate, stamp: int) -> None:
+        msg = TireForces()
+        msg.header.stamp = _time_msg(stamp)
+        msg.header.frame_id = 'base_link'
+        msg.fx = [float(v) for v in est.fx]
+        msg.fy = [float(v) for v in est.fy]
+        msg.fz = [float(v) for v in est.fz]
+        # Axle-average per-tire forces, as the core (and Kim & Huh) define Fyf, Fyr.
+        msg.fy_front = float(est.fy_front)
+        msg.fy_rear = float(est.fy_rear)
+        msg.within_validity = bool(est.within_validity)
+        self._publisher.publish(msg)
+        self.published += 1
+
+    def _maybe_update_diagnostics(self, stamp: int) -> None:
+        if (self._last_diag_ns is None
+                or stamp - self._last_diag_ns >= _DIAGNOSTICS_PERIOD_S * 1e9):
+            self._last_diag_ns = stamp
+            self._update_diagnostics()
+            self._period_events = {}
+
+    def _update_diagnostics(self) -> None:
+        p = self.parameters
+        health = self._observer.health
+        values: dict[str, Any] = {
+            f'received_{topic}': count for topic, count in self.received.items()}
+        values.update({
+            'filter_steps': health.samples,
+            'filter_accepted': health.accepted,
+            'outputs_published': self.published,
+            'gap_restarts': health.gap_restarts,
+            'covariance_resets': health.covariance_resets,
+            'samples_beyond_validity': self.beyond_validity,
+            'validity_limit_g': p.validity_ay_g,
+            'ay_mps2': self._last_ay,
+            'filter': ('SKFMEC' if p.scaled and p.mec else
+                       f'EKF (scaled={p.scaled}, mec={p.mec})'),
+        })
+        values.update({f'rejected_{k}': v for k, v in self.rejected.items()})
+        values.update({f'rejected_by_filter_{k}': v for k, v in health.rejected.items()})
+        values.update({f'skipped_{k}': v for k, v in self.skipped.items()})
+        if self._last is None:
+            self._diagnostics.set(STALE, 'waiting for IMU, wheel speeds and driver inputs',
+                                  values)
+            return
+        values['fy_n'] = self._last.fy.tolist()
+        values['fz_n'] = self._last.fz.tolist()
+        problems = []
+        events = self._period_events
+        if not self._last.within_validity or events.get('beyond_validity'):
+            problems.append(f'|ay| above {p.validity_ay_g:g} g: load-ratio split outside its '
+                            f'validity ({events.get("beyond_validity", 0)} samples)')
+        for reason in ('stale_wheel_speeds', 'stale_driver_inputs'):
+            if events.get(reason):
+                problems.append(f'{events[reason]} IMU samples skipped: {reason}')
+        rejected_now = sum(v for k, v in events.items()
+                           if k not in ('beyond_validity', 'stale_wheel_speeds',
+                                        'stale_driver_inputs'))
+        if rejected_now:
+            problems.append(f'{rejected_now} input messages rejected')
+        filter_rejected = sum(health.rejected.values())
+        if filter_rejected > self._filter_rejected_seen:
+            problems.append(f'{filter_rejected - self._filter_rejected_seen} samples rejected '
+                            'by the filter (non-finite or saturated)')
+            self._filter_rejected_seen = filter_rejected
+        if health.covariance_resets:
+            values['note'] = 'covariance lost positive definiteness: filter reset (counted)'
+        self._diagnostics.set(WARN if problems else OK,
+                              '; '.join(problems) or 'estimating tire forces', values)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of the ``lateral_force_observer`` executable."""
+    raise SystemExit(run_node(LateralForceObserverNode, args))

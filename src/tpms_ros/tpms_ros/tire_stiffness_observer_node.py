@@ -1,0 +1,481 @@
+"""``tire_stiffness_observer``: TPMS by tire stiffness (Umeno 1997) on the ROS graph.
+
+Wraps :class:`tpms_ros.stiffness_observer.TireStiffnessObserver` (SPEC §2).
+
+Topics (relative, so a namespace moves them):
+
+* in ``vehicle/wheel_speeds`` (WheelSpeeds, 1 kHz): the estimator's signal.
+* in ``vehicle/driver_inputs`` (DriverInputs, optional): wheel torques for the hard
+  braking/traction gate.
+* out ``tpms/tire_stiffness`` (TireStiffness), ``tpms/indication/stiffness`` (TpmsIndication,
+  method ``stiffness``), ``/diagnostics``.
+* service ``~/calibrate`` (std_srvs/Trigger): learn every tire's nominal stiffness over the next
+  ``calibration_s`` of *valid* data (the tires must be at ``nominal_pressure_kpa``).
+
+Processing: wheel speeds are buffered and handed to the core in chunks of one output period
+(``1 / publish_rate_hz`` of *data* time, at least 100 samples), so a replay at any speed gives
+the same outputs. Each output is stamped with the last wheel-speed sample of its chunk.
+
+Time alignment of the driver inputs: each wheel-speed sample takes the latest driver-input
+message not newer than itself (sample and hold); one older than ``driver_inputs_max_age_s`` is
+stale and the torque gate is skipped for that sample (counted in the core's ``torque_invalid``).
+
+Bad input: a message with other than four speeds, or a repeated or out-of-order stamp, is
+rejected and counted here; non-finite, negative, dead and stuck speeds, gaps and sample-rate
+changes are rejected per wheel by the core, which reports the tire *unknown* (``valid`` and
+``known`` false), never low. The input rate is measured and a mismatch with
+``sample_rate_hz`` reported: a real rate change needs ``sample_rate_hz`` set (which rebuilds
+the estimator, keeping its calibration).
+
+Calibration persistence: with ``calibration_file`` set, a finished calibration is written there
+(atomically, ``vehicle_monitor_common.calibration_store``) and loaded at start. A missing file
+is a first start; an unusable one is reported on ``/diagnostics`` and ignored (the node runs
+uncalibrated and asks for ``~/calibrate``). ``calibrate_on_start`` starts a calibration at start
+only when no usable calibration was loaded, so a restart keeps what was learned.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from std_srvs.srv import Trigger
+from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
+
+from tpms_ros.stiffness_observer import (
+    PressureRelation,
+    StiffnessEstimate,
+    StiffnessObserverParams,
+    TireStiffnessObserver,
+)
+from tpms_ros.tire_model import TorsionalTire
+from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
+from vehicle_monitor_common.node_helpers import (
+    ERROR,
+    OK,
+    OUTPUT_QOS,
+    SENSOR_QOS,
+    STALE,
+    WARN,
+    Diagnostics,
+    StampCheck,
+    TypedParameters,
+    param,
+    run_node,
+    stamp_ns,
+)
+
+WHEELS = ('FL', 'FR', 'RL', 'RR')
+# The core's author: each update() call should hold at least this many samples.
+MIN_CHUNK_SAMPLES = 100
+# Core reasons that mean the sensor data are bad (ERROR), not that the method is paused.
+SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
+# Relative input-rate deviation reported as a mismatch (the core's default timing tolerance).
+RATE_TOLERANCE = 0.25
+
+
+@dataclass(frozen=True)
+class StiffnessNodeParameters:
+    """Parameters of the ``tire_stiffness_observer`` node (defaults: paper and SPEC §2)."""
+
+    sample_rate_hz: float = param(1000.0, 'wheel-speed sample rate the filters are built for, '
+                                  'Hz (a change rebuilds the estimator, keeping its '
+                                  'calibration)', low=50.0, high=20000.0)
+    j1: float = param(0.8, 'model rim-side inertia J1, kg m^2', low=1e-3, high=100.0)
+    j2: float = param(0.6, 'model belt-side inertia J2, kg m^2', low=1e-3, high=100.0)
+    k: float = param(21656.0, 'model torsional stiffness K at nominal pressure, N m/rad '
+                     '(a change invalidates the calibration)', low=1.0, high=1e7)
+    d: float = param(8.0, 'model torsional damping D, N m s/rad', low=0.0, high=1e4)
+    observer_pole_factor: float = param(3.0, 'observer pole radius as a multiple of the model '
+                                        'resonance', low=1.0, high=50.0)
+    band_low_hz: float = param(25.0, 'pre-filter pass band lower edge, Hz', low=0.1,
+                               high=10000.0)
+    band_high_hz: float = param(60.0, 'pre-filter pass band upper edge, Hz', low=0.1,
+                                high=10000.0)
+    band_order: int = param(2, 'Butterworth order of each band edge', low=1, high=8)
+    forgetting_factor: float = param(0.98, 'RLS forgetting factor rho per LS block (memory '
+                                     'block_s / (1 - rho))', low=0.5, high=0.9999)
+    block_s: float = param(0.25, 'least-squares block length (one RLS update), s', low=0.01,
+                           high=10.0)
+    ls_mode: str = param('rls', 'least squares: recursive with forgetting or batch over a '
+                         'window', choices=('rls', 'batch'))
+    batch_window_blocks: int = param(100, 'batch LS window, blocks', low=2, high=100000)
+    driven_axle: str = param('none', 'axle(s) with drive-wheel compensation',
+                             choices=('front', 'rear', 'none', 'all'))
+    nominal_pressure_kpa: tuple[float, ...] = param(
+        (200.0, 200.0, 200.0, 200.0), 'placard pressure of each tire FL, FR, RL, RR, kPa '
+        '(gauge); the pressure at calibration')
+    pressure_slope: float = param(0.234375 / 0.4, 'K <-> pressure relation: relative stiffness '
+                                  'change per relative pressure change (K/K0 = 1 - slope '
+                                  '(1 - p/p0))', low=0.01, high=10.0)
+    warning_pressure_ratio: float = param(0.85, 'a tire is flagged below this fraction of its '
+                                          'nominal pressure', low=0.01, high=0.999)
+    rolling_radius_m: float = param(0.3, 'nominal rolling radius for the speed gates, m',
+                                    low=0.05, high=2.0)
+    speed_min_kmh: float = param(30.0, 'lower edge of the speed band where the method is '
+                                 'valid, km/h', low=0.0, high=500.0)
+    speed_max_kmh: float = param(160.0, 'upper edge of the valid speed band, km/h', low=0.0,
+                                 high=500.0)
+    max_accel_mps2: float = param(2.5, '|acceleration| above this (hard braking/traction) '
+                                  'pauses the estimate, m/s^2', low=0.01, high=50.0)
+    max_slip: float = param(0.05, '|wheel speed / median wheel speed - 1| above this pauses '
+                            'the wheel', low=1e-3, high=1.0)
+    max_wheel_torque_nm: float = param(1000.0, '|wheel torque| above this pauses the wheel, '
+                                       'N m', low=1.0, high=1e5)
+    use_wheel_torque: bool = param(True, 'subscribe vehicle/driver_inputs for the torque gate',
+                                   read_only=True)
+    driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
+                                           'stale (torque gate skipped), s', low=1e-3,
+                                           high=10.0)
+    calibration_s: float = param(60.0, 'valid data per tire a calibration collects, s',
+                                 low=1.0, high=3600.0)
+    calibrate_on_start: bool = param(False, 'start a calibration at start when no usable '
+                                     'calibration file was loaded', read_only=True)
+    calibration_file: str = param('', 'YAML file the calibration is saved to and loaded '
+                                  'from at start; empty: not persisted', read_only=True)
+    publish_rate_hz: float = param(4.0, 'output rate in data time, Hz (each output answers '
+                                   'sample_rate_hz / publish_rate_hz >= 100 samples)',
+                                   low=0.01, high=100.0)
+
+    def __post_init__(self) -> None:
+        if self.sample_rate_hz / self.publish_rate_hz < MIN_CHUNK_SAMPLES:
+            raise ValueError(f'publish_rate_hz {self.publish_rate_hz:g} leaves fewer than '
+                             f'{MIN_CHUNK_SAMPLES} samples per update at sample_rate_hz '
+                             f'{self.sample_rate_hz:g}')
+        if len(self.nominal_pressure_kpa) != 4:
+            raise ValueError('nominal_pressure_kpa must hold 4 values (FL, FR, RL, RR), got '
+                             f'{len(self.nominal_pressure_kpa)}')
+        tire = self.tire()  # validates J1, J2, K, D
+        pole_hz = self.observer_pole_factor * tire.resonance_hz
+        if not pole_hz < 0.5 * self.sample_rate_hz:
+            raise ValueError(f'observer_pole_factor {self.observer_pole_factor:g} puts the '
+                             f'observer poles at {pole_hz:.0f} Hz, above the Nyquist frequency '
+                             f'{0.5 * self.sample_rate_hz:g} Hz')
+        self.estimator_params()  # the core's own checks, with its reasons
+
+    def tire(self) -> TorsionalTire:
+        """The estimator's nominal tire model."""
+        return TorsionalTire(self.j1, self.j2, self.k, self.d)
+
+    def estimator_params(self) -> StiffnessObserverParams:
+        """The core's parameters."""
+        return StiffnessObserverParams(
+            sample_rate_hz=self.sample_rate_hz,
+            band_hz=(self.band_low_hz, self.band_high_hz), band_order=self.band_order,
+            observer_pole_factor=self.observer_pole_factor, block_s=self.block_s,
+            forgetting_factor=self.forgetting_factor,
+            ls_mode=self.ls_mode,  # type: ignore[arg-type]
+            batch_window_blocks=self.batch_window_blocks,
+            driven_axle=self.driven_axle,  # type: ignore[arg-type]
+            calibration_s=self.calibration_s,
+            nominal_pressure_kpa=tuple(float(v) for v in self.nominal_pressure_kpa),  # type: ignore[arg-type]
+            pressure_relation=PressureRelation(self.pressure_slope),
+            warning_pressure_ratio=self.warning_pressure_ratio,
+            rolling_radius_m=self.rolling_radius_m,
+            speed_band_kmh=(self.speed_min_kmh, self.speed_max_kmh),
+            max_accel_mps2=self.max_accel_mps2, max_slip=self.max_slip,
+            max_wheel_torque_nm=self.max_wheel_torque_nm)
+
+
+def _time_msg(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+class TireStiffnessObserverNode(Node):
+    """The ``tire_stiffness_observer`` node (see the module docstring)."""
+
+    def __init__(self, node_name: str = 'tire_stiffness_observer', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._typed = TypedParameters(self, StiffnessNodeParameters, on_change=self._on_change)
+        p = self._typed.value
+        self._observer = TireStiffnessObserver(p.estimator_params(), p.tire())
+        self._stamps = StampCheck(max_gap_s=math.inf)
+        self.rejected: dict[str, int] = {'wrong_size': 0, 'repeated': 0, 'out_of_order': 0}
+        self.received = 0
+        self.processed = 0
+        self.published = 0
+        self._buffer_ns: list[int] = []
+        self._buffer_omega: list[Any] = []
+        self._driver: deque[tuple[int, np.ndarray]] = deque(maxlen=1000)
+        self._origin_ns: int | None = None
+        self._input_rate_hz = math.nan
+        self._estimate: StiffnessEstimate | None = None
+
+        self.calibration_state = 'uncalibrated'
+        self.calibration_detail = 'no calibration: call ~/calibrate with nominal tire pressures'
+        # Why the calibration file was unusable; reported until a calibration is saved.
+        self.calibration_file_problem = ''
+        self._load_calibration_file()
+        if p.calibrate_on_start and self.calibration_state != 'loaded':
+            self._start_calibration()
+
+        overrides = QoSOverridingOptions.with_default_policies()
+        self._stiffness_pub = self.create_publisher(TireStiffness, 'tpms/tire_stiffness',
+                                                    OUTPUT_QOS)
+        self._indication_pub = self.create_publisher(TpmsIndication, 'tpms/indication/stiffness',
+                                                     OUTPUT_QOS)
+        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
+                                 SENSOR_QOS, qos_overriding_options=overrides)
+        if p.use_wheel_torque:
+            self.create_subscription(DriverInputs, 'vehicle/driver_inputs',
+                                     self._on_driver_inputs, SENSOR_QOS,
+                                     qos_overriding_options=overrides)
+        self.create_service(Trigger, '~/calibrate', self._on_calibrate)
+        self._diagnostics = Diagnostics(self, hardware_id='wheel_speed_sensors')
+        self._update_diagnostics()
+
+    # -- parameters and calibration ----------------------------------------------------------
+
+    @property
+    def parameters(self) -> StiffnessNodeParameters:
+        """The current, validated parameters."""
+        return self._typed.value
+
+    @property
+    def observer(self) -> TireStiffnessObserver:
+        """The estimator core in use."""
+        return self._observer
+
+    def _on_change(self, p: StiffnessNodeParameters) -> None:
+        new_params, new_tire = p.estimator_params(), p.tire()
+        if new_params == self._observer.params and new_tire == self._observer.tires[0]:
+            return
+        # The filters are designed for these values: build a new estimator and carry the
+        # calibration over (the core refuses it when the model K changed).
+        old = self._observer
+        self._observer = TireStiffnessObserver(new_params, new_tire)
+        if self.calibration_state == 'calibrating':
+            self._start_calibration()
+        elif self.calibration_state in ('loaded', 'calibrated'):
+            try:
+                self._observer.load_calibration(old.calibration_state())
+                self.calibration_detail += ' (kept across a parameter change)'
+            except ValueError as exc:
+                self.calibration_state = 'uncalibrated'
+                self.calibration_detail = (f'calibration dropped by a parameter change ({exc}): '
+                                           'recalibration required (~/calibrate)')
+        self._update_diagnostics()
+
+    def _load_calibration_file(self) -> None:
+        path = self.parameters.calibration_file
+        if not path:
+            return
+        loaded = load_calibration(path)
+        if loaded.state is None:
+            if loaded.problem:
+                self._file_corrupt(loaded.problem)
+            return
+        try:
+            self._observer.load_calibration(loaded.state)
+        except ValueError as exc:
+            self._file_corrupt(f'{path} rejected: {exc}')
+            return
+        self.calibration_state = 'loaded'
+        self.calibration_detail = f'calibration loaded from {path}'
+
+    def _file_corrupt(self, problem: str) -> None:
+        self.calibration_state = 'file_corrupt'
+        self.calibration_file_problem = problem
+        self.calibration_detail = (f'calibration file unusable ({problem}): running '
+                                   'uncalibrated, recalibration required (~/calibrate)')
+        self.get_logger().warning(self.calibration_detail)
+
+    def _start_calibration(self) -> None:
+        self._observer.start_calibration(self.parameters.calibration_s)
+        self.calibration_state = 'calibrating'
+        self.calibration_detail = (f'calibrating over {self.parameters.calibration_s:g} s of '
+                                   'valid data per tire (tires must be at nominal pressure)')
+
+    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.calibration_state == 'calibrating':
+            response.success = False
+            response.message = 'a calibration is already running'
+            return response
+        self._start_calibration()
+        response.success = True
+        response.message = self.calibration_detail
+        self._update_diagnostics()
+        return response
+
+    def _check_calibration(self) -> None:
+        if self.calibration_state != 'calibrating' or self._observer.calibrating:
+            return
+        state = self._observer.calibration_state()
+        self.calibration_state = 'calibrated'
+        path = self.parameters.calibration_file
+        if not path:
+            self.calibration_detail = 'calibrated (not persisted: calibration_file is empty)'
+            return
+        problem = save_calibration(path, state, comment='tire_stiffness_observer calibration '
+                                   '(written by the node; delete to forget)')
+        self.calibration_detail = (f'calibrated, NOT saved: {problem}' if problem
+                                   else f'calibrated, saved to {path}')
+        if not problem:
+            self.calibration_file_problem = ''
+        self.get_logger().info(self.calibration_detail)
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _on_driver_inputs(self, msg: DriverInputs) -> None:
+        torque = np.asarray(msg.wheel_torque, dtype=float)
+        stamp = stamp_ns(msg.header.stamp)
+        if torque.shape != (4,) or (self._driver and stamp <= self._driver[-1][0]):
+            return  # the gate simply holds the previous torque
+        self._driver.append((stamp, torque))
+
+    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+        self.received += 1
+        omega = msg.omega
+        if len(omega) != 4:
+            self.rejected['wrong_size'] += 1
+            return
+        stamp = stamp_ns(msg.header.stamp)
+        verdict = self._stamps.check(stamp)
+        if verdict in ('repeated', 'out_of_order'):
+            self.rejected[verdict] += 1
+            return
+        self._buffer_ns.append(stamp)
+        self._buffer_omega.append(omega)
+        p = self.parameters
+        period_ns = 1e9 / p.publish_rate_hz
+        # A chunk spans one output period of data time: n samples cover n mean intervals.
+        count = len(self._buffer_ns)
+        if (count >= MIN_CHUNK_SAMPLES
+                and (stamp - self._buffer_ns[0]) * count >= period_ns * (count - 1) * 0.999):
+            self._process()
+
+    def _torque_for(self, stamps: np.ndarray) -> np.ndarray | None:
+        """Sample-and-hold driver torque for each wheel-speed stamp (NaN where stale)."""
+        if not self._driver:
+            return None
+        driver_ns = np.array([s for s, _ in self._driver], dtype=np.int64)
+        torque = np.array([t for _, t in self._driver])
+        index = np.searchsorted(driver_ns, stamps, side='right') - 1
+        max_age_ns = self.parameters.driver_inputs_max_age_s * 1e9
+        fresh = (index >= 0) & (stamps - driver_ns[np.maximum(index, 0)] <= max_age_ns)
+        # Keep the last message used (it may hold the next chunk's first samples).
+        for _ in range(max(int(index[-1]), 0)):
+            self._driver.popleft()
+        if not fresh.any():
+            return None
+        return np.where(fresh[:, None], torque[np.maximum(index, 0)], np.nan)
+
+    def _process(self) -> None:
+        stamps = np.array(self._buffer_ns, dtype=np.int64)
+        omega = np.array(self._buffer_omega, dtype=float)
+        self._buffer_ns.clear()
+        self._buffer_omega.clear()
+        if self._origin_ns is None:
+            self._origin_ns = int(stamps[0])
+        # Seconds from the first sample keep full float resolution on epoch stamps.
+        t = (stamps - self._origin_ns) * 1e-9
+        if stamps.size > 1:
+            self._input_rate_hz = 1.0 / float(np.median(np.diff(t)))
+        estimate = self._observer.update(omega, stamps=t, wheel_torque=self._torque_for(stamps))
+        self.processed += int(stamps.size)
+        self._estimate = estimate
+        self._check_calibration()
+        self._publish(estimate, int(stamps[-1]))
+        self._update_diagnostics()
+
+    # -- outputs -----------------------------------------------------------------------------
+
+    def _publish(self, est: StiffnessEstimate, stamp: int) -> None:
+        stiffness = TireStiffness()
+        stiffness.header.stamp = _time_msg(stamp)
+        stiffness.header.frame_id = 'base_link'
+        stiffness.delta_k = est.delta_k.tolist()
+        stiffness.delta_d = est.delta_d.tolist()
+        stiffness.stiffness = est.stiffness.tolist()
+        stiffness.stiffness_ratio = est.stiffness_ratio.tolist()
+        stiffness.pressure_kpa = est.pressure_kpa.tolist()
+        stiffness.pressure_std_kpa = est.pressure_std_kpa.tolist()
+        stiffness.valid = [bool(v) for v in est.valid]
+        stiffness.calibrated = bool(est.calibrated)
+        indication = TpmsIndication()
+        indication.header = stiffness.header
+        indication.method = 'stiffness'
+        # Known: the core judged the tire on good data with a calibration in force; the core
+        # never flags a tire it cannot judge.
+        known = np.asarray(est.valid) & np.asarray(est.wheel_calibrated)
+        indication.known = [bool(v) for v in known]
+        indication.underinflated = [bool(v) for v in np.asarray(est.underinflated) & known]
+        indication.confidence = [float(c) if k else 0.0
+                                 for c, k in zip(est.confidence, known, strict=True)]
+        self._stiffness_pub.publish(stiffness)
+        self._indication_pub.publish(indication)
+        self.published += 1
+
+    def _update_diagnostics(self) -> None:
+        p = self.parameters
+        problems: list[str] = []
+        notes: list[str] = []
+        level = OK
+        est = self._estimate
+        values: dict[str, Any] = {
+            'calibration_state': self.calibration_state,
+            'calibration_detail': self.calibration_detail,
+            'calibration_file': p.calibration_file or '(none)',
+            'samples_received': self.received,
+            'samples_processed': self.processed,
+            'outputs_published': self.published,
+            'sample_rate_hz': p.sample_rate_hz,
+            'input_rate_hz': self._input_rate_hz,
+            'driven_axle': p.driven_axle,
+            'speed_band_kmh': [p.speed_min_kmh, p.speed_max_kmh],
+        }
+        for reason, count in self.rejected.items():
+            values[f'rejected_messages_{reason}'] = count
+        if self.calibration_file_problem:
+            values['calibration_file_problem'] = self.calibration_file_problem
+            problems.append(f'calibration file unusable ({self.calibration_file_problem})')
+        if self.calibration_state == 'uncalibrated':
+            problems.append(self.calibration_detail)
+        elif self.calibration_state == 'calibrating':
+            notes.append('calibrating')
+        if sum(self.rejected.values()):
+            problems.append(f'{sum(self.rejected.values())} wheel-speed messages rejected')
+        if est is None:
+            message = '; '.join(problems) or 'waiting for wheel speeds'
+            self._diagnostics.set(WARN if problems else STALE, message, values)
+            return
+        if abs(self._input_rate_hz / p.sample_rate_hz - 1.0) > RATE_TOLERANCE:
+            problems.append(f'input rate {self._input_rate_hz:.4g} Hz does not match '
+                            f'sample_rate_hz {p.sample_rate_hz:g}: set sample_rate_hz')
+        values['tire_status'] = list(est.status)
+        values['pressure_kpa'] = est.pressure_kpa.tolist()
+        values['pressure_std_kpa'] = est.pressure_std_kpa.tolist()
+        values['stiffness_ratio'] = est.stiffness_ratio.tolist()
+        values['underinflated'] = [bool(v) for v in est.underinflated]
+        values['confidence'] = est.confidence.tolist()
+        for name, counts in self._observer.counters.items():
+            values[f'core_{name}'] = list(counts)
+        faults = [f'{w}: {s}' for w, s in zip(WHEELS, est.status, strict=True)
+                  if s in SENSOR_FAULTS]
+        paused = [f'{w}: {s}' for w, s in zip(WHEELS, est.status, strict=True)
+                  if s != 'ok' and s not in SENSOR_FAULTS]
+        low = [w for w, flag in zip(WHEELS, est.underinflated, strict=True) if flag]
+        if faults:
+            level = ERROR
+            problems.insert(0, 'unknown (bad sensor data) ' + ', '.join(faults))
+        if low:
+            problems.append('under-inflated: ' + ', '.join(low))
+        if paused:
+            # Outside the method's valid conditions or converging: not a fault.
+            notes.append('not estimating ' + ', '.join(paused))
+        if problems and level == OK:
+            level = WARN
+        message = '; '.join(problems + notes) or 'all tires estimated'
+        self._diagnostics.set(level, message, values)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of the ``tire_stiffness_observer`` executable."""
+    raise SystemExit(run_node(TireStiffnessObserverNode, args))

@@ -1,0 +1,205 @@
+"""suspension_monitor node: config, fault detection from published IMUs, pairing, bad input."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import cache
+import math
+from pathlib import Path
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
+from vehicle_monitor_msgs.msg import ModeProbabilities, TrackIrregularity
+import yaml
+
+from rail_monitor_ros.rail_scenario import shipped_scenario
+from rail_monitor_ros.rail_simulator import simulate
+from rail_monitor_ros.suspension_imm import HalfCarSensorData, half_car_sensor_data
+from rail_monitor_ros.suspension_monitor_node import SuspensionMonitor
+from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
+
+CONFIG = (Path(__file__).resolve().parents[2]
+          / 'src/rail_monitor_ros/config/suspension_monitor.yaml')
+DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
+                  reliability=ReliabilityPolicy.RELIABLE)
+START_NS = 1_000 * 10**9
+DT_NS = 5_000_000
+
+
+@cache
+def _paper_data() -> HalfCarSensorData:
+    """The paper's run on the half-car truth (spring 150 % at 3 s), first 5 s."""
+    r = simulate(shipped_scenario('rail_imm_spring_damper_fault'))
+    n = 1000
+    return half_car_sensor_data(r.time[:n], r.track_alignment[:n, :2],
+                                r.track_alignment_rate[:n, :2], r.spring_ratio[:n, 0],
+                                r.damper_ratio[:n, 0], seed=1)
+
+
+def _config_parameters(**overrides: Any) -> list[Parameter]:
+    """The shipped YAML (what --params-file gives), reliable inputs, with overrides."""
+    data = yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters']
+    data.update(overrides)
+    params = [Parameter(k, value=v) for k, v in data.items()]
+    params += [Parameter(f'qos_overrides./{t}.subscription.reliability', value='reliable')
+               for t in ('rail/bogie/imu', 'rail/body/imu', 'rail/track_irregularity')]
+    return params
+
+
+def _stamp(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+class _Feeder:
+    """Publishes IMU (and track) samples as the rail simulator would."""
+
+    def __init__(self, node: Node) -> None:
+        self.bogie = node.create_publisher(Imu, 'rail/bogie/imu', DEEP)
+        self.body = node.create_publisher(Imu, 'rail/body/imu', DEEP)
+        self.track = node.create_publisher(TrackIrregularity, 'rail/track_irregularity', DEEP)
+
+    def imu(self, stamp: int, z: np.ndarray, *, bogie: bool = True, body: bool = True) -> None:
+        if bogie:
+            msg = Imu()
+            msg.header.stamp = _stamp(stamp)
+            msg.linear_acceleration.y = float(z[0])
+            msg.angular_velocity.z = float(z[1])
+            self.bogie.publish(msg)
+        if body:
+            msg = Imu()
+            msg.header.stamp = _stamp(stamp)
+            msg.linear_acceleration.y = float(z[2])
+            self.body.publish(msg)
+
+    def alignment(self, stamp: int, alignment: list[float], rate: list[float]) -> None:
+        msg = TrackIrregularity()
+        msg.header.stamp = _stamp(stamp)
+        msg.lateral_alignment = alignment
+        msg.lateral_alignment_rate = rate
+        self.track.publish(msg)
+
+
+def _setup(make_node: Callable[..., Any], **overrides: Any) -> tuple[Any, _Feeder,
+                                                                      list[ModeProbabilities],
+                                                                      list[DiagnosticArray]]:
+    monitor = make_node(SuspensionMonitor, parameter_overrides=_config_parameters(**overrides))
+    test_node = make_node('feeder')
+    got: list[ModeProbabilities] = []
+    diagnostics: list[DiagnosticArray] = []
+    test_node.create_subscription(ModeProbabilities, 'rail/suspension/modes', got.append, DEEP)
+    test_node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, DEEP)
+    return monitor, _Feeder(test_node), got, diagnostics
+
+
+def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) -> None:
+    """Every key of the shipped YAML is a declared parameter with the same default."""
+    data = yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters']
+    node = make_node(SuspensionMonitor)
+    for key, value in data.items():
+        assert node.has_parameter(key), key
+        assert node.get_parameter(key).value == pytest.approx(value), key
+    assert len(data) == len(node.parameters.__dataclass_fields__)
+
+
+def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
+                                                  spin_until: Callable[..., bool]) -> None:
+    """The paper's first 5 s as IMU messages: one output per pair with the input's stamp,
+    normal before 3 s, spring fault declared after it, diagnostics WARN/ERROR naming it."""
+    data = _paper_data()
+    monitor, feeder, got, diagnostics = _setup(make_node, use_track_irregularity=False)
+    stamps = START_NS + np.arange(len(data.time), dtype=np.int64) * DT_NS
+    for k0 in range(0, len(stamps), 100):
+        end = min(k0 + 100, len(stamps))
+        for k in range(k0, end):
+            feeder.imu(int(stamps[k]), data.measurements[k])
+        assert spin_until(lambda n=end: len(got) >= n, timeout_s=20.0)
+    assert [stamp_ns(m.header.stamp) for m in got] == stamps.tolist()
+    t = (np.array([stamp_ns(m.header.stamp) for m in got]) - START_NS) * 1e-9
+    detected = np.array([m.fault_detected for m in got])
+    assert not detected[t < 3.0].any()
+    assert detected[-1] and got[-1].fault_component == 'spring'
+    assert abs(got[-1].spring_ratio - 1.5) < 0.1
+    assert list(got[-1].modes)[5] == 'spring_150' and len(got[-1].modes) == 16
+    assert abs(sum(got[-1].probability) - 1.0) < 1e-9
+    monitor.diagnostics.publish()
+    assert spin_until(lambda: any('suspension fault: spring' in s.message
+                                  for d in diagnostics for s in d.status), timeout_s=5.0)
+    status = [s for d in diagnostics for s in d.status if 'suspension fault' in s.message][-1]
+    assert status.level in (b'\x01', b'\x02')
+    assert monitor.rejected.total() == 0
+
+
+def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
+                                           spin_until: Callable[..., bool]) -> None:
+    """NaN, saturated, repeated and out-of-order stamps, an unpaired sample, a frozen sensor:
+    counted, outputs stay finite, no fault, and the diagnostic reports an input fault."""
+    data = _paper_data()
+    monitor, feeder, got, diagnostics = _setup(make_node, frozen_samples=5)
+    z = data.measurements
+    s = [START_NS + k * DT_NS for k in range(200)]
+    for k in range(50):
+        feeder.imu(s[k], z[k])
+    assert spin_until(lambda: len(got) >= 50)
+    feeder.imu(s[50], np.array([math.nan, 0.0, 0.0]))
+    feeder.imu(s[51], np.array([80.0, 0.0, 0.0]))
+    feeder.imu(s[51], z[51])                      # repeated stamp
+    feeder.imu(s[40], z[40])                      # out of order
+    feeder.imu(s[52], z[52], body=False)          # body sample lost
+    for k in range(53, 60):
+        feeder.imu(s[k], np.array([0.1, 0.01, 0.2]))   # frozen
+    for k in range(60, 120):
+        feeder.imu(s[k], z[k])
+    assert spin_until(lambda: stamp_ns(got[-1].header.stamp) == s[119] if got else False)
+    counts = monitor.rejected
+    assert counts['non_finite'] == 1 and counts['saturated'] == 1
+    assert counts['repeated'] == 1 and counts['out_of_order'] == 1
+    assert counts['unpaired'] >= 1 and counts['frozen_sensor'] >= 3
+    assert all(np.all(np.isfinite(m.probability)) for m in got)
+    assert not any(m.fault_detected for m in got)
+    feeder.imu(s[120], np.array([math.inf, 0.0, 0.0]))
+    assert spin_until(lambda: stamp_ns(got[-1].header.stamp) == s[120])
+    monitor.diagnostics.publish()
+    assert spin_until(lambda: any('input fault' in st.message for d in diagnostics
+                                  for st in d.status))
+
+
+def test_known_inputs_used_when_fresh_and_stale_reported(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+    """Fresh track irregularity -> known-input model (held up to track_max_age = 20 ms, four
+    samples); after that the process-noise model and a 'stale' diagnostic; a wrongly sized
+    track message is counted."""
+    data = _paper_data()
+    monitor, feeder, got, _ = _setup(make_node)
+    for k in range(60):
+        stamp = START_NS + k * DT_NS
+        if k < 30:
+            feeder.alignment(stamp, [1e-3, 2e-3, 0.0, 0.0], [0.01, 0.0, 0.0, 0.0])
+            assert spin_until(lambda: monitor._track is not None)
+        feeder.imu(stamp, data.measurements[k])
+        assert spin_until(lambda n=k + 1: len(got) >= n)
+    assert monitor.known_input_samples == 30 + 4
+    assert 'stale' in monitor._track_state
+    feeder.alignment(START_NS + 60 * DT_NS, [1e-3], [])
+    assert spin_until(lambda: monitor.rejected['track_irregularity_size'] == 1)
+
+
+def test_parameters_validated(make_node: Callable[..., Any]) -> None:
+    """A bad grid is refused at start; a bad runtime threshold is refused, a good one taken."""
+    with pytest.raises(ConfigurationError, match='spring_stop|mean_sojourn'):
+        make_node(SuspensionMonitor, parameter_overrides=[
+            Parameter('mean_sojourn_time', value=0.001)])
+    node = make_node(SuspensionMonitor)
+    (result,) = node.set_parameters([Parameter('fault_threshold', value=1.5)])
+    assert not result.successful and 'fault_threshold' in result.reason
+    (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])
+    assert result.successful and node.imm.decision.threshold == 0.8
+    (result,) = node.set_parameters([Parameter('body_mass', value=9000.0)])
+    assert not result.successful
