@@ -22,9 +22,12 @@ from tpms_ros.lateral_force_observer import (
     ObserverTuning,
     ObserverVehicleParams,
     TuningCase,
+    calibrate_zeta,
     differentiator_coefficients,
     fy_error_percent,
     plot_lateral_forces,
+    plot_relation_check,
+    split_lateral,
     tune_gains,
 )
 
@@ -38,8 +41,14 @@ _spec.loader.exec_module(bench)
 
 @pytest.fixture(scope='module')
 def paper_case() -> TuningCase:
-    """The paper's worst case on the 14-DOF truth, 100 Hz, seeded sensor noise."""
-    return bench.to_case(bench.paper_truth(), 'paper', seed=1)
+    """The paper's worst case: the shipped kim_huh_lateral.yaml through the road simulator."""
+    return bench.paper_case()
+
+
+@pytest.fixture(scope='module')
+def nominal_mass_case() -> TuningCase:
+    """The same scenario with the truth at the model's mass (for model-mass errors)."""
+    return bench.paper_case(added_mass=0.0)
 
 
 @pytest.fixture(scope='module')
@@ -49,13 +58,12 @@ def relation_truth():
 
 
 def _axle_error_percent(track, fy_true: np.ndarray) -> np.ndarray:
-    truth = np.column_stack([fy_true[:, :2].mean(axis=1), fy_true[:, 2:].mean(axis=1)])
-    est = np.column_stack([track.fy_front, track.fy_rear])
-    return 100.0 * np.sqrt(np.mean((est - truth) ** 2, axis=0)) / np.abs(truth).max(axis=0)
+    return bench.axle_error_percent(track, fy_true)
 
 
 @pytest.mark.parametrize(('field', 'value'), [('m', -1.0), ('kphi_f', math.nan),
-                                              ('rw', 0.0), ('e', math.inf)])
+                                              ('rw', 0.0), ('e', math.inf),
+                                              ('split_exponent', 1.5)])
 def test_params_reject_non_physical(field: str, value: float) -> None:
     """A non-physical vehicle parameter raises ValueError naming it."""
     with pytest.raises(ValueError, match=field):
@@ -99,6 +107,21 @@ def test_zeta_is_the_model_steady_state() -> None:
     assert g[2] == pytest.approx(0.0, abs=1e-9)
 
 
+def test_split_preserves_axle_sum() -> None:
+    """Both splits keep Fy_left + Fy_right = 2 Fy_axle_mean; the load-sensitive one gives the
+    loaded wheel less than the proportional one, and exponent 0 splits evenly."""
+    fz = np.array([[3000.0, 5000.0, 2500.0, 4500.0]])
+    for beta in (0.0, 0.6, 1.0):
+        fy = split_lateral(fz, np.array([1000.0]), np.array([700.0]), beta)
+        np.testing.assert_allclose(fy[0, :2].sum(), 2000.0)
+        np.testing.assert_allclose(fy[0, 2:].sum(), 1400.0)
+    proportional = split_lateral(fz[0], 1000.0, 700.0, 1.0)
+    sensitive = split_lateral(fz[0], 1000.0, 700.0, 0.6)
+    assert proportional[1] == pytest.approx(1250.0) and sensitive[1] < proportional[1]
+    np.testing.assert_allclose(split_lateral(fz[0], 1000.0, 700.0, 0.0),
+                               [1000.0, 1000.0, 700.0, 700.0])
+
+
 def test_differentiator_is_scipy_bilinear() -> None:
     """The closed-form differentiator equals scipy.signal.bilinear of s/(tau s + 1)."""
     b, a = signal.bilinear([1.0, 0.0], [0.02, 1.0], fs=100.0)
@@ -127,71 +150,114 @@ def test_batch_equals_streaming(paper_case: TuningCase) -> None:
 
 
 def test_paper_scenario_accuracy(paper_case: TuningCase) -> None:
-    """Paper case (mass +200 kg, friction 1.1 -> 0.2): axle forces and the outer wheels within
-    the 10 % target; the inner wheels miss it because relation 2 overstates the split on the
-    Magic Formula truth (load sensitivity) - measured about 12.5 %, bounded here at 15 %."""
+    """Paper case (mass +200 kg, friction 1.1 -> 0.2): every wheel under the 10 % target with
+    the load-sensitive split (measured 9.0 / 7.6 / 8.3 / 6.7 %), axle means under 7 % (6.3,
+    6.6). The paper's proportional split on the same filter misses it (12.4 / 12.9 % on the
+    inner wheels): relation 2 overstates the split on Magic Formula tires."""
     track = paper_case.run()
     err = fy_error_percent(track, paper_case.fy_true)
-    axle = _axle_error_percent(track, paper_case.fy_true)
-    assert np.all(axle < 10.0), axle
-    assert err[1] < 10.0 and err[3] < 10.0, err
-    assert np.all(err < 15.0), err
+    assert np.all(err < 10.0), err
+    assert np.all(_axle_error_percent(track, paper_case.fy_true) < 7.0)
+    paper_split = paper_case.run(ObserverVehicleParams(split_exponent=1.0))
+    assert np.max(fy_error_percent(paper_split, paper_case.fy_true)) > 11.5
 
 
-def test_skfmec_versus_plain_ekf(paper_case: TuningCase) -> None:
-    """Measured, not assumed. Paper case: the SKFMEC has the lower worst-wheel error (about
-    12.4 % vs 13.7 %; its Gy compensator improves the split) but the plain EKF (same Q, P0
-    numbers unscaled, no compensator), which follows relation 1, is about 2 points better on
-    the axle means. Model mass 20 % too high: the SKFMEC is clearly better on the axles."""
-    skf_track = paper_case.run()
-    plain_track = paper_case.run(tuning=ObserverTuning.plain())
-    skf_wheel = fy_error_percent(skf_track, paper_case.fy_true)
-    plain_wheel = fy_error_percent(plain_track, paper_case.fy_true)
-    assert np.max(skf_wheel) < np.max(plain_wheel), (skf_wheel, plain_wheel)
-    skf = _axle_error_percent(skf_track, paper_case.fy_true)
-    plain = _axle_error_percent(plain_track, paper_case.fy_true)
-    assert np.all(np.abs(skf - plain) < 3.0), (skf, plain)
-    nominal = bench.to_case(bench.paper_truth(added_mass=0.0), 'nominal', seed=3)
+def test_skfmec_versus_plain_ekf(paper_case: TuningCase, nominal_mass_case: TuningCase) -> None:
+    """Measured, not assumed; each filter with its own tuning from the same search. Paper case:
+    a tie on the worst wheel (SKFMEC 9.0 %, plain EKF 8.8 %), the plain EKF is ~1 point better
+    on the axle means (5.5 vs 6.3 %); the compensator itself lowers the worst wheel against
+    the same scaled EKF without it. Model mass 20 % too high: the SKFMEC is far better (axle
+    16.5 vs 29.8 %), which is where the MEC earns its keep."""
+    skf = paper_case.run()
+    plain = paper_case.run(tuning=ObserverTuning.plain())
+    no_mec = paper_case.run(tuning=ObserverTuning(mec=False))
+    skf_worst = np.max(fy_error_percent(skf, paper_case.fy_true))
+    plain_worst = np.max(fy_error_percent(plain, paper_case.fy_true))
+    assert abs(skf_worst - plain_worst) < 1.0, (skf_worst, plain_worst)
+    assert skf_worst < np.max(fy_error_percent(no_mec, paper_case.fy_true))
+    axle_skf = _axle_error_percent(skf, paper_case.fy_true)
+    axle_plain = _axle_error_percent(plain, paper_case.fy_true)
+    assert np.all(axle_plain < axle_skf) and np.all(axle_skf - axle_plain < 2.0)
     heavy = ObserverVehicleParams(m=1814.0 * 1.2, ms=1661.0 * 1.2)
-    skf_heavy = _axle_error_percent(nominal.run(heavy), nominal.fy_true)
-    plain_heavy = _axle_error_percent(nominal.run(heavy, ObserverTuning.plain()),
-                                      nominal.fy_true)
-    assert np.max(skf_heavy) < np.max(plain_heavy) - 1.0, (skf_heavy, plain_heavy)
+    skf_heavy = _axle_error_percent(nominal_mass_case.run(heavy), nominal_mass_case.fy_true)
+    plain_heavy = _axle_error_percent(nominal_mass_case.run(heavy, ObserverTuning.plain()),
+                                      nominal_mass_case.fy_true)
+    assert np.all(skf_heavy < plain_heavy - 8.0), (skf_heavy, plain_heavy)
 
 
 def test_relations_on_truth(relation_truth) -> None:
-    """Relation 1: zeta = Fy_axle_mean / phi nearly constant; relation 2: Fy2/Fyf vs Fz2/Fzf
-    below 0.5 g (paper Figs. 3-4). Tolerances are the measured spread plus margin."""
+    """Relation 1: zeta = Fy_axle_mean / phi nearly constant below 0.5 g (measured spread
+    < 2 %); relation 2: the load-sensitive split (exponent 0.6) is closer to the truth's
+    Fy2/Fyf than the paper's Fz2/Fzf, which overstates it (paper Figs. 3-4)."""
     truth = relation_truth
-    ay_kin = np.abs(truth.ay)
-    mask = (ay_kin > 1.0) & (ay_kin < 0.5 * 9.81)
+    mask = (np.abs(truth.ay) > 1.0) & (np.abs(truth.ay) < 0.5 * 9.81)
     fyf = truth.fy[mask, :2].mean(axis=1)
     fyr = truth.fy[mask, 2:].mean(axis=1)
     zeta1, zeta2 = fyf / truth.roll[mask], fyr / truth.roll[mask]
-    assert np.std(zeta1) / np.mean(zeta1) < 0.10
-    assert np.std(zeta2) / np.mean(zeta2) < 0.10
-    fz_ratio = truth.fz[mask, 1] / truth.fz[mask, :2].mean(axis=1)
+    assert np.std(zeta1) / np.mean(zeta1) < 0.05
+    assert np.std(zeta2) / np.mean(zeta2) < 0.05
+    x = truth.fz[mask, 1] / truth.fz[mask, :2].mean(axis=1)
     fy_ratio = truth.fy[mask, 1] / fyf
-    assert np.max(np.abs(fy_ratio - fz_ratio)) < 0.35
+    sensitive = 2.0 * x ** 0.6 / (x ** 0.6 + (2.0 - x) ** 0.6)
+    assert np.mean(np.abs(sensitive - fy_ratio)) < 0.6 * np.mean(np.abs(x - fy_ratio))
+    assert np.all(x - fy_ratio > 0.0)   # the paper's relation always overstates it here
+
+
+def test_zeta_calibration_matches_truth(relation_truth) -> None:
+    """The ramp-steer calibration (IMU only: integrated roll rate, ay) recovers the truth's
+    zeta within 5 % (measured 2.9 %, 1.9 %), where the model's own steady state is ~28 %
+    high (it leaves out tire vertical compliance)."""
+    case = bench.to_case(relation_truth, 'ramp', seed=5)
+    cal = calibrate_zeta(ObserverVehicleParams(), case.dt, case.ay, case.p)
+    mask = (np.abs(relation_truth.ay) > 1.0) & (np.abs(relation_truth.ay) < 0.5 * 9.81)
+    roll = relation_truth.roll[mask]
+    true_zeta = (np.mean(relation_truth.fy[mask, :2].mean(axis=1) / roll),
+                 np.mean(relation_truth.fy[mask, 2:].mean(axis=1) / roll))
+    np.testing.assert_allclose(cal.zeta, true_zeta, rtol=0.05)
+    assert cal.model_zeta[0] > 1.2 * true_zeta[0]
+    with pytest.raises(ValueError, match='ay_range'):
+        calibrate_zeta(ObserverVehicleParams(), case.dt, case.ay[:50], case.p[:50])
 
 
 @pytest.mark.parametrize('factor', [0.7, 1.3])
 def test_robust_to_friction_error(factor: float) -> None:
-    """+/-30 % road friction (the observer has no friction input): axle forces stay < 10 %."""
-    case = bench.to_case(bench.paper_truth(friction_factor=factor), 'mu', seed=2)
+    """+/-30 % road friction (the observer has no friction input): every wheel stays under
+    the 10 % target (measured worst 9.2 % at x0.7, 8.7 % at x1.3)."""
+    case = bench.paper_case(friction_factor=factor)
     track = case.run()
-    assert np.all(_axle_error_percent(track, case.fy_true) < 10.0)
-    assert np.all(fy_error_percent(track, case.fy_true) < 18.0)
+    assert np.all(fy_error_percent(track, case.fy_true) < 10.0)
+    assert np.all(_axle_error_percent(track, case.fy_true) < 8.0)
 
 
 @pytest.mark.parametrize('factor', [0.8, 1.2])
-def test_mass_error_bias_is_bounded(factor: float) -> None:
-    """+/-20 % model mass (truth nominal): the force sum follows m_model ay, so the axle error
-    is about the mass error; bounded at 25 %."""
-    case = bench.to_case(bench.paper_truth(added_mass=0.0), 'mass', seed=3)
+def test_mass_error_bias_is_bounded(factor: float, nominal_mass_case: TuningCase) -> None:
+    """+/-20 % model mass (truth nominal): the force sum follows m_model ay, so the errors
+    grow with the mass error (measured worst wheel 14.1 % at x0.8, 21.1 % at x1.2; axles
+    12.2 %, 16.5 %); bounded at 23 % per wheel and 18 % per axle."""
+    case = nominal_mass_case
     params = ObserverVehicleParams(m=1814.0 * factor, ms=1661.0 * factor)
-    axle = _axle_error_percent(case.run(params), case.fy_true)
-    assert np.all(axle < 25.0), axle
+    track = case.run(params)
+    assert np.all(fy_error_percent(track, case.fy_true) < 23.0)
+    assert np.all(_axle_error_percent(track, case.fy_true) < 18.0)
+
+
+def test_diverging_tuning_resets_instead_of_crashing(paper_case: TuningCase) -> None:
+    """An unstable tuning (plain EKF with huge roll-state noise) makes the prediction blow up;
+    the filter restarts (counted) and never outputs non-finite forces."""
+    tuning = ObserverTuning.plain(q_diag=(0.01, 0.1, 0.1, 1e5, 1e5, 3.0, 3.0))
+    observer = LateralForceObserver(tuning=tuning)
+    c = paper_case
+    with np.errstate(all='ignore'):
+        track = observer.run(c.dt, c.ax, c.ay, c.r, c.p, c.omega, c.wheel_torque, c.steer)
+    assert observer.health.covariance_resets > 0
+    assert np.all(np.isfinite(track.fy))
+
+
+def test_real_time_factor() -> None:
+    """Offline at 100 Hz the batch path needs well under 1 % of real time on one core
+    (CPU time; measured ~190x). Bounded at 100x, the SPEC target."""
+    factors = bench.bench(repeats=2)
+    assert factors['rtf_run_cpu'] > 100.0, factors
 
 
 def test_bad_samples_rejected_without_corrupting(paper_case: TuningCase) -> None:
@@ -267,4 +333,13 @@ def test_plot_writes_png(paper_case: TuningCase, tmp_path: Path) -> None:
     track = paper_case.run()
     path = tmp_path / 'fy.png'
     plot_lateral_forces(str(path), track.t, paper_case.fy_true, {'SKFMEC': track})
+    assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_relation_plot_writes_png(relation_truth, tmp_path: Path) -> None:
+    """The Figs. 3-4 style plot writes a PNG file."""
+    path = tmp_path / 'rel.png'
+    t = relation_truth
+    plot_relation_check(str(path), t.t, t.fy, t.fz, t.roll, t.ay,
+                        model_zeta=ObserverVehicleParams().zeta)
     assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

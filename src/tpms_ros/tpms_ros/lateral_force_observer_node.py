@@ -109,6 +109,10 @@ class LateralForceNodeParameters:
     kphi_r: float = _vehicle('kphi_r', 'rear roll stiffness, N m/rad', 1.0, 1e8)
     cphi_f: float = _vehicle('cphi_f', 'front roll damping, N m s/rad', 0.0, 1e7)
     cphi_r: float = _vehicle('cphi_r', 'rear roll damping, N m s/rad', 0.0, 1e7)
+    split_exponent: float = _vehicle(
+        'split_exponent', 'left/right split of each axle force by Fz^exponent: 1 is the '
+        "paper's proportional split, below 1 follows the tires' load sensitivity (tire data)",
+        0.1, 2.0)
 
     scaled: bool = param(True, 'EKF on the scaled state x* = S x (false with mec false: the '
                          'plain EKF)')
@@ -151,7 +155,8 @@ class LateralForceNodeParameters:
         return ObserverVehicleParams(
             m=self.m, ms=self.ms, iz=self.iz, ix=self.ix, iw=self.iw, lf=self.lf, lr=self.lr,
             h=self.h, hf=self.hf, hr=self.hr, e=self.e, rw=self.rw, tf=self.tf, tr=self.tr,
-            kphi_f=self.kphi_f, kphi_r=self.kphi_r, cphi_f=self.cphi_f, cphi_r=self.cphi_r)
+            kphi_f=self.kphi_f, kphi_r=self.kphi_r, cphi_f=self.cphi_f, cphi_r=self.cphi_r,
+            split_exponent=self.split_exponent)
 
     def tuning(self) -> ObserverTuning:
         """The filter settings (validated by the core)."""
