@@ -25,7 +25,6 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rail_monitor_ros.creep_ekf import (  # noqa: E402
-    I_THETA,
     CreepEkf,
     CreepEkfParams,
     simulation_inputs,
@@ -38,8 +37,8 @@ def plain_run(params: CreepEkfParams, y: np.ndarray, track: np.ndarray) -> np.nd
     """The plainest per-sample EKF on the same model: exact discretisation every sample,
     S inverted explicitly, P = (I - K H) P. Returns the c estimate per sample."""
     ekf = CreepEkf(params)              # for the model matrices, Q and R only
-    h = ekf._h[True]                    # noqa: SLF001 - benchmark reuses the model
-    r = np.diag(ekf._r[True])           # noqa: SLF001
+    h = ekf._h[track.shape[1]]          # noqa: SLF001 - benchmark reuses the model
+    r = np.diag(ekf._r[track.shape[1]])  # noqa: SLF001
     q = ekf._q_x                        # noqa: SLF001
     z, p = ekf.z.copy(), ekf.P.copy()
     out = np.empty(y.shape[0])
@@ -49,7 +48,7 @@ def plain_run(params: CreepEkfParams, y: np.ndarray, track: np.ndarray) -> np.nd
         gain = p @ h.T @ np.linalg.inv(s)
         z = z + gain @ (obs - h @ z)
         p = (np.eye(z.size) - gain @ h) @ p
-        out[k] = math.exp(z[I_THETA])
+        out[k] = math.exp(z[ekf.i_theta])
         z, jac = ekf.transition(z, exact=True)
         p = jac @ p @ jac.T + q
     return out

@@ -9,25 +9,23 @@ import numpy as np
 import pytest
 
 from rail_monitor_ros.creep_ekf import (
-    I_THETA,
-    N_Z,
-    PATTERN_SIZES,
     CreepEkf,
     CreepEkfParams,
     CreepRun,
     lateral_states_measurement,
+    measurement_channels,
     plot_creep,
     run_on_simulation,
     simulation_inputs,
     step_metrics,
 )
+from rail_monitor_ros.rail_model import car_end_state_space, full_car_state_space
 from rail_monitor_ros.rail_scenario import shipped_scenario
 from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
 
-# Measured on the seeded run (known input, default settings): the largest relative error from
-# 1 s after each step to the next change. Tolerances are these plus a margin; the SPEC target
-# (5 % for A-C, 10 % for D) is met by A only, see test_spec_target.
-MAX_ERROR_AFTER_1S = {'A': 0.05, 'B': 0.12, 'C': 0.16, 'D': 0.36}
+# SPEC §8: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on the
+# seeded run (known input, default settings), largest error after 1 s, steps to 40 % / 60 %:
+# A 1.3 / 1.4 %, B 2.1 / 3.1 %, C 1.9 / 3.2 %, D 4.1 / 2.1 %.
 SPEC_TARGET = {'A': 0.05, 'B': 0.05, 'C': 0.05, 'D': 0.10}
 
 
@@ -43,25 +41,31 @@ def known_runs(creep_steps: RailSimulationResult) -> dict[str, CreepRun]:
     return {p: run_on_simulation(creep_steps, CreepEkfParams(pattern=p)) for p in 'ABCD'}
 
 
-def _state(rng: np.random.Generator, creep_factor: float) -> np.ndarray:
-    """A plausible augmented state: mm displacements, cm/s rates, mrad yaw."""
-    z = np.zeros(N_Z)
-    z[:14] = rng.normal(size=14) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], 4)[:14]
-    z[14:16] = rng.normal(size=2) * 2e-3
-    z[I_THETA] = math.log(creep_factor)
+def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.ndarray:
+    """A plausible augmented state: mm displacements, cm/s rates, mrad yaw (the other bogie's
+    forces in units of its motion)."""
+    z = np.zeros(ekf.n_z)
+    n_x = ekf.n_x
+    z[:n_x] = rng.normal(size=n_x) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], 4)[:n_x]
+    z[n_x:n_x + 2] = rng.normal(size=2) * 2e-3
+    z[n_x + 2:n_x + 4] = rng.normal(size=2) * 5e-2
+    z[n_x + 4:ekf.i_theta] = rng.normal(size=ekf.n_disturbances) * 3e-3
+    z[ekf.i_theta] = math.log(creep_factor)
     return z
 
 
-@pytest.mark.parametrize('creep_factor', [0.3, 0.73, 1.4])
-def test_jacobian_matches_finite_differences(creep_factor: float) -> None:
+@pytest.mark.parametrize('model, creep_factor', [('end', 0.3), ('end', 0.73), ('end', 1.4),
+                                                  ('half', 0.73)])
+def test_jacobian_matches_finite_differences(model: str, creep_factor: float) -> None:
     """The exact Jacobian (Frechet derivative of e^{A dt}) equals central finite differences."""
-    ekf = CreepEkf(CreepEkfParams(pattern='A'))
-    z = _state(np.random.default_rng(3), creep_factor)
+    ekf = CreepEkf(CreepEkfParams(pattern='A', model=model))
+    z = _state(ekf, np.random.default_rng(3), creep_factor)
     _, jac = ekf.transition(z, exact=True)
-    numeric = np.zeros((N_Z, N_Z))
-    for i in range(N_Z):
-        step = 1e-6 if i != I_THETA else 1e-5
-        dz = np.zeros(N_Z)
+    n_z, i_theta = ekf.n_z, ekf.i_theta
+    numeric = np.zeros((n_z, n_z))
+    for i in range(n_z):
+        step = 1e-5 if i == i_theta else 1e-6 * max(1.0, abs(z[i]))
+        dz = np.zeros(n_z)
         dz[i] = step
         plus, _ = ekf.transition(z + dz, exact=True)
         minus, _ = ekf.transition(z - dz, exact=True)
@@ -69,7 +73,44 @@ def test_jacobian_matches_finite_differences(creep_factor: float) -> None:
     scale = np.abs(numeric).max(axis=0) + 1e-12
     assert np.max(np.abs(jac - numeric) / scale) < 1e-6
     # The c column is not trivially zero: c acts on the wheelset rows.
-    assert np.abs(jac[:14, I_THETA]).max() > 1e-6
+    assert np.abs(jac[:ekf.n_x, i_theta]).max() > 1e-6
+
+
+def test_car_end_model_exact_for_the_full_car(creep_steps: RailSimulationResult) -> None:
+    """Given the other bogie's forces, the end model's derivatives equal the full car's: the
+    estimation model is the truth's front end, built from the same assembly code."""
+    p = creep_steps.scenario.vehicle
+    full = full_car_state_space(p, 0.7)
+    end = car_end_state_space(p, 0.7)
+    k = 777
+    x_full = creep_steps.state[k]
+    names = full.state_names
+
+    def full_name(name: str) -> str:
+        return name.replace('_b', '_b1') if '_b' in name else name
+
+    x_end = np.array([x_full[names.index(full_name(n))] for n in end.state_names])
+    col = dict(zip(names, x_full, strict=True))
+    disturbance = [p.secondary_lateral_stiffness * col['y_b2']
+                   + p.secondary_lateral_damping * col['dy_b2'],
+                   p.anti_yaw_damping * col['dpsi_b2']]
+    u_full = creep_steps.track_alignment[k]
+    xdot_full = full.a @ x_full + full.b @ u_full
+    xdot_end = end.a @ x_end + end.b @ np.concatenate([u_full[:2], disturbance])
+    expected = np.array([xdot_full[names.index(full_name(n))] for n in end.state_names])
+    np.testing.assert_allclose(xdot_end, expected, rtol=1e-9, atol=1e-12)
+    # Sensors (pattern D): the same three outputs as the full car's front bogie.
+    np.testing.assert_allclose(
+        end.c @ x_end + end.d @ np.concatenate([u_full[:2], disturbance]),
+        (full.c @ x_full + full.d @ u_full)[:3], rtol=1e-9, atol=1e-12)
+    # The rear bogie mirrors the lever arm: its pivot is at -lv, so body yaw pulls it the
+    # other way.
+    rear = car_end_state_space(p, 0.7, bogie='rear')
+    row, column = end.state_names.index('dy_b'), end.state_names.index('psi_v')
+    assert end.a[row, column] > 0.0
+    assert rear.a[row, column] == pytest.approx(-end.a[row, column])
+    with pytest.raises(ValueError, match='bogie'):
+        car_end_state_space(p, bogie='middle')
 
 
 def test_cached_discretisation_close_to_exact() -> None:
@@ -78,52 +119,56 @@ def test_cached_discretisation_close_to_exact() -> None:
     the grid point, a first-order error of the 1 % grid)."""
     ekf = CreepEkf(CreepEkfParams(pattern='C'))
     rng = np.random.default_rng(4)
+    i_theta = ekf.i_theta
     for c in rng.uniform(0.1, 1.9, size=20):
-        z = _state(rng, float(c))
+        z = _state(ekf, rng, float(c))
         cached, jac_cached = ekf.transition(z)
         exact, jac_exact = ekf.transition(z, exact=True)
-        assert np.max(np.abs(cached - exact)) < 1e-5 * np.max(np.abs(exact))
-        block = np.s_[:14, :I_THETA]
+        assert np.max(np.abs(cached - exact)[:ekf.n_x]) < 1e-5 * np.max(
+            np.abs(exact[:ekf.n_x]))
+        block = np.s_[:ekf.n_x, :ekf.n_x]
         assert np.max(np.abs(jac_cached[block] - jac_exact[block])) < 1e-5 * np.max(
             np.abs(jac_exact[block]))
-        column_cached, column_exact = jac_cached[:14, I_THETA], jac_exact[:14, I_THETA]
+        column_cached, column_exact = jac_cached[:i_theta, i_theta], jac_exact[:i_theta, i_theta]
         assert (np.linalg.norm(column_cached - column_exact)
                 < 0.01 * np.linalg.norm(column_exact))
     # A second call near the same c is served from the cache (no matrix exponential).
     before = ekf.discretizations
-    z[I_THETA] += 1e-4
+    z[i_theta] += 1e-4
     ekf.transition(z)
     assert ekf.discretizations == before
 
 
 @pytest.mark.parametrize('pattern', 'ABCD')
-def test_steps_tracked(known_runs: dict[str, CreepRun], pattern: str) -> None:
-    """Each pattern follows both steps; error 1 s after each within the measured tolerance."""
+def test_spec_target(known_runs: dict[str, CreepRun], pattern: str) -> None:
+    """SPEC §8: within 5 % (A-C) / 10 % (D) of the truth from 1 s after each step on, no
+    steady bias, and each step detected (not just drifted to)."""
     run = known_runs[pattern]
     metrics = step_metrics(run, tolerance=0.05, window_s=1.0)
     assert [m.value for m in metrics] == pytest.approx([0.4, 0.6])
     for m in metrics:
-        assert m.max_error_after_window <= MAX_ERROR_AFTER_1S[pattern], m
+        assert m.max_error_after_window <= SPEC_TARGET[pattern], m
+        # Measured: A, B, C within 1.2 %, D +1.6 % / -0.4 %.
+        assert abs(m.steady_error) < (0.03 if pattern == 'D' else 0.02), m
     # The drop to 40 % is seen within 1 s by every pattern (estimate below 60 % of nominal).
     k = np.searchsorted(run.time, 6.0)
     assert run.creep_factor[k] < 0.6
     assert run.rejected == {} and run.resets == {}
 
 
-@pytest.mark.parametrize('pattern', [
-    'A',
-    pytest.param('B', marks=pytest.mark.xfail(strict=True, reason='measured 10.1 % (B)')),
-    pytest.param('C', marks=pytest.mark.xfail(strict=True, reason='measured 13.6 % (C)')),
-    pytest.param('D', marks=pytest.mark.xfail(strict=True, reason='measured 32.5 % (D)')),
-])
-def test_spec_target(known_runs: dict[str, CreepRun], pattern: str) -> None:
-    """SPEC §8: within 5 % (A-C) / 10 % (D) of the truth from 1 s after each step on."""
-    for m in step_metrics(known_runs[pattern]):
-        assert m.max_error_after_window <= SPEC_TARGET[pattern], m
+def test_half_car_model_mismatch_biases_pattern_d(creep_steps: RailSimulationResult) -> None:
+    """The paper's 7-DOF half car on the 14-DOF truth: pattern D is biased high (its body is
+    too heavy seen from the bogie, no yaw, no other bogie); the end model removes the bias."""
+    half = run_on_simulation(creep_steps, CreepEkfParams(pattern='D', model='half'))
+    end = run_on_simulation(creep_steps, CreepEkfParams(pattern='D'))
+    half_bias = [m.steady_error for m in step_metrics(half)]
+    end_bias = [m.steady_error for m in step_metrics(end)]
+    assert min(half_bias) > 0.05                       # measured +9.6 % and +17.5 %
+    assert max(abs(b) for b in end_bias) < 0.03        # measured +1.6 % and -0.4 %
 
 
 def test_yaw_measurement_helps_little(known_runs: dict[str, CreepRun]) -> None:
-    """Paper: B (with bogie yaw) vs C (without) differ little; here B is somewhat better."""
+    """Paper: B (with bogie yaw) vs C (without) differ little; so they do here."""
     def mean_error(run: CreepRun) -> float:
         assert run.true_creep_factor is not None
         settled = np.zeros(run.time.size, dtype=bool)
@@ -133,15 +178,16 @@ def test_yaw_measurement_helps_little(known_runs: dict[str, CreepRun]) -> None:
         return float(np.mean(np.abs(rel[settled])))
 
     b, c = mean_error(known_runs['B']), mean_error(known_runs['C'])
-    assert b <= c          # measured 2.0 % vs 4.1 %
-    assert c - b < 0.05    # a few per cent: "little"
+    assert max(b, c) < 0.02     # measured 0.81 % (B) and 0.86 % (C)
+    assert abs(c - b) < 0.005   # "little": a twentieth of a per cent here
 
 
 def test_unknown_input_pattern_a(creep_steps: RailSimulationResult) -> None:
-    """Without the track input (process noise), pattern A still follows the steps (< 13 %)."""
+    """Without the track input (process noise), pattern A still follows the steps; B-D do
+    not (the track's yaw creep moment is then unknown: c drifts, see the issue report)."""
     run = run_on_simulation(creep_steps, CreepEkfParams(pattern='A'), known_input=False)
     for m in step_metrics(run):
-        assert m.max_error_after_window < 0.13, m     # measured 12.6 % and 10.3 %
+        assert m.max_error_after_window < 0.06, m     # measured 4.4 % and 3.8 %
 
 
 def test_covariance_spd_and_ramps_on_long_run() -> None:
@@ -155,7 +201,9 @@ def test_covariance_spd_and_ramps_on_long_run() -> None:
     for k in range(y.shape[0]):
         estimate[k] = ekf.step(y[k], track[k], float(speed[k])).creep_factor
         if k % 100 == 0:
-            min_eig = min(min_eig, float(np.linalg.eigvalsh(ekf.P)[0]))
+            # Eigenvalues of the correlation matrix: P itself spans many decades.
+            scale = 1.0 / np.sqrt(np.diag(ekf.P))
+            min_eig = min(min_eig, float(np.linalg.eigvalsh(ekf.P * np.outer(scale, scale))[0]))
             asym = max(asym, float(np.abs(ekf.P - ekf.P.T).max()))
     assert min_eig > 0.0 and asym == 0.0
     assert ekf.resets == {}
@@ -178,11 +226,11 @@ def test_bad_samples_rejected_and_counted(creep_steps: RailSimulationResult) -> 
         sample: np.ndarray | None = y[k]
         u = track[k]
         if k in bad[:10]:
-            sample = np.full(4, np.nan)
+            sample = np.full(y.shape[1], np.nan)
         elif k in bad[10:20]:
             sample = y[k][:3]
         elif k in bad[20:25]:
-            sample = y[k] + np.array([0.5, 0.0, 0.0, 0.0])      # 0.5 m jump
+            sample = y[k] + np.eye(y.shape[1])[0] * 0.5      # 0.5 m jump
         elif k in bad[25:]:
             u = np.array([np.inf, 0.0])
         estimates.append(ekf.step(sample, u).creep_factor)
@@ -217,7 +265,7 @@ def test_low_adhesion_hysteresis() -> None:
                                   low_adhesion_hysteresis=0.05))
     flags = []
     for c in (0.9, 0.49, 0.53, 0.549, 0.56, 0.52):
-        ekf.z[I_THETA] = math.log(c)
+        ekf.z[ekf.i_theta] = math.log(c)
         flags.append(ekf.step(None).low_adhesion)
     assert flags == [False, True, True, True, False, False]
 
@@ -226,7 +274,7 @@ def test_outputs_scale_nominal_coefficients() -> None:
     """f11 = c f11_nom, f22 = c f22_nom; std_dev = c sqrt(P_theta)."""
     params = CreepEkfParams(pattern='D')
     ekf = CreepEkf(params)
-    ekf.z[I_THETA] = math.log(0.6)
+    ekf.z[ekf.i_theta] = math.log(0.6)
     est = ekf.step(None)
     assert est.f11 == pytest.approx(0.6 * params.vehicle.longitudinal_creep_coefficient)
     assert est.f22 == pytest.approx(0.6 * params.vehicle.lateral_creep_coefficient)
@@ -254,8 +302,9 @@ def test_run_checks_shapes() -> None:
         CreepEkf(CreepEkfParams(pattern='B')).run(np.zeros((10, 4)))
 
 
-def test_lateral_states_measurement_body_above_bogie() -> None:
-    """Body measured above the bogie: y_v + lv psi_v (front), y_v - lv psi_v (rear)."""
+def test_lateral_states_measurement_body_channels() -> None:
+    """End model: body lateral and yaw at the centre; half car: above the bogie, y_v + lv psi_v
+    (front), y_v - lv psi_v (rear)."""
     n = 3
     rng = np.random.default_rng(5)
     fields = {name: rng.normal(size=(n, 4)) for name in
@@ -265,15 +314,24 @@ def test_lateral_states_measurement_body_above_bogie() -> None:
     fields |= {name: rng.normal(size=n) for name in
                ('body_lateral', 'body_lateral_rate', 'body_yaw', 'body_yaw_rate')}
     for pattern in 'ABC':
-        assert lateral_states_measurement(fields, pattern).shape == (n, PATTERN_SIZES[pattern])
-    front = lateral_states_measurement(fields, 'C', 'front', 10.0)
-    rear = lateral_states_measurement(fields, 'C', 'rear', 10.0)
+        for model in ('end', 'half'):
+            assert lateral_states_measurement(fields, pattern, model=model).shape == (
+                n, len(measurement_channels(pattern, model)))
+    # End model: the body's lateral displacement and yaw at its centre, as the message has them.
+    end = lateral_states_measurement(fields, 'C')
+    assert measurement_channels('C') == ('y_b', 'dy_b', 'y_v', 'psi_v', 'dy_v', 'dpsi_v')
+    np.testing.assert_allclose(end[:, 2:], np.column_stack([
+        fields['body_lateral'], fields['body_yaw'], fields['body_lateral_rate'],
+        fields['body_yaw_rate']]))
+    # Half car: the body above the bogie.
+    front = lateral_states_measurement(fields, 'C', 'front', 10.0, model='half')
+    rear = lateral_states_measurement(fields, 'C', 'rear', 10.0, model='half')
     np.testing.assert_allclose(front[:, 0], fields['bogie_lateral'][:, 0])
     np.testing.assert_allclose(rear[:, 1], fields['bogie_lateral_rate'][:, 1])
     np.testing.assert_allclose(front[:, 2], fields['body_lateral'] + 10.0 * fields['body_yaw'])
     np.testing.assert_allclose(rear[:, 3],
                                fields['body_lateral_rate'] - 10.0 * fields['body_yaw_rate'])
-    a = lateral_states_measurement(fields, 'A', 'rear')
+    a = lateral_states_measurement(fields, 'A', 'rear', model='half')
     np.testing.assert_allclose(a[:, 0], fields['wheelset_lateral'][:, 2])
     np.testing.assert_allclose(a[:, 7], fields['wheelset_yaw_rate'][:, 3])
 

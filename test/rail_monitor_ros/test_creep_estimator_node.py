@@ -90,13 +90,15 @@ def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Pa
     stamps = np.array([stamp_ns(m.header.stamp) for m in got])
     np.testing.assert_array_equal(stamps, series['/rail/lateral_states'].stamps_ns)
     counts = node.counts
-    assert counts['known_input'] >= n - 1 and counts['unpaired'] == 0, counts
+    # The track stream is not known to be alive before its first message arrives, and DDS may
+    # deliver the first few lateral-states samples before it: those few run without the track.
+    assert counts['known_input'] >= n - 10 and counts['unpaired'] == 0, counts
     c = np.array([m.creep_factor for m in got])
     t = creep_drop.time
     before = (t > 1.0) & (t < STEP_TIME)
     after = t >= STEP_TIME + 1.0
-    # The node is the offline core on the same samples, to rounding. The very first sample
-    # has no track yet (that stream is not known to be alive before its first message).
+    # The node is the offline core on the same samples, to rounding; the samples without the
+    # track are the first ones (what the offline run replicates).
     y, track, _ = simulation_inputs(creep_drop, 'A')
     missing_track = n - counts['known_input']
     ekf = CreepEkf(node.parameters.core())

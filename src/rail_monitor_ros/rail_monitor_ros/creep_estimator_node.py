@@ -43,6 +43,7 @@ from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregu
 
 from rail_monitor_ros.creep_ekf import (
     BOGIES,
+    MODELS,
     CreepEkf,
     CreepEkfParams,
     CreepEstimate,
@@ -78,14 +79,17 @@ _VEHICLE_FIELDS = ('wheelset_mass', 'wheelset_yaw_inertia', 'bogie_mass', 'bogie
                    'longitudinal_creep_coefficient', 'lateral_creep_coefficient',
                    'semi_wheelbase', 'half_gauge', 'conicity', 'wheel_radius', 'speed',
                    'bogie_pivot_semi_spacing')
-_FILTER_FIELDS = ('initial_creep_factor', 'initial_log_creep_std', 'creep_walk_std',
+_FILTER_FIELDS = ('model', 'bogie', 'initial_creep_factor', 'initial_log_creep_std',
+                  'creep_walk_std', 'change_drift', 'change_threshold', 'change_log_std',
                   'min_creep_factor', 'max_creep_factor', 'lateral_accel_process_std',
-                  'yaw_accel_process_std', 'body_accel_process_std', 'track_slope_std',
-                  'initial_track_std', 'displacement_noise', 'velocity_noise', 'yaw_noise',
-                  'yaw_rate_noise', 'accel_noise', 'gyro_noise', 'track_noise',
-                  'rediscretize_tolerance', 'speed_tolerance', 'gate_sigma',
-                  'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
-                  'bound_hold_s', 'low_adhesion_threshold', 'low_adhesion_hysteresis')
+                  'yaw_accel_process_std', 'body_accel_process_std', 'other_bogie_force_std',
+                  'other_bogie_moment_std', 'other_bogie_correlation_s', 'track_slope_std',
+                  'track_slope_walk', 'initial_track_std', 'displacement_noise',
+                  'velocity_noise', 'yaw_noise', 'yaw_rate_noise', 'accel_noise', 'gyro_noise',
+                  'track_noise', 'track_rate_noise', 'rediscretize_tolerance',
+                  'speed_tolerance', 'gate_sigma', 'divergence_window_s',
+                  'divergence_nis_ratio', 'max_outlier_run_s', 'bound_hold_s',
+                  'low_adhesion_threshold', 'low_adhesion_hysteresis')
 
 
 def _ro(default: Any, description: str, low: float | None = None,
@@ -101,6 +105,9 @@ class CreepEstimatorParameters:
                          'and body IMUs)', choices=OBSERVATION_PATTERNS, read_only=True)
     bogie: str = param('front', 'monitored bogie (patterns A-C; the IMUs of D are where they '
                        'are mounted)', choices=BOGIES, read_only=True)
+    model: str = param(_F.model, "estimation model: 'end' (one end of the full car: bogie, "
+                       "wheelsets, body lateral and yaw) or 'half' (the paper's 7-DOF half car)",
+                       choices=MODELS, read_only=True)
     sample_rate_hz: float = _ro(_F.sample_rate_hz, 'rate of the driving topic, Hz', 10.0, 5000.0)
     use_track_input: bool = param(True, 'use rail/track_irregularity when it is published '
                                   '(known-input mode)', read_only=True)
@@ -155,7 +162,14 @@ class CreepEstimatorParameters:
                                       0.01, 2.0)
     initial_log_creep_std: float = _ro(_F.initial_log_creep_std, 'initial std of ln c',
                                        1e-4, 10.0)
-    creep_walk_std: float = _ro(_F.creep_walk_std, 'random walk of ln c, 1/sqrt(s)', 1e-6, 10.0)
+    creep_walk_std: float = _ro(_F.creep_walk_std, 'random walk of ln c between detected '
+                                'changes, 1/sqrt(s)', 1e-6, 10.0)
+    change_drift: float = _ro(_F.change_drift, 'CUSUM drift per sample, std of the ln c '
+                              'correction', 1e-4, 10.0)
+    change_threshold: float = _ro(_F.change_threshold, 'CUSUM alarm level, same units',
+                                  1e-3, 1e6)
+    change_log_std: float = _ro(_F.change_log_std, 'std added to ln c on a detected change',
+                                1e-4, 10.0)
     min_creep_factor: float = _ro(_F.min_creep_factor, 'lower bound of c', 1e-3, 2.0)
     max_creep_factor: float = _ro(_F.max_creep_factor, 'upper bound of c', 1e-3, 2.0)
     lateral_accel_process_std: float = _ro(_F.lateral_accel_process_std, 'model error on '
@@ -164,8 +178,17 @@ class CreepEstimatorParameters:
                                        1e-6, 100.0)
     body_accel_process_std: float = _ro(_F.body_accel_process_std, 'model error on the body, '
                                         'm/s^2', 1e-6, 100.0)
+    other_bogie_force_std: float = _ro(_F.other_bogie_force_std, "end model: std of the other "
+                                       "bogie's lateral force beyond a still bogie, N",
+                                       1e-3, 1e7)
+    other_bogie_moment_std: float = _ro(_F.other_bogie_moment_std, "end model: std of the "
+                                        "other bogie's anti-yaw moment, N m", 1e-3, 1e7)
+    other_bogie_correlation_s: float = _ro(_F.other_bogie_correlation_s, 'end model: their '
+                                           'correlation time, s', 1e-4, 100.0)
     track_slope_std: float = _ro(_F.track_slope_std, 'std of the track alignment slope, rad',
                                  1e-7, 0.1)
+    track_slope_walk: float = _ro(_F.track_slope_walk, 'random walk of the track slope along '
+                                  'the track, rad/sqrt(m)', 1e-8, 0.1)
     initial_track_std: float = _ro(_F.initial_track_std, 'initial std of the track states, m',
                                    1e-6, 1.0)
     displacement_noise: float = _ro(_F.displacement_noise, 'lateral displacement noise, m',
@@ -176,6 +199,8 @@ class CreepEstimatorParameters:
     accel_noise: float = _ro(_F.accel_noise, 'accelerometer noise, m/s^2', 1e-6, 100.0)
     gyro_noise: float = _ro(_F.gyro_noise, 'gyro noise, rad/s', 1e-8, 10.0)
     track_noise: float = _ro(_F.track_noise, 'track alignment measurement noise, m', 1e-7, 1.0)
+    track_rate_noise: float = _ro(_F.track_rate_noise, 'track alignment rate measurement '
+                                  'noise, m/s', 1e-7, 10.0)
     rediscretize_tolerance: float = _ro(_F.rediscretize_tolerance, 'grid of cached '
                                         'discretisations in ln c', 1e-5, 0.5)
     speed_tolerance: float = _ro(_F.speed_tolerance, 'speed change that rebuilds the model, '
@@ -296,7 +321,7 @@ class CreepEstimatorNode(Node):
                       for name in _LATERAL_FIELDS}
             vector = lateral_states_measurement(
                 fields, self.parameters.pattern, self.parameters.bogie,
-                self.parameters.bogie_pivot_semi_spacing)[0]
+                self.parameters.bogie_pivot_semi_spacing, self.parameters.model)[0]
         except (ValueError, IndexError):
             # unreachable over DDS for fixed-size arrays, but an in-process caller can
             self._counts['wrong_size'] += 1
@@ -316,10 +341,15 @@ class CreepEstimatorNode(Node):
         self._counts['track_received'] += 1
         j = self._bogie_index
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
+        rate = np.asarray(msg.lateral_alignment_rate, dtype=float)
         if alignment.size < 2 * j + 2:
             self._counts['track_wrong_size'] += 1
             return
-        self._add_part('track', stamp_ns(msg.header.stamp), alignment[2 * j:2 * j + 2])
+        part = alignment[2 * j:2 * j + 2]
+        if rate.size == alignment.size:
+            # With its rate the filter's track states follow the track within the sample.
+            part = np.concatenate([part, rate[2 * j:2 * j + 2]])
+        self._add_part('track', stamp_ns(msg.header.stamp), part)
 
     def _add_part(self, kind: str, stamp: int, value: Any) -> None:
         if stamp <= self._latest[kind]:
@@ -454,6 +484,7 @@ class CreepEstimatorNode(Node):
             'rejected_repeated': self._stamps.rejected.get('repeated', 0),
             **{f'rejected_{k}': v for k, v in ekf.rejected.items()},
             'clipped_at_bound': ekf.clipped,
+            'changes_detected': ekf.changes_detected,
             **{f'resets_{k}': v for k, v in ekf.resets.items()},
             'discretizations': ekf.discretizations,
             'track_input': 'stale' if self._track_stale else 'known',

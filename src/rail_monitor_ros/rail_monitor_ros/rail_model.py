@@ -351,10 +351,33 @@ def _wheelset_and_primary(asm: _Assembly, p: RailVehicleParams, creep_factor: fl
     asm.mass[asm.idx(f'y_{wheelset}')] = p.wheelset_mass
     asm.mass[asm.idx(f'psi_{wheelset}')] = p.wheelset_yaw_inertia
     asm.wheelset_creep(p, creep_factor, wheelset, track)
+    _primary(asm, p, wheelset, bogie, lead_sign)
+
+
+def _primary(asm: _Assembly, p: RailVehicleParams, wheelset: str, bogie: str,
+             lead_sign: float) -> None:
+    """Primary lateral and yaw springs of one wheelset (leading: lead_sign = +1)."""
     a0 = p.semi_wheelbase
     asm.spring(p.primary_lateral_stiffness,
                {f'y_{wheelset}': 1.0, f'y_{bogie}': -1.0, f'psi_{bogie}': -lead_sign * a0})
     asm.spring(p.primary_yaw_stiffness, {f'psi_{wheelset}': 1.0, f'psi_{bogie}': -1.0})
+
+
+def _full_car_bogies_and_body(asm: _Assembly, p: RailVehicleParams, spring_ratio: np.ndarray,
+                              damper_ratio: np.ndarray) -> None:
+    """Bogie and body inertias, secondary lateral springs and dampers and the anti-yaw
+    dampers of the full car (shared by the truth and the IMM's reduced full car)."""
+    lv = p.bogie_pivot_semi_spacing
+    for j, bogie_sign in enumerate((+1.0, -1.0)):
+        bogie = f'b{j + 1}'
+        asm.mass[asm.idx(f'y_{bogie}')] = p.bogie_mass
+        asm.mass[asm.idx(f'psi_{bogie}')] = p.bogie_yaw_inertia
+        secondary = {f'y_{bogie}': 1.0, 'y_v': -1.0, 'psi_v': -bogie_sign * lv}
+        asm.spring(spring_ratio[j] * p.secondary_lateral_stiffness, secondary)
+        asm.damper(damper_ratio[j] * p.secondary_lateral_damping, secondary)
+        asm.damper(p.anti_yaw_damping, {f'psi_{bogie}': 1.0, 'psi_v': -1.0})
+    asm.mass[asm.idx('y_v')] = p.full_body_mass
+    asm.mass[asm.idx('psi_v')] = p.body_yaw_inertia
 
 
 def _rows_of_derivative(a: np.ndarray, b: np.ndarray, state_names: tuple[str, ...],
@@ -474,19 +497,11 @@ def full_car_state_space(params: RailVehicleParams, creep_factor: float = 1.0,
                      'y_b1', 'psi_b1', 'y_b2', 'psi_b2', 'y_v', 'psi_v'),
                     ('y_r1', 'y_r2', 'y_r3', 'y_r4'))
     lv = params.bogie_pivot_semi_spacing
-    for j, bogie_sign in enumerate((+1.0, -1.0)):
-        bogie = f'b{j + 1}'
+    for j in range(2):
         for k, lead_sign in enumerate((+1.0, -1.0)):
             i = 2 * j + k + 1
-            _wheelset_and_primary(asm, params, c, f'w{i}', bogie, lead_sign, f'y_r{i}')
-        asm.mass[asm.idx(f'y_{bogie}')] = params.bogie_mass
-        asm.mass[asm.idx(f'psi_{bogie}')] = params.bogie_yaw_inertia
-        secondary = {f'y_{bogie}': 1.0, 'y_v': -1.0, 'psi_v': -bogie_sign * lv}
-        asm.spring(srs[j] * params.secondary_lateral_stiffness, secondary)
-        asm.damper(drs[j] * params.secondary_lateral_damping, secondary)
-        asm.damper(params.anti_yaw_damping, {f'psi_{bogie}': 1.0, 'psi_v': -1.0})
-    asm.mass[asm.idx('y_v')] = params.full_body_mass
-    asm.mass[asm.idx('psi_v')] = params.body_yaw_inertia
+            _wheelset_and_primary(asm, params, c, f'w{i}', f'b{j + 1}', lead_sign, f'y_r{i}')
+    _full_car_bogies_and_body(asm, params, srs, drs)
     a, b, names = asm.state_space()
     rows_c, rows_d = [], []
     eye = np.eye(len(names))
@@ -543,25 +558,83 @@ def reduced_bogie_body_model(params: RailVehicleParams, spring_ratio: float = 1.
     asm.spring(sr * params.secondary_lateral_stiffness, {'y_b': 1.0, 'y_v': -1.0})
     asm.damper(dr * params.secondary_lateral_damping, {'y_b': 1.0, 'y_v': -1.0})
     asm.damper(params.anti_yaw_damping, {'psi_b': 1.0})
-    # Only the bogie and body rows are kept; the wheelset coordinates become inputs.
-    body = [asm.idx(n) for n in ('y_b', 'psi_b', 'y_v')]
-    wheel = [asm.idx(n) for n in REDUCED_INPUT_NAMES]
-    inv_m = 1.0 / np.array([params.bogie_mass, params.bogie_yaw_inertia, params.body_mass])
-    k_xx = asm.k[np.ix_(body, body)]
-    k_xu = asm.k[np.ix_(body, wheel)]
-    c_xx = asm.c[np.ix_(body, body)]
+    asm.mass[[asm.idx(n) for n in ('y_b', 'psi_b', 'y_v')]] = (
+        params.bogie_mass, params.bogie_yaw_inertia, params.body_mass)
+    a, b = _wheelsets_as_inputs(asm, ('y_b', 'psi_b', 'y_v'), REDUCED_INPUT_NAMES)
+    c_out, d_out, _ = _half_car_outputs(a, b, REDUCED_STATE_NAMES, 'D')
+    return StateSpace(a, b, c_out, d_out, REDUCED_STATE_NAMES, REDUCED_INPUT_NAMES,
+                      SENSOR_OUTPUT_NAMES)
+
+
+def _wheelsets_as_inputs(asm: _Assembly, kept: Sequence[str], inputs: Sequence[str],
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the kept coordinates' rows, x = [q_1, q_1', ...], with the (wheelset)
+    coordinates ``inputs`` as displacement inputs: B holds minus their stiffness columns."""
+    body = [asm.idx(n) for n in kept]
+    wheel = [asm.idx(n) for n in inputs]
+    inv_m = 1.0 / asm.mass[body]
     n = len(body)
     a = np.zeros((2 * n, 2 * n))
     b = np.zeros((2 * n, len(wheel)))
     pos = np.arange(n) * 2
     vel = pos + 1
     a[pos, vel] = 1.0
-    a[np.ix_(vel, pos)] = -inv_m[:, None] * k_xx
-    a[np.ix_(vel, vel)] = -inv_m[:, None] * c_xx
-    b[vel, :] = -inv_m[:, None] * k_xu
-    c_out, d_out, _ = _half_car_outputs(a, b, REDUCED_STATE_NAMES, 'D')
-    return StateSpace(a, b, c_out, d_out, REDUCED_STATE_NAMES, REDUCED_INPUT_NAMES,
-                      SENSOR_OUTPUT_NAMES)
+    a[np.ix_(vel, pos)] = -inv_m[:, None] * asm.k[np.ix_(body, body)]
+    a[np.ix_(vel, vel)] = -inv_m[:, None] * asm.c[np.ix_(body, body)]
+    b[vel, :] = -inv_m[:, None] * asm.k[np.ix_(body, wheel)]
+    return a, b
+
+
+REDUCED_FULL_CAR_STATE_NAMES = (
+    'y_b1', 'dy_b1', 'psi_b1', 'dpsi_b1', 'y_b2', 'dy_b2', 'psi_b2', 'dpsi_b2',
+    'y_v', 'dy_v', 'psi_v', 'dpsi_v')
+# The monitored (front) bogie's wheelsets first, in the order of REDUCED_INPUT_NAMES.
+REDUCED_FULL_CAR_INPUT_NAMES = (
+    'y_w1', 'y_w2', 'psi_w1', 'psi_w2', 'y_w3', 'y_w4', 'psi_w3', 'psi_w4')
+
+
+def reduced_full_car_model(params: RailVehicleParams, spring_ratio: float = 1.0,
+                           damper_ratio: float = 1.0) -> StateSpace:
+    """The full car with the wheelset motion removed: an IMM estimation model for the sensors
+    where a real car has them (the body accelerometer above the front bogie).
+
+    Both bogies (lateral, yaw) and the body (lateral, yaw), with rates: state
+    x = [y_b1, y_b1', psi_b1, psi_b1', y_b2, ..., y_v, y_v', psi_v, psi_v']. The body
+    accelerometer above the front bogie measures y_v'' + lv psi_v''; without body yaw (the
+    half car of :func:`reduced_bogie_body_model`) the body looks lighter there and the rear
+    bogie's and the anti-yaw dampers' moments are missing. The rear bogie is unmeasured but
+    modelled: its secondary forces on the body follow from its states.
+
+    Inputs u = [y_w1, y_w2, psi_w1, psi_w2, y_w3, y_w4, psi_w3, psi_w4] (front bogie's
+    wheelsets first), the wheelsets acting through the primary suspension as in
+    :func:`reduced_bogie_body_model` (known from the track, or process noise). Outputs: the
+    front bogie's sensors [bogie lateral acceleration, bogie yaw rate, body lateral
+    acceleration above the bogie] (``FULL_CAR_SENSOR_OUTPUT_NAMES[:3]``). The bogie, body and
+    suspension matrices are those of :func:`full_car_state_space` (same assembly code).
+
+    Args:
+        params: vehicle parameters (the speed is not used).
+        spring_ratio: Ksy multiplier of the monitored (front) bogie, in (0, 5]; rear nominal.
+        damper_ratio: Csy multiplier of the front bogie, in (0, 5]; rear nominal.
+    """
+    sr = _check_ratio('spring_ratio', spring_ratio, MAX_SUSPENSION_RATIO)
+    dr = _check_ratio('damper_ratio', damper_ratio, MAX_SUSPENSION_RATIO)
+    kept = ('y_b1', 'psi_b1', 'y_b2', 'psi_b2', 'y_v', 'psi_v')
+    asm = _Assembly(kept + REDUCED_FULL_CAR_INPUT_NAMES, ())
+    for i, (bogie, lead_sign) in enumerate((('b1', 1.0), ('b1', -1.0), ('b2', 1.0),
+                                           ('b2', -1.0))):
+        _primary(asm, params, f'w{i + 1}', bogie, lead_sign)
+    _full_car_bogies_and_body(asm, params, np.array([sr, 1.0]), np.array([dr, 1.0]))
+    a, b = _wheelsets_as_inputs(asm, kept, REDUCED_FULL_CAR_INPUT_NAMES)
+    names = REDUCED_FULL_CAR_STATE_NAMES
+    lv = params.bogie_pivot_semi_spacing
+    cb, db = _rows_of_derivative(a, b, names, 'y_b1')
+    cy, dy = _rows_of_derivative(a, b, names, 'y_v')
+    cp, dp = _rows_of_derivative(a, b, names, 'psi_v')
+    c_out = np.array([cb, np.eye(len(names))[names.index('dpsi_b1')], cy + lv * cp])
+    d_out = np.array([db, np.zeros(b.shape[1]), dy + lv * dp])
+    return StateSpace(a, b, c_out, d_out, names, REDUCED_FULL_CAR_INPUT_NAMES,
+                      FULL_CAR_SENSOR_OUTPUT_NAMES[:3])
 
 
 def wheelset_inputs_from_track(alignment: np.ndarray, alignment_rate: np.ndarray | None,
@@ -721,3 +794,74 @@ def critical_speed(params: RailVehicleParams, creep_factor: float = 1.0, model: 
             return hi
         previous = float(v)
     return math.inf
+
+
+# == One end of the full car: the creep EKF's estimation model (SPEC §6) =========================
+
+CAR_END_COORDINATES = ('y_w1', 'psi_w1', 'y_w2', 'psi_w2', 'y_b', 'psi_b', 'y_v', 'psi_v')
+CAR_END_INPUT_NAMES = ('y_r1', 'y_r2', 'f_rear', 'm_rear')
+
+
+def car_end_state_space(params: RailVehicleParams, creep_factor: float = 1.0,
+                        spring_ratio: float = 1.0, damper_ratio: float = 1.0,
+                        bogie: str = 'front') -> StateSpace:
+    """One end of the full car: a bogie with its two wheelsets, and the whole body.
+
+    Coordinates q = [y_w1, psi_w1, y_w2, psi_w2, y_b, psi_b, y_v, psi_v] (the monitored bogie's
+    leading and trailing wheelset, the bogie, the body lateral and yaw at its centre), state
+    x = [q_1, q_1', ...] (16). Unlike the half car, the body has its full mass 2 mv and its yaw
+    inertia, the secondary suspension acts at the pivot y_v + lv psi_v and the anti-yaw dampers
+    against the body's yaw. The other bogie is not modelled: the body rests on the other
+    bogie's secondary suspension as if that bogie were still (spring, damper and anti-yaw
+    damper to the track frame at the other pivot, so the body modes are those of the car), and
+    what that bogie's own motion adds enters as inputs:
+
+    * ``f_rear`` = Ksy y_b2 + Csy y_b2', the lateral force on the body at the other pivot, N;
+    * ``m_rear`` = Cpsi psi_b2', the other anti-yaw dampers' yaw moment on the body, N m.
+
+    Inputs u = [y_r1, y_r2, f_rear, m_rear] (y_r: track alignment at the monitored bogie's
+    leading and trailing wheelset); outputs the sensors [bogie lateral acceleration, bogie yaw
+    rate, body lateral acceleration above the bogie] (pattern D). For the rear bogie (w3, w4
+    of the full car) only the lever arm changes sign: its pivot is at -lv, the other at +lv.
+
+    Args:
+        params: vehicle parameters (speed included).
+        creep_factor: c on the two wheelsets, in (0, 2].
+        spring_ratio: multiplies this bogie's Ksy, in (0, 5].
+        damper_ratio: multiplies this bogie's Csy, in (0, 5].
+        bogie: the monitored bogie, 'front' or 'rear'.
+    """
+    if bogie not in ('front', 'rear'):
+        raise ValueError(f"bogie must be 'front' or 'rear', got {bogie!r}")
+    c = _check_ratio('creep_factor', creep_factor, MAX_CREEP_FACTOR)
+    sr = _check_ratio('spring_ratio', spring_ratio, MAX_SUSPENSION_RATIO)
+    dr = _check_ratio('damper_ratio', damper_ratio, MAX_SUSPENSION_RATIO)
+    asm = _Assembly(CAR_END_COORDINATES, CAR_END_INPUT_NAMES)
+    _wheelset_and_primary(asm, params, c, 'w1', 'b', +1.0, 'y_r1')
+    _wheelset_and_primary(asm, params, c, 'w2', 'b', -1.0, 'y_r2')
+    # Signed position of the monitored bogie's pivot ahead of the body centre.
+    lv = params.bogie_pivot_semi_spacing * (1.0 if bogie == 'front' else -1.0)
+    asm.mass[asm.idx('y_b')] = params.bogie_mass
+    asm.mass[asm.idx('psi_b')] = params.bogie_yaw_inertia
+    asm.mass[asm.idx('y_v')] = params.full_body_mass
+    asm.mass[asm.idx('psi_v')] = params.body_yaw_inertia
+    monitored = {'y_b': 1.0, 'y_v': -1.0, 'psi_v': -lv}
+    asm.spring(sr * params.secondary_lateral_stiffness, monitored)
+    asm.damper(dr * params.secondary_lateral_damping, monitored)
+    asm.damper(params.anti_yaw_damping, {'psi_b': 1.0, 'psi_v': -1.0})
+    # The other bogie's suspension, as if that bogie were still (its motion: f_rear, m_rear).
+    other = {'y_v': 1.0, 'psi_v': -lv}   # its pivot, at -lv
+    asm.spring(params.secondary_lateral_stiffness, other)
+    asm.damper(params.secondary_lateral_damping, other)
+    asm.damper(params.anti_yaw_damping, {'psi_v': 1.0})
+    # The other bogie's motion: a lateral force at its pivot (x = -lv) and a yaw moment.
+    asm.e[asm.idx('y_v'), asm.inputs.index('f_rear')] = 1.0
+    asm.e[asm.idx('psi_v'), asm.inputs.index('f_rear')] = -lv
+    asm.e[asm.idx('psi_v'), asm.inputs.index('m_rear')] = 1.0
+    a, b, names = asm.state_space()
+    cb, db = _rows_of_derivative(a, b, names, 'y_b')
+    cy, dy = _rows_of_derivative(a, b, names, 'y_v')
+    cp, dp = _rows_of_derivative(a, b, names, 'psi_v')
+    c_out = np.array([cb, np.eye(len(names))[names.index('dpsi_b')], cy + lv * cp])
+    d_out = np.array([db, np.zeros(b.shape[1]), dy + lv * dp])
+    return StateSpace(a, b, c_out, d_out, names, asm.inputs, SENSOR_OUTPUT_NAMES)
