@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import cache
 import math
 from pathlib import Path
@@ -20,9 +21,9 @@ from vehicle_monitor_msgs.msg import ModeProbabilities, TrackIrregularity
 import yaml
 
 from rail_monitor_ros.rail_scenario import shipped_scenario
-from rail_monitor_ros.rail_simulator import simulate
-from rail_monitor_ros.suspension_imm import HalfCarSensorData, half_car_sensor_data
+from rail_monitor_ros.rail_simulator import simulate, to_topic_series
 from rail_monitor_ros.suspension_monitor_node import SuspensionMonitor
+from vehicle_monitor_common.bag_io import read_series, write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 
 CONFIG = (Path(__file__).resolve().parents[2]
@@ -33,14 +34,30 @@ START_NS = 1_000 * 10**9
 DT_NS = 5_000_000
 
 
+@dataclass(frozen=True)
+class _ImuData:
+    time: np.ndarray           # (N,) s from the first sample
+    measurements: np.ndarray   # (N, 3) bogie lateral accel, bogie yaw rate, body lateral accel
+
+
+@pytest.fixture(scope='module')
+def paper_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The paper's run on the rail simulator's 14-DOF full car (spring 150 % at 3 s, damper
+    50 % at 6 s) as the bag the simulator writes."""
+    return write_bag(tmp_path_factory.mktemp('imm') / 'paper', to_topic_series(
+        simulate(shipped_scenario('rail_imm_spring_damper_fault'))))
+
+
 @cache
-def _paper_data() -> HalfCarSensorData:
-    """The paper's run on the half-car truth (spring 150 % at 3 s), first 5 s."""
-    r = simulate(shipped_scenario('rail_imm_spring_damper_fault'))
-    n = 1000
-    return half_car_sensor_data(r.time[:n], r.track_alignment[:n, :2],
-                                r.track_alignment_rate[:n, :2], r.spring_ratio[:n, 0],
-                                r.damper_ratio[:n, 0], seed=1)
+def _imu_from_bag(path: Path) -> _ImuData:
+    series = read_series(path, ['/rail/bogie/imu', '/rail/body/imu'])
+    bogie, body = series['/rail/bogie/imu'], series['/rail/body/imu']
+    assert np.array_equal(bogie.stamps_ns, body.stamps_ns)
+    z = np.column_stack([bogie.fields['linear_acceleration.y'],
+                         bogie.fields['angular_velocity.z'], body.fields['linear_acceleration.y']])
+    stamps = np.asarray(bogie.stamps_ns)
+    first_5_s = slice(0, 1000)
+    return _ImuData((stamps[first_5_s] - stamps[0]) * 1e-9, z[first_5_s])
 
 
 def _config_parameters(**overrides: Any) -> list[Parameter]:
@@ -110,10 +127,12 @@ def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) ->
 
 
 def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
-                                                  spin_until: Callable[..., bool]) -> None:
-    """The paper's first 5 s as IMU messages: one output per pair with the input's stamp,
-    normal before 3 s, spring fault declared after it, diagnostics WARN/ERROR naming it."""
-    data = _paper_data()
+                                                  spin_until: Callable[..., bool],
+                                                  paper_bag: Path) -> None:
+    """The paper's first 5 s (full-car simulator bag) as IMU messages: one output per pair
+    with the input's stamp, normal before 3 s, spring fault declared after it, diagnostics
+    WARN/ERROR naming it."""
+    data = _imu_from_bag(paper_bag)
     monitor, feeder, got, diagnostics = _setup(make_node, use_track_irregularity=False)
     stamps = START_NS + np.arange(len(data.time), dtype=np.int64) * DT_NS
     for k0 in range(0, len(stamps), 100):
@@ -138,10 +157,11 @@ def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
 
 
 def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
-                                           spin_until: Callable[..., bool]) -> None:
+                                           spin_until: Callable[..., bool],
+                                           paper_bag: Path) -> None:
     """NaN, saturated, repeated and out-of-order stamps, an unpaired sample, a frozen sensor:
     counted, outputs stay finite, no fault, and the diagnostic reports an input fault."""
-    data = _paper_data()
+    data = _imu_from_bag(paper_bag)
     monitor, feeder, got, diagnostics = _setup(make_node, frozen_samples=5)
     z = data.measurements
     s = [START_NS + k * DT_NS for k in range(200)]
@@ -172,11 +192,12 @@ def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
 
 
 def test_known_inputs_used_when_fresh_and_stale_reported(
-        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+        make_node: Callable[..., Any], spin_until: Callable[..., bool],
+        paper_bag: Path) -> None:
     """Fresh track irregularity -> known-input model (held up to track_max_age = 20 ms, four
     samples); after that the process-noise model and a 'stale' diagnostic; a wrongly sized
     track message is counted."""
-    data = _paper_data()
+    data = _imu_from_bag(paper_bag)
     monitor, feeder, got, _ = _setup(make_node)
     for k in range(60):
         stamp = START_NS + k * DT_NS

@@ -13,17 +13,22 @@ Beyond the paper:
 * Likelihoods in log space (log-sum-exp), so a mode far from the data does not underflow to
   zero and vanish for good; a small probability floor (``probability_floor``) keeps every mode
   able to come back within a bounded number of samples.
-* Wheelset inputs u = [y_w1, y_w2, psi_w1, psi_w2] as coloured process noise: the filter's
-  state is the reduced model's x augmented with u, a first-order Gauss-Markov process
-  (stationary std ``wheelset_*_std``, correlation time ``input_correlation_time``), and the
-  augmented continuous model is discretised exactly (Van Loan). The brief's white-noise form
-  (Q = G Sigma_u G^T, L Sigma_u L^T in R) holds u constant over a sample while the wheelsets
-  move within it; on the paper's half-car truth that half-sample phase error biased the mode
-  likelihoods toward the stiffer springs (the normal mode lost to spring 130 % on healthy
-  data), which the augmented form does not. The bogie accelerometer then measures H x + L u
-  (u is in the state: no correlated-noise bookkeeping). With the track alignment known
-  (``/rail/track_irregularity``), the known inputs are extra measurements of u whose noise is
-  the wheelset's deviation from the track (``known_input_*_std``): the paper's setup.
+* Estimation model (``estimation_model``): 'full_car' by default,
+  :func:`reduced_full_car_model` (both bogies and the body with yaw, wheelsets removed): the
+  body accelerometer sits above the front bogie and sees y_v'' + lv psi_v'', which the paper's
+  half-car model (no body yaw; 'half_car') cannot represent on a real car.
+* Wheelset inputs as coloured process noise. They enter the bogie equations only through two
+  combinations per bogie (:func:`primary_input_combination`), and those are the filter's
+  input states, each a second-order Gauss-Markov process (poles ``1 / input_correlation_time``
+  and ``input_bandwidth``, stationary std from ``wheelset_*_std``), discretised exactly with the
+  model (Van Loan). The wheelset motion is smooth (its spectrum falls steeply above a few Hz):
+  a first-order process gives it white-noise increments every sample, which inflated the
+  predicted innovations 2-3 times on the full car and blurred the modes. The defaults
+  (1 s, 3 Hz) are generic (long track wavelengths carry the displacement; the wheelset follows
+  the track below its kinematic frequency) and gave unit-variance normalised innovations on
+  healthy simulated data. With the track alignment known (``/rail/track_irregularity``), the
+  known inputs are extra measurements of the combinations whose noise is the wheelset's
+  deviation from the track (``known_input_*_std``): the paper's setup.
 * The adaptive compound-fault step: the damper modes use the estimated spring ratio,
   re-discretised when it moves by ``adaptation_resolution`` (discretisations are cached on
   that grid). The estimate weighs every mode with real evidence (smoothed probability at least
@@ -50,16 +55,18 @@ import scipy.linalg
 from rail_monitor_ros.rail_model import (
     MAX_SUSPENSION_RATIO,
     REDUCED_INPUT_NAMES,
-    REDUCED_STATE_NAMES,
     SENSOR_OUTPUT_NAMES,
     RailVehicleParams,
+    StateSpace,
     half_car_state_space,
     reduced_bogie_body_model,
+    reduced_full_car_model,
 )
 
-N_STATES = len(REDUCED_STATE_NAMES)
-N_INPUTS = len(REDUCED_INPUT_NAMES)
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
+# Known inputs of the monitored bogie's two wheelsets (wheelset_inputs_from_track).
+N_BOGIE_INPUTS = len(REDUCED_INPUT_NAMES)
+ESTIMATION_MODELS = ('full_car', 'half_car')
 MODE_KINDS = ('normal', 'spring', 'damper')
 FAULT_COMPONENTS = ('', 'spring', 'damper', 'spring+damper')
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -161,6 +168,10 @@ class SuspensionImmConfig:
 
     Attributes:
         sample_rate: IMU sample rate, Hz (the models are discretised at 1 / sample_rate).
+        estimation_model: 'full_car' (:func:`reduced_full_car_model`: both bogies and the
+            body with yaw, the body accelerometer above the front bogie; right for the sensors
+            where a real car has them) or 'half_car' (the paper's
+            :func:`reduced_bogie_body_model`, right only for the paper's half-car truth).
         spring_start, spring_stop, spring_step: spring-mode ratios (see generate_mode_set).
         damper_start, damper_stop, damper_step: damper-mode ratios.
         mean_sojourn_time: expected time in a mode before a switch, s (sets Pi). Shorter
@@ -171,10 +182,18 @@ class SuspensionImmConfig:
         adaptive: the paper's compound-fault step (damper modes take the estimated spring).
         adaptation_resolution: the damper modes' spring ratio moves in these quanta; a new
             discretisation is computed (and cached) when the quantised estimate changes.
-        wheelset_lateral_std: stationary std of the wheelset lateral displacement, m.
-        wheelset_yaw_std: stationary std of the wheelset yaw angle, rad.
-        input_correlation_time: correlation time of the wheelset motion model, s (about the
-            time to run over the shortest track wavelengths that matter).
+        wheelset_lateral_std: stationary std of the wheelset lateral displacement, m (the
+            bogie's mean wheelset lateral input; the wheelsets 2 a0 apart move together at
+            the long wavelengths that carry the displacement).
+        wheelset_yaw_std: stationary std of the wheelset yaw angle, rad. The bogie's
+            equivalent yaw input (:func:`primary_input_combination`) gets
+            wheelset_yaw_std (1 + Ky a0^2 / Kp): wheelsets following the track have
+            y_lead - y_trail = 2 a0 psi.
+        input_correlation_time: slow pole of the wheelset motion model, s (the long track
+            wavelengths that carry the displacement).
+        input_bandwidth: fast pole of the wheelset motion model, Hz: above it the motion
+            falls at -40 dB/decade (published track alignment spectra turn to Omega^-4 at
+            wavelengths of ~8 m, 5 Hz at 40 m/s; the wheelset kinematic frequency is close).
         known_input_lateral_std: known-input mode: std of the wheelset's lateral deviation from
             the track alignment, m.
         known_input_yaw_std: known-input mode: std of the wheelset yaw deviation from
@@ -182,9 +201,8 @@ class SuspensionImmConfig:
         bogie_accel_noise: bogie lateral accelerometer noise std, m/s^2.
         bogie_gyro_noise: bogie yaw-rate gyro noise std, rad/s.
         body_accel_noise: body lateral accelerometer noise std, m/s^2.
-        model_accel_noise: std of unmodelled accelerations per sample on the bogie lateral,
-            bogie yaw and body lateral equations (m/s^2, rad/s^2, m/s^2): the reduced half car
-            is not the vehicle.
+        model_accel_noise: (lateral m/s^2, yaw rad/s^2) std of unmodelled accelerations
+            (white, on every rate state of the model); 0 trusts the model's structure.
         initial_displacement_std, initial_velocity_std: initial lateral state std, m, m/s.
         initial_yaw_std, initial_yaw_rate_std: initial yaw state std, rad, rad/s.
         estimate_min_probability: modes below this fraction of the largest smoothed
@@ -197,6 +215,7 @@ class SuspensionImmConfig:
     """
 
     sample_rate: float = 200.0
+    estimation_model: str = 'full_car'
     spring_start: float = 1.1
     spring_stop: float = 1.7
     spring_step: float = 0.1
@@ -210,13 +229,14 @@ class SuspensionImmConfig:
     adaptation_resolution: float = 0.02
     wheelset_lateral_std: float = 3e-3
     wheelset_yaw_std: float = 2e-3
-    input_correlation_time: float = 0.3
+    input_correlation_time: float = 1.0
+    input_bandwidth: float = 3.0
     known_input_lateral_std: float = 1.5e-3
     known_input_yaw_std: float = 1.5e-3
     bogie_accel_noise: float = 0.02
     bogie_gyro_noise: float = 1e-3
     body_accel_noise: float = 0.02
-    model_accel_noise: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    model_accel_noise: tuple[float, float] = (0.0, 0.0)
     initial_displacement_std: float = 5e-3
     initial_velocity_std: float = 5e-2
     initial_yaw_std: float = 2e-3
@@ -233,11 +253,16 @@ class SuspensionImmConfig:
             value = getattr(self, spec.name)
             if spec.name == 'adaptive':
                 if not isinstance(value, bool):
-                    raise ValueError(f'adaptive must be a bool, got {value!r}')
+                    raise ValueError(f'{spec.name} must be a bool, got {value!r}')
+                continue
+            if spec.name == 'estimation_model':
+                if value not in ESTIMATION_MODELS:
+                    raise ValueError(f'estimation_model must be one of {ESTIMATION_MODELS}, '
+                                     f'got {value!r}')
                 continue
             values = value if isinstance(value, tuple) else (value,)
-            if spec.name == 'model_accel_noise' and len(values) != 3:
-                raise ValueError(f'model_accel_noise must have 3 values, got {len(values)}')
+            if spec.name == 'model_accel_noise' and len(values) != 2:
+                raise ValueError(f'model_accel_noise must have 2 values, got {len(values)}')
             for v in values:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                     raise ValueError(f'{spec.name} must be a finite number, got {v!r}')
@@ -273,25 +298,60 @@ class SuspensionImmConfig:
                                  self.damper_start, self.damper_stop, self.damper_step)
 
 
-N_AUGMENTED = N_STATES + N_INPUTS
+def primary_input_combination(vehicle: RailVehicleParams,
+                              input_names: Sequence[str]) -> np.ndarray:
+    """The combinations through which a bogie's two wheelsets act on it: T, (2 per bogie, m).
 
-
-def _augmented_model(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
-                     input_std: np.ndarray, correlation_time: float, dt: float,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact discretisation of [x; u] with u first-order Gauss-Markov: (F, Q, H).
-
-    Continuous: x' = A x + B u, u' = -u / tau + w, E[w w^T] = 2 Sigma_u / tau (so u has the
-    stationary covariance Sigma_u). Van Loan's matrix exponential gives F and Q together.
+    The primary springs put the wheelsets into the bogie equations only as
+    2 Ky (y_lead + y_trail) / 2 (lateral) and Ky a0 (y_lead - y_trail) + Kp (psi_lead +
+    psi_trail) (yaw), so per bogie the inputs are exactly u_lat = (y_lead + y_trail) / 2 and
+    u_yaw = (Ky a0 (y_lead - y_trail) + Kp (psi_lead + psi_trail)) / (2 Kp), an equivalent
+    wheelset yaw angle. ``input_names`` come in groups of four per bogie,
+    [y_lead, y_trail, psi_lead, psi_trail] (``REDUCED_INPUT_NAMES`` order).
     """
-    n, m = b.shape
-    a_aug = np.zeros((n + m, n + m))
-    a_aug[:n, :n] = a
-    a_aug[:n, n:] = b
-    a_aug[n:, n:] = -np.eye(m) / correlation_time
-    spectral = np.zeros((n + m, n + m))
-    spectral[n:, n:] = np.diag(2.0 * input_std ** 2 / correlation_time)
-    size = n + m
+    m = len(input_names)
+    if m % N_BOGIE_INPUTS:
+        raise ValueError(f'input_names must come in groups of {N_BOGIE_INPUTS}, got {m}')
+    lever = (vehicle.primary_lateral_stiffness * vehicle.semi_wheelbase
+             / (2.0 * vehicle.primary_yaw_stiffness))
+    block = np.array([[0.5, 0.5, 0.0, 0.0], [lever, -lever, 0.5, 0.5]])
+    return scipy.linalg.block_diag(*[block] * (m // N_BOGIE_INPUTS))
+
+
+def _augmented_model(model: StateSpace, combination: np.ndarray, combination_std: np.ndarray,
+                     correlation_time: float, bandwidth_hz: float, dt: float,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact discretisation of [x; w] with the input combinations w second-order Gauss-Markov.
+
+    u enters only through w = T u (:func:`primary_input_combination`): B u = (B T^+) w exactly
+    (checked). Each w_j has states [w_j, w_j'] and the spectrum of white noise through two
+    first-order lags, poles 1 / tau and 2 pi f_b: flat below 1 / tau (long track
+    wavelengths), -40 dB/decade above f_b like the wheelset motion, so its increments over a
+    sample are smooth rather than white-noise steps. The noise density is set for the
+    stationary std. Van Loan's matrix exponential gives F and Q together.
+
+    Returns:
+        (F, Q, H) with H = [C, D T^+ on the w positions].
+    """
+    t_pinv = np.linalg.pinv(combination)
+    b_w = model.b @ t_pinv
+    d_w = model.d @ t_pinv
+    scale = max(float(np.abs(model.b).max()), 1.0)
+    if not (np.allclose(b_w @ combination, model.b, atol=1e-9 * scale)
+            and np.allclose(d_w @ combination, model.d, atol=1e-9 * scale)):
+        raise ValueError('the model inputs do not enter through primary_input_combination')
+    n, k = model.a.shape[0], combination.shape[0]
+    w1, w2 = 1.0 / correlation_time, 2.0 * math.pi * bandwidth_hz
+    size = n + 2 * k
+    a_aug = np.zeros((size, size))
+    a_aug[:n, :n] = model.a
+    spectral = np.zeros((size, size))
+    pos = n + 2 * np.arange(k)
+    a_aug[:n, pos] = b_w
+    a_aug[pos, pos + 1] = 1.0
+    a_aug[pos + 1, pos] = -w1 * w2
+    a_aug[pos + 1, pos + 1] = -(w1 + w2)
+    spectral[pos + 1, pos + 1] = 2.0 * w1 * w2 * (w1 + w2) * combination_std ** 2
     van_loan = np.zeros((2 * size, 2 * size))
     van_loan[:size, :size] = -a_aug
     van_loan[:size, size:] = spectral
@@ -299,7 +359,10 @@ def _augmented_model(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
     e = scipy.linalg.expm(van_loan * dt)
     f = e[size:, size:].T
     q = f @ e[:size, size:]
-    return f, 0.5 * (q + q.T), np.hstack([c, d])
+    h = np.zeros((model.c.shape[0], size))
+    h[:, :n] = model.c
+    h[:, pos] = d_w
+    return f, 0.5 * (q + q.T), h
 
 
 @dataclass(frozen=True)
@@ -393,7 +456,7 @@ class ImmStep:
         most_likely: index of the largest smoothed probability.
         spring_ratio: smoothed-probability-weighted spring ratio.
         damper_ratio: smoothed-probability-weighted damper ratio.
-        state: (n,) combined state estimate [y_b, y_b', psi_b, psi_b', y_v, y_v'].
+        state: (n,) combined state estimate (``SuspensionImm.state_names``).
         covariance: (n, n) combined covariance.
         fault: the decision.
     """
@@ -420,8 +483,9 @@ class SuspensionImm:
 
     Args:
         config: IMM configuration.
-        vehicle: the model's vehicle parameters (defaults: Table 1); its speed is not used by
-            the reduced model (it enters only the known inputs).
+        vehicle: the model's vehicle parameters (defaults: Table 1 and the reference vehicle of
+            :class:`RailVehicleParams`); its speed is not used by the reduced models (it enters
+            only the known inputs).
     """
 
     def __init__(self, config: SuspensionImmConfig | None = None,
@@ -432,6 +496,11 @@ class SuspensionImm:
         self.modes = cfg.modes()
         self.n_modes = len(self.modes)
         self.transition = markov_transition_matrix(self.n_modes, cfg.mean_sojourn_time, cfg.dt)
+        nominal = self._model(1.0, 1.0)
+        self.state_names = nominal.state_names
+        self.input_names = nominal.input_names
+        self.n_states = len(self.state_names)
+        self.n_inputs = len(self.input_names)
         self._is_damper = np.array([m.kind == 'damper' for m in self.modes])
         self._base_spring = np.array([m.spring_ratio for m in self.modes])
         self.mode_damper_ratio = np.array([m.damper_ratio for m in self.modes])
@@ -439,24 +508,42 @@ class SuspensionImm:
             [1.0, *[m.spring_ratio for m in self.modes if m.kind == 'spring']], _RATIO_DECIMALS))
         self._damper_grid = np.unique(np.round(
             [1.0, *[m.damper_ratio for m in self.modes if m.kind == 'damper']], _RATIO_DECIMALS))
-        self._input_std = np.array([cfg.wheelset_lateral_std] * 2 + [cfg.wheelset_yaw_std] * 2)
-        self._r_known = np.diag(np.array(
-            [cfg.known_input_lateral_std] * 2 + [cfg.known_input_yaw_std] * 2) ** 2)
+        v = self.vehicle
+        self._combination = primary_input_combination(v, self.input_names)
+        n_bogies = self.n_inputs // N_BOGIE_INPUTS
+        yaw_gain = 1.0 + (v.primary_lateral_stiffness * v.semi_wheelbase ** 2
+                          / v.primary_yaw_stiffness)
+        self._combination_std = np.tile([cfg.wheelset_lateral_std,
+                                         cfg.wheelset_yaw_std * yaw_gain], n_bogies)
+        n_aug = self.n_states + 2 * self._combination.shape[0]
+        yaw_input = np.array([name.startswith('psi') for name in self.input_names])
+        known_std = np.where(yaw_input, cfg.known_input_yaw_std, cfg.known_input_lateral_std)
         self._r_sensor = np.diag(np.array(
             [cfg.bogie_accel_noise, cfg.bogie_gyro_noise, cfg.body_accel_noise]) ** 2)
+        # Known inputs: 0, the monitored bogie's wheelsets, or all; measured as combinations.
+        self._known_sizes = tuple(sorted({0, N_BOGIE_INPUTS, self.n_inputs}))
+        self._t_known = {k: self._combination[:k // 2, :k] for k in self._known_sizes}
+        self._r = {k: scipy.linalg.block_diag(
+            self._r_sensor, t @ np.diag(known_std[:k] ** 2) @ t.T)
+            for k, t in self._t_known.items()}
         # Unmodelled accelerations as white noise on the rate states, integrated over a step.
         dt = cfg.dt
-        q_model = np.zeros((N_AUGMENTED, N_AUGMENTED))
-        for k, std in enumerate(cfg.model_accel_noise):
-            block = std ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
-            q_model[2 * k:2 * k + 2, 2 * k:2 * k + 2] = block
+        q_model = np.zeros((n_aug, n_aug))
+        lateral_std, yaw_std = cfg.model_accel_noise
+        for k, name in enumerate(self.state_names):
+            if name.startswith('d'):
+                std = yaw_std if 'psi' in name else lateral_std
+                q_model[k - 1:k + 1, k - 1:k + 1] = std ** 2 * np.array(
+                    [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
         self._q_model = q_model
-        self._r_known_full = scipy.linalg.block_diag(self._r_sensor, self._r_known)
-        self._p0 = np.diag(np.concatenate([[
-            cfg.initial_displacement_std, cfg.initial_velocity_std, cfg.initial_yaw_std,
-            cfg.initial_yaw_rate_std, cfg.initial_displacement_std,
-            cfg.initial_velocity_std], self._input_std]) ** 2)
-        self._discretized: dict[tuple[float, float], tuple[np.ndarray, ...]] = {}
+        initial_std = [_initial_std(name, cfg) for name in self.state_names]
+        # Input states at their stationary variance: w and w' (var(w') = w1 w2 var(w)).
+        poles = (1.0 / cfg.input_correlation_time) * 2.0 * math.pi * cfg.input_bandwidth
+        input_var = np.column_stack([self._combination_std ** 2,
+                                     poles * self._combination_std ** 2]).ravel()
+        self._p0 = np.diag(np.concatenate([np.square(initial_std), input_var]))
+        self._discretized: dict[tuple[float, float],
+                                tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]] = {}
         self.decision = FaultDecision(cfg.fault_threshold, cfg.hold_time, dt)
         self.covariance_repairs = 0
         self.rediscretizations = 0
@@ -465,13 +552,25 @@ class SuspensionImm:
         self.reset()
 
     # ----------------------------------------------------------------------- model bank
+    def _model(self, spring: float, damper: float) -> StateSpace:
+        if self.config.estimation_model == 'full_car':
+            return reduced_full_car_model(self.vehicle, spring, damper)
+        return reduced_bogie_body_model(self.vehicle, spring, damper)
+
     def _discretize(self, spring: float, damper: float) -> tuple[np.ndarray, ...]:
         key = (round(spring, _RATIO_DECIMALS), round(damper, _RATIO_DECIMALS))
         cached = self._discretized.get(key)
         if cached is None:
-            model = reduced_bogie_body_model(self.vehicle, key[0], key[1])
-            cached = _augmented_model(model.a, model.b, model.c, model.d, self._input_std,
-                                      self.config.input_correlation_time, self.config.dt)
+            cfg = self.config
+            f, q, h = _augmented_model(self._model(*key), self._combination,
+                                       self._combination_std, cfg.input_correlation_time,
+                                       cfg.input_bandwidth, cfg.dt)
+            q = q + self._q_model
+            # Known inputs are extra measurements of the first k // 2 input combinations.
+            eye = np.eye(f.shape[0])
+            h_known = {k: np.vstack([h, eye[self.n_states + 2 * np.arange(k // 2)]])
+                       for k in self._known_sizes}
+            cached = (f, q, h_known)
             self._discretized[key] = cached
         return cached
 
@@ -479,16 +578,14 @@ class SuspensionImm:
         """Stack the mode models; damper modes at spring ratio ``damper_spring``."""
         self._damper_spring = damper_spring
         self.mode_spring_ratio = np.where(self._is_damper, damper_spring, self._base_spring)
-        mats = [self._discretize(s, d)
-                for s, d in zip(self.mode_spring_ratio, self.mode_damper_ratio, strict=True)]
-        f, q, h = (np.stack(a) for a in zip(*mats, strict=True))
-        self._f = f
-        self._q = q + self._q_model
-        # Known inputs are extra measurements of the input states.
-        h_known = np.zeros((self.n_modes, N_OUTPUTS + N_INPUTS, N_AUGMENTED))
-        h_known[:, :N_OUTPUTS] = h
-        h_known[:, N_OUTPUTS:, N_STATES:] = np.eye(N_INPUTS)
-        self._h = {False: h, True: h_known}
+        pairs = list(zip(self.mode_spring_ratio.tolist(), self.mode_damper_ratio.tolist(),
+                         strict=True))
+        mats = [self._discretize(s, d) for s, d in pairs]
+        self._f = np.stack([m[0] for m in mats])
+        self._ft = np.ascontiguousarray(self._f.transpose(0, 2, 1))
+        self._q = np.stack([m[1] for m in mats])
+        self._h = {k: np.stack([m[2][k] for m in mats]) for k in self._known_sizes}
+        self._ht = {k: np.ascontiguousarray(v.transpose(0, 2, 1)) for k, v in self._h.items()}
         snapped_s = self._spring_grid[np.argmin(
             np.abs(self.mode_spring_ratio[:, None] - self._spring_grid[None, :]), axis=1)]
         snapped_d = self._damper_grid[np.argmin(
@@ -506,59 +603,71 @@ class SuspensionImm:
         self.mu = np.zeros(self.n_modes)
         self.mu[0] = 1.0
         self._smoothing = np.zeros((cfg.smoothing_samples, self.n_modes))
+        self._smoothing_sum = np.zeros(self.n_modes)
         self._smoothing_count = 0
+        self.smoothed = self.mu.copy()
         self.decision.reset()
+        self.fault = NO_FAULT
+        self.spring_ratio = 1.0
+        self.damper_ratio = 1.0
         self.reset_states()
 
     def reset_states(self) -> None:
         """Re-initialise the bank's states and covariances, keeping the mode probabilities
         (after a gap in the data the motion is unknown, the suspension is not)."""
-        self.x = np.zeros((self.n_modes, N_AUGMENTED))
-        self.P = np.broadcast_to(self._p0, (self.n_modes, N_AUGMENTED, N_AUGMENTED)).copy()
+        n_aug = self._p0.shape[0]
+        self.x = np.zeros((self.n_modes, n_aug))
+        self.P = np.broadcast_to(self._p0, (self.n_modes, n_aug, n_aug)).copy()
         self._steps = 0
 
     # ----------------------------------------------------------------------- IMM cycle
-    def _mix_and_predict(self) -> None:
-        mu = self.mu
-        cbar = mu @ self.transition
-        self._cbar = cbar
-        if self._steps == 0:
-            return   # the prior is for the first sample: nothing to propagate
-        omega = self.transition * mu[:, None] / cbar[None, :]        # omega[i, j] = mu_i|j
-        x, p = self.x, self.P
-        x0 = omega.T @ x                                              # (M, n)
-        d = x[:, None, :] - x0[None, :, :]                            # (i, j, n)
-        wd = omega[:, :, None] * d
-        spread = wd.transpose(1, 2, 0) @ d.transpose(1, 0, 2)         # (j, n, n)
-        p0 = (omega.T @ p.reshape(self.n_modes, -1)).reshape(p.shape) + spread
-        f = self._f
-        self.x = (f @ x0[:, :, None])[:, :, 0]
-        self.P = f @ p0 @ f.transpose(0, 2, 1) + self._q
+    def _mixing_weights(self) -> np.ndarray:
+        """omega^T: row j holds mu_i|j over i; also sets the predicted probabilities cbar."""
+        weighted = self.transition * self.mu[:, None]
+        self._cbar = cbar = weighted.sum(axis=0)
+        return weighted.T / cbar[:, None]
 
-    def _update(self, z: np.ndarray, known: bool) -> np.ndarray:
-        """Mode-matched update with z (3,) or, known inputs appended, (7,); log-likelihoods."""
-        h = self._h[known]
-        r = self._r_known_full if known else self._r_sensor
-        residual = z - (h @ self.x[:, :, None])[:, :, 0]
-        pht = self.P @ h.transpose(0, 2, 1)                           # (M, n, p)
+    def _mix_and_predict(self) -> None:
+        if self._steps == 0:
+            self._cbar = self.mu @ self.transition
+            return   # the prior is for the first sample: nothing to propagate
+        w = self._mixing_weights()
+        x, p = self.x, self.P
+        m, n = x.shape
+        x0 = w @ x                                                    # (M, n)
+        # Mixed covariance from the mixed second moments: sum_i w_ji (P_i + x_i x_i^T)
+        # - x0_j x0_j^T (one product instead of the spread of every pair i, j).
+        second = p + x[:, :, None] * x[:, None, :]
+        p0 = (w @ second.reshape(m, -1)).reshape(m, n, n) - x0[:, :, None] * x0[:, None, :]
+        self.x = np.einsum('mij,mj->mi', self._f, x0)
+        self.P = self._f @ p0 @ self._ft + self._q
+
+    def _update(self, z: np.ndarray, known: int, r: np.ndarray) -> np.ndarray:
+        """Mode-matched update with z: the 3 sensors then ``known`` known inputs (as
+        combinations), noise r; log-likelihoods."""
+        h, ht = self._h[known], self._ht[known]
+        residual = z - np.einsum('mij,mj->mi', h, self.x)
+        pht = self.P @ ht                                             # (M, n, p)
         s = h @ pht + r
         s = 0.5 * (s + s.transpose(0, 2, 1))
         try:
             chol = np.linalg.cholesky(s)
         except np.linalg.LinAlgError:
             self._repair_covariances(force=True)
-            pht = self.P @ h.transpose(0, 2, 1)
+            pht = self.P @ ht
             s = h @ pht + r
             s = 0.5 * (s + s.transpose(0, 2, 1))
             chol = np.linalg.cholesky(s)
-        s_inv = np.linalg.inv(s)
-        gain = pht @ s_inv                                            # (M, n, p)
-        self.x = self.x + (gain @ residual[:, :, None])[:, :, 0]
+        # S^-1 [H P, residual] in one batched solve: the gain's transpose and S^-1 residual.
+        solved = np.linalg.solve(s, np.concatenate(
+            [pht.transpose(0, 2, 1), residual[:, :, None]], axis=2))
+        s_inv_res = solved[:, :, -1]
+        self.x = self.x + np.einsum('mij,mj->mi', pht, s_inv_res)
         # P - K S K^T, symmetrised (half the products of the Joseph form on the batch);
         # positive definiteness is checked every step through S and periodically in full.
-        p = self.P - gain @ pht.transpose(0, 2, 1)
+        p = self.P - pht @ solved[:, :, :-1]
         self.P = 0.5 * (p + p.transpose(0, 2, 1))
-        maha = np.einsum('mi,mij,mj->m', residual, s_inv, residual)
+        maha = np.einsum('mi,mi->m', residual, s_inv_res)
         log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
         return -0.5 * (maha + log_det + z.size * _LOG_2PI)
 
@@ -578,25 +687,16 @@ class SuspensionImm:
 
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (see :meth:`_weighted`)."""
-        estimate = self._weighted(self._last_smoothed, self.mode_spring_ratio)
+        estimate = self._weighted(self.smoothed, self.mode_spring_ratio)
         quantum = self.config.adaptation_resolution
         snapped = round(round(estimate / quantum) * quantum, _RATIO_DECIMALS)
         if snapped != self._damper_spring:
             self._build_bank(snapped)
             self.rediscretizations += 1
 
-    def step(self, measurement: np.ndarray | Sequence[float] | None,
-             known_input: np.ndarray | Sequence[float] | None = None) -> ImmStep:
-        """One sample.
-
-        Args:
-            measurement: (3,) [bogie lateral accel m/s^2, bogie yaw rate rad/s, body lateral
-                accel m/s^2], or None (sample missing: predict only). A non-finite or
-                wrongly shaped measurement is not used (predict only, reported in
-                ``reason``), so the state is not corrupted.
-            known_input: (4,) u = [y_w1, y_w2, psi_w1, psi_w2] (see
-                ``wheelset_inputs_from_track``) or None: process-noise model.
-        """
+    def _check_input(self, measurement: np.ndarray | Sequence[float] | None,
+                     known_input: np.ndarray | Sequence[float] | None,
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         reason = ''
         z: np.ndarray | None = None
         if measurement is not None:
@@ -607,20 +707,32 @@ class SuspensionImm:
                 reason, z = 'non-finite measurement', None
         else:
             reason = 'no measurement'
-        u = np.zeros(N_INPUTS)
-        known = False
+        u: np.ndarray | None = None
         if known_input is not None:
             candidate = np.asarray(known_input, dtype=float)
-            if candidate.shape == (N_INPUTS,) and np.all(np.isfinite(candidate)):
-                u, known = candidate, True
+            if (candidate.ndim == 1 and candidate.size in self._known_sizes[1:]
+                    and np.all(np.isfinite(candidate))):
+                u = candidate
             elif not reason:
                 reason = 'bad known input (process-noise model used)'
+        return z, u, reason
+
+    def advance(self, z: np.ndarray | None, u: np.ndarray | None = None) -> None:
+        """One sample on checked input (the fast path of :meth:`step`): updates ``mu``,
+        ``smoothed``, ``spring_ratio``, ``damper_ratio`` and ``fault`` in place.
+
+        Args:
+            z: (3,) finite measurement or None (predict only).
+            u: known inputs, (4,) the monitored bogie's wheelsets or (n_inputs,) all, or None.
+        """
+        known = 0 if u is None or z is None else u.size
+        if known:
+            z = np.concatenate([z, self._t_known[known] @ u])
         self._mix_and_predict()
-        if z is not None:
-            log_lik = self._update(np.concatenate([z, u]) if known else z, known)
+        log_lik = None if z is None else self._update(z, known, self._r[known])
+        if log_lik is not None:
             log_post = log_lik + np.log(np.maximum(self._cbar, 1e-300))
-            log_post -= log_post.max()
-            mu = np.exp(log_post)
+            mu = np.exp(log_post - log_post.max())
             mu /= mu.sum()
             floor = self.config.probability_floor
             if floor > 0.0:
@@ -632,12 +744,51 @@ class SuspensionImm:
         self._steps += 1
         if self.config.spd_check_interval and self._steps % self.config.spd_check_interval == 0:
             self._repair_covariances()
-        mode_spring = self.mode_spring_ratio.copy()
-        state, cov = self._combined()
-        report = self._report(z is not None, reason, known, mode_spring, state, cov)
+        self._smooth_and_decide()
         if self.config.adaptive and z is not None:
             self._adapt()
-        return report
+
+    def _smooth_and_decide(self) -> None:
+        window = self._smoothing
+        size = window.shape[0]
+        slot = self._smoothing_count % size
+        # Running sum of the window, re-summed once per wrap so rounding cannot drift.
+        self._smoothing_sum += self.mu - window[slot]
+        window[slot] = self.mu
+        self._smoothing_count += 1
+        if slot == size - 1:
+            self._smoothing_sum = window.sum(axis=0)
+        self.smoothed = self._smoothing_sum / min(self._smoothing_count, size)
+        self._mode_spring_used = self.mode_spring_ratio
+        self.spring_ratio = self._weighted(self.smoothed, self.mode_spring_ratio)
+        self.damper_ratio = self._weighted(self.smoothed, self.mode_damper_ratio)
+        hyp = np.bincount(self._hypothesis_index, weights=self.smoothed,
+                          minlength=len(self.hypotheses))
+        self.fault = self.decision.update(self.hypotheses, hyp)
+
+    def step(self, measurement: np.ndarray | Sequence[float] | None,
+             known_input: np.ndarray | Sequence[float] | None = None) -> ImmStep:
+        """One sample.
+
+        Args:
+            measurement: (3,) [bogie lateral accel m/s^2, bogie yaw rate rad/s, body lateral
+                accel m/s^2], or None (sample missing: predict only). A non-finite or
+                wrongly shaped measurement is not used (predict only, reported in
+                ``reason``), so the state is not corrupted.
+            known_input: u from the track (``wheelset_inputs_from_track``): (4,) the monitored
+                bogie's wheelsets [y_w1, y_w2, psi_w1, psi_w2], or (n_inputs,) all the model's
+                inputs (full car: the rear bogie's next), or None: process-noise model.
+        """
+        z, u, reason = self._check_input(measurement, known_input)
+        self.advance(z, u)
+        state, cov = self.combined()
+        return ImmStep(
+            accepted=z is not None, reason=reason, known_input=z is not None and u is not None,
+            probability=self.mu.copy(), smoothed_probability=self.smoothed.copy(),
+            mode_spring_ratio=self._mode_spring_used.copy(),
+            mode_damper_ratio=self.mode_damper_ratio.copy(),
+            most_likely=int(np.argmax(self.smoothed)), spring_ratio=self.spring_ratio,
+            damper_ratio=self.damper_ratio, state=state, covariance=cov, fault=self.fault)
 
     def _weighted(self, probability: np.ndarray, ratios: np.ndarray) -> float:
         """Probability-weighted ratio over the modes holding at least ``estimate_min_probability``.
@@ -646,38 +797,32 @@ class SuspensionImm:
         estimate toward the middle of the grid (and, fed back by the adaptive step, walk the
         damper modes away from the truth), so only modes with real evidence vote.
         """
-        relevant = probability >= self.config.estimate_min_probability * probability.max()
-        weights = np.where(relevant, probability, 0.0)
+        weights = probability * (probability >= self.config.estimate_min_probability
+                                 * probability.max())
         return float(weights @ ratios / weights.sum())
 
-    def _combined(self) -> tuple[np.ndarray, np.ndarray]:
-        """Combined estimate of the reduced model's states (the input states left out)."""
-        xs = self.x[:, :N_STATES]
+    def combined_state(self) -> np.ndarray:
+        """Combined estimate of the model's states (the input states left out)."""
+        return self.mu @ self.x[:, :self.n_states]
+
+    def combined(self) -> tuple[np.ndarray, np.ndarray]:
+        """Combined estimate and covariance of the model's states (inputs left out)."""
+        n = self.n_states
+        xs = self.x[:, :n]
         x = self.mu @ xs
         d = xs - x
-        cov = np.tensordot(self.mu, self.P[:, :N_STATES, :N_STATES], axes=1) + (
-            self.mu[:, None] * d).T @ d
+        cov = np.tensordot(self.mu, self.P[:, :n, :n], axes=1) + (self.mu[:, None] * d).T @ d
         return x, 0.5 * (cov + cov.T)
 
-    def _report(self, accepted: bool, reason: str, known: bool, mode_spring: np.ndarray,
-                state: np.ndarray, cov: np.ndarray) -> ImmStep:
-        window = self._smoothing
-        window[self._smoothing_count % window.shape[0]] = self.mu
-        self._smoothing_count += 1
-        filled = min(self._smoothing_count, window.shape[0])
-        smoothed = window[:filled].mean(axis=0)
-        self._last_smoothed = smoothed
-        hyp = np.bincount(self._hypothesis_index, weights=smoothed,
-                          minlength=len(self.hypotheses))
-        fault = self.decision.update(self.hypotheses, hyp)
-        return ImmStep(
-            accepted=accepted, reason=reason, known_input=known, probability=self.mu.copy(),
-            smoothed_probability=smoothed, mode_spring_ratio=mode_spring,
-            mode_damper_ratio=self.mode_damper_ratio.copy(),
-            most_likely=int(np.argmax(smoothed)),
-            spring_ratio=self._weighted(smoothed, mode_spring),
-            damper_ratio=self._weighted(smoothed, self.mode_damper_ratio),
-            state=state, covariance=cov, fault=fault)
+
+def _initial_std(name: str, cfg: SuspensionImmConfig) -> float:
+    """Prior std of a model state by its kind (lateral or yaw, displacement or rate)."""
+    rate = name.startswith('d')
+    yaw = 'psi' in name
+    return {(False, False): cfg.initial_displacement_std,
+            (True, False): cfg.initial_velocity_std,
+            (False, True): cfg.initial_yaw_std,
+            (True, True): cfg.initial_yaw_rate_std}[(rate, yaw)]
 
 
 @dataclass(frozen=True)
@@ -693,8 +838,8 @@ class ImmRunResult:
         mode_damper_ratio: (M,).
         spring_ratio: (N,) probability-weighted estimate.
         damper_ratio: (N,).
-        state: (N, n) combined state.
-        covariance: (N, n, n) combined covariance.
+        state: (N, n) combined state of the model (``SuspensionImm.state_names``).
+        covariance: (N, n, n) combined covariance, or None (not stored).
         fault_detected: (N,) bool.
         fault_component: (N,) str.
         accepted: (N,) bool, measurement used.
@@ -712,7 +857,7 @@ class ImmRunResult:
     spring_ratio: np.ndarray
     damper_ratio: np.ndarray
     state: np.ndarray
-    covariance: np.ndarray
+    covariance: np.ndarray | None
     fault_detected: np.ndarray
     fault_component: np.ndarray
     accepted: np.ndarray
@@ -744,27 +889,30 @@ def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None
                        config: SuspensionImmConfig | None = None,
                        vehicle: RailVehicleParams | None = None, time: np.ndarray | None = None,
                        truth_spring_ratio: np.ndarray | None = None,
-                       truth_damper_ratio: np.ndarray | None = None) -> ImmRunResult:
+                       truth_damper_ratio: np.ndarray | None = None,
+                       store_covariance: bool = False) -> ImmRunResult:
     """Run the IMM over a recording.
 
     Args:
         measurements: (N, 3) [bogie lateral accel, bogie yaw rate, body lateral accel].
-        known_inputs: (N, 4) wheelset inputs (known-input mode) or None (process noise).
+        known_inputs: (N, 4) the monitored bogie's wheelset inputs, or (N, n_inputs) all the
+            model's inputs (known-input mode), or None (process noise).
         config: IMM configuration.
         vehicle: model parameters (Table 1 defaults).
         time: (N,) s; default k / sample_rate.
         truth_spring_ratio, truth_damper_ratio: (N,) ground truth kept for plots.
+        store_covariance: also keep the (N, n, n) combined covariance (slower).
     """
     z = np.asarray(measurements, dtype=float)
     if z.ndim != 2 or z.shape[1] != N_OUTPUTS:
         raise ValueError(f'measurements must have shape (N, {N_OUTPUTS}), got {z.shape}')
+    imm = SuspensionImm(config, vehicle)
     u = None
     if known_inputs is not None:
         u = np.asarray(known_inputs, dtype=float)
-        if u.shape != (z.shape[0], N_INPUTS):
-            raise ValueError(f'known_inputs must have shape ({z.shape[0]}, {N_INPUTS}), '
-                             f'got {u.shape}')
-    imm = SuspensionImm(config, vehicle)
+        if u.ndim != 2 or u.shape[0] != z.shape[0] or u.shape[1] not in imm._known_sizes[1:]:
+            raise ValueError(f'known_inputs must have shape ({z.shape[0]}, one of '
+                             f'{imm._known_sizes[1:]}), got {u.shape}')
     n, m = z.shape[0], imm.n_modes
     t = np.arange(n) / imm.config.sample_rate if time is None else np.asarray(time, float)
     if t.shape != (n,):
@@ -774,23 +922,28 @@ def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None
     mode_spring = np.empty((n, m))
     spring = np.empty(n)
     damper = np.empty(n)
-    state = np.empty((n, N_STATES))
-    cov = np.empty((n, N_STATES, N_STATES))
+    state = np.empty((n, imm.n_states))
+    cov = np.empty((n, imm.n_states, imm.n_states)) if store_covariance else None
     detected = np.zeros(n, dtype=bool)
     component = np.empty(n, dtype=object)
-    accepted = np.zeros(n, dtype=bool)
+    accepted = np.isfinite(z).all(axis=1)
+    if u is not None:
+        u_ok = np.isfinite(u).all(axis=1)
     for k in range(n):
-        out = imm.step(z[k], None if u is None else u[k])
-        prob[k] = out.probability
-        smooth[k] = out.smoothed_probability
-        mode_spring[k] = out.mode_spring_ratio
-        spring[k] = out.spring_ratio
-        damper[k] = out.damper_ratio
-        state[k] = out.state
-        cov[k] = out.covariance
-        detected[k] = out.fault.detected
-        component[k] = out.fault.component
-        accepted[k] = out.accepted
+        zk = z[k] if accepted[k] else None
+        uk = u[k] if u is not None and u_ok[k] else None
+        imm.advance(zk, uk)
+        prob[k] = imm.mu
+        smooth[k] = imm.smoothed
+        mode_spring[k] = imm._mode_spring_used
+        spring[k] = imm.spring_ratio
+        damper[k] = imm.damper_ratio
+        if cov is not None:
+            state[k], cov[k] = imm.combined()
+        else:
+            state[k] = imm.combined_state()
+        detected[k] = imm.fault.detected
+        component[k] = imm.fault.component
     return ImmRunResult(t, imm.modes, prob, smooth, mode_spring, imm.mode_damper_ratio.copy(),
                         spring, damper, state, cov, detected, component, accepted,
                         u is not None, truth_spring_ratio, truth_damper_ratio)

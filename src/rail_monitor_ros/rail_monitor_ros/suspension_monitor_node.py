@@ -1,8 +1,10 @@
 """``suspension_monitor``: secondary-suspension fault detection by IMM (SPEC §5) on ROS 2.
 
 Subscribes ``rail/bogie/imu`` (sensor_msgs/Imu: linear_acceleration.y, angular_velocity.z),
-``rail/body/imu`` (linear_acceleration.y) and optionally ``rail/track_irregularity``
-(TrackIrregularity: the monitored bogie's wheelsets are indices 0 and 1); publishes
+``rail/body/imu`` (linear_acceleration.y, the body accelerometer above the monitored front
+bogie) and optionally ``rail/track_irregularity`` (TrackIrregularity: wheelsets front to rear,
+the monitored bogie's are indices 0 and 1; with four entries and the full-car model all four
+are used); publishes
 ``rail/suspension/modes`` (ModeProbabilities) and ``/diagnostics``. The estimator is
 :class:`rail_monitor_ros.suspension_imm.SuspensionImm`; this node converts and checks messages.
 
@@ -58,6 +60,9 @@ class SuspensionMonitorParameters:
 
     sample_rate: float = param(200.0, 'IMU sample rate, Hz', low=1.0, high=10000.0,
                                read_only=True)
+    estimation_model: str = param('full_car', 'IMM model: full_car (bogies and body with yaw; '
+                                  'body IMU above the front bogie) or half_car (the paper)',
+                                  choices=('full_car', 'half_car'), read_only=True)
     spring_start: float = param(1.1, 'first spring-mode ratio', low=0.01, high=5.0,
                                 read_only=True)
     spring_stop: float = param(1.7, 'last spring-mode ratio', low=0.01, high=5.0,
@@ -78,8 +83,11 @@ class SuspensionMonitorParameters:
                                     low=0.0, high=60.0, read_only=True)
     adaptive: bool = param(True, 'damper modes take the estimated spring ratio (compound '
                            'faults)', read_only=True)
-    input_correlation_time: float = param(0.3, 'wheelset motion correlation time, s',
-                                          low=1e-3, high=100.0, read_only=True)
+    input_correlation_time: float = param(1.0, 'wheelset motion model slow pole (time '
+                                          'constant), s', low=1e-3, high=100.0,
+                                          read_only=True)
+    input_bandwidth: float = param(3.0, 'wheelset motion model fast pole, Hz', low=0.01,
+                                   high=100.0, read_only=True)
     wheelset_lateral_std: float = param(3e-3, 'wheelset lateral motion std, m', low=1e-9,
                                         high=1.0, read_only=True)
     wheelset_yaw_std: float = param(2e-3, 'wheelset yaw motion std, rad', low=1e-9, high=1.0,
@@ -100,8 +108,13 @@ class SuspensionMonitorParameters:
                              high=600.0)
     speed: float = param(40.0, 'forward speed for the known inputs (yaw = rate / speed), m/s',
                          low=0.1, high=150.0)
-    body_mass: float = param(11000.0, 'body mass carried by the bogie, kg', low=1.0,
-                             high=1e6, read_only=True)
+    body_mass: float = param(11000.0, 'body mass carried by one bogie (half the body), kg',
+                             low=1.0, high=1e6, read_only=True)
+    body_yaw_inertia: float = param(RailVehicleParams().body_yaw_inertia, 'body yaw inertia '
+                                    '(full car model), kg m^2', low=1.0, high=1e9,
+                                    read_only=True)
+    bogie_pivot_semi_spacing: float = param(9.5, 'body centre to bogie centre (full car '
+                                            'model), m', low=0.1, high=50.0, read_only=True)
     bogie_mass: float = param(2500.0, 'bogie mass, kg', low=1.0, high=1e5, read_only=True)
     bogie_yaw_inertia: float = param(2300.0, 'bogie yaw inertia, kg m^2', low=1.0, high=1e6,
                                      read_only=True)
@@ -140,13 +153,15 @@ class SuspensionMonitorParameters:
     def imm_config(self) -> SuspensionImmConfig:
         """The core's configuration."""
         return SuspensionImmConfig(
-            sample_rate=self.sample_rate, spring_start=self.spring_start,
+            sample_rate=self.sample_rate, estimation_model=self.estimation_model,
+            spring_start=self.spring_start,
             spring_stop=self.spring_stop, spring_step=self.spring_step,
             damper_start=self.damper_start, damper_stop=self.damper_stop,
             damper_step=self.damper_step, mean_sojourn_time=self.mean_sojourn_time,
             probability_floor=self.probability_floor,
             smoothing_window=max(self.smoothing_window, 1.0 / self.sample_rate),
             adaptive=self.adaptive, input_correlation_time=self.input_correlation_time,
+            input_bandwidth=self.input_bandwidth,
             wheelset_lateral_std=self.wheelset_lateral_std,
             wheelset_yaw_std=self.wheelset_yaw_std,
             known_input_lateral_std=self.known_input_lateral_std,
@@ -158,7 +173,8 @@ class SuspensionMonitorParameters:
     def vehicle(self) -> RailVehicleParams:
         """The model's vehicle parameters (sides split evenly)."""
         return RailVehicleParams(
-            body_mass=self.body_mass, bogie_mass=self.bogie_mass,
+            body_mass=self.body_mass, body_yaw_inertia=self.body_yaw_inertia,
+            bogie_pivot_semi_spacing=self.bogie_pivot_semi_spacing, bogie_mass=self.bogie_mass,
             bogie_yaw_inertia=self.bogie_yaw_inertia,
             primary_lateral_stiffness=self.primary_lateral_stiffness,
             primary_yaw_stiffness=self.primary_yaw_stiffness,
@@ -255,11 +271,13 @@ class SuspensionMonitor(Node):
         if alignment.size < 2 or (rate.size not in (0, alignment.size)):
             self._reject('track_irregularity_size')
             return
-        if not (np.all(np.isfinite(alignment[:2])) and np.all(np.isfinite(rate[:2]))):
+        # All four wheelsets when the model has the rear bogie, else the monitored bogie's.
+        used = 4 if alignment.size >= 4 and self.imm.n_inputs == 8 else 2
+        if not (np.all(np.isfinite(alignment[:used])) and np.all(np.isfinite(rate[:used]))):
             self._reject('track_irregularity_non_finite')
             return
-        self._track = (stamp_ns(msg.header.stamp), alignment[:2].copy(),
-                       rate[:2].copy() if rate.size else None)
+        self._track = (stamp_ns(msg.header.stamp), alignment[:used].copy(),
+                       rate[:used].copy() if rate.size else None)
 
     def _pair(self, stamp: int) -> None:
         """Match bogie and body samples by stamp; process the pairs in stamp order."""
@@ -305,8 +323,12 @@ class SuspensionMonitor(Node):
             self._track_state = f'stale ({age:.3f} s): process-noise model'
             return None
         self._track_state = 'fresh: known-input model'
-        return wheelset_inputs_from_track(alignment[None, :], None if rate is None
-                                          else rate[None, :], p.speed)[0]
+        # Per bogie [y_lead, y_trail, psi_lead, psi_trail], front bogie first.
+        return np.concatenate([
+            wheelset_inputs_from_track(alignment[None, i:i + 2],
+                                       None if rate is None else rate[None, i:i + 2],
+                                       p.speed)[0]
+            for i in range(0, alignment.size, 2)])
 
     def _process(self, stamp: int, z: np.ndarray) -> None:
         p = self.parameters
