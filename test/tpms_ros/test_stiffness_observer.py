@@ -1,23 +1,33 @@
-"""Tests of the Umeno tire-stiffness observer core on wheel speeds synthesised in the test.
+"""Tests of the Umeno tire-stiffness observer core.
 
-Truth: each wheel is the two-inertia model of ``tire_model`` (ZOH-discretised at 1 kHz) driven
-by seeded white road torque. The road torque is high-passed at 5 Hz because the model has no
-longitudinal tire force: without it the rigid-body mode would random-walk the wheel speed,
-which a rolling wheel does not. A small white sensor noise is added to the speed.
+Two kinds of data. (1) Wheel speeds synthesised in the test: each wheel is the two-inertia
+model of ``tire_model`` (ZOH-discretised at 1 kHz) driven by seeded white road torque,
+high-passed at 5 Hz because the model has no longitudinal tire force (without it the
+rigid-body mode would random-walk the wheel speed, which a rolling wheel does not), plus a
+small white sensor noise. (2) Seeded road-simulator runs (``road_simulator``: 48-tooth encoder
+with tooth-spacing error and tooth-period timing, driveline resonances on the rear axle),
+built from the shipped Umeno and diffusion scenarios with a shorter duration and one pressure
+level, for the SPEC §8 targets.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pytest
 import scipy.signal as sig
 
+from tpms_ros.road_scenario import ScenarioEvent, load_scenario
+from tpms_ros.road_simulator import RoadSimulationResult, simulate_scenario
 from tpms_ros.stiffness_observer import (
     PressureRelation,
     StiffnessObserverParams,
     TireStiffnessObserver,
+    ToothErrorCorrector,
     batch_least_squares,
     design_observer,
     extended_system,
@@ -197,7 +207,7 @@ def test_chunked_equals_one_shot_with_bad_samples():
     assert one.counters == many.counters
 
 
-def _driven_pressure_error(axle: str) -> np.ndarray:
+def _driven_pressure_error(axle: Literal['none', 'rear']) -> np.ndarray:
     """Pressure RMS error (kPa) after calibration, RL 15 % softer, driveline changing meanwhile."""
     cal = synthesize(np.full(4, MODEL.k), 60.0, seed=21, driveline=(15.0, 300.0))
     k_test = MODEL.k * np.array([1.0, 1.0, 0.85, 1.0])
@@ -334,6 +344,19 @@ def test_timing_faults_reset_and_are_counted():
     assert observer.counters['timing'][0] >= BLOCK and observer.counters['resets'] == before
 
 
+def test_tooth_rate_above_sample_rate_masks_wheel():
+    """Tooth edges faster than 0.9 x the sample rate lose the tooth count: 'speed_band'.
+
+    120 rad/s with 48 teeth is 917 edges/s at 1 kHz (a 0.3 m wheel at 130 km/h); with the
+    tooth correction off the same data are used.
+    """
+    omega = synthesize(np.full(4, MODEL.k), 3.0, seed=81) + (120.0 - OMEGA0)
+    on = run(TireStiffnessObserver(), omega)[-1]
+    assert on.status == ('speed_band',) * 4 and not on.valid.any()
+    off = run(TireStiffnessObserver(StiffnessObserverParams(tooth_correction=False)), omega)[-1]
+    assert 'speed_band' not in off.status
+
+
 def test_calibration_roundtrip_and_corrupt_dict_refused():
     """The calibration survives JSON; corrupt or mismatching dicts raise ValueError."""
     omega = synthesize(np.full(4, MODEL.k), 30.0, seed=71)
@@ -363,3 +386,139 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
         with pytest.raises(ValueError, match=key):
             fresh.load_calibration(bad)  # type: ignore[arg-type]
     assert not fresh.estimate().calibrated
+
+
+# --------------------------------------------------------------------------------------------
+# On the road simulator (SPEC §8 targets, issue 5 checks)
+
+SCENARIOS = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros' / 'scenarios'
+CALIBRATION_S = 30.0
+STEP_AT_S = 35.0
+STEADY_S = 15.0
+
+
+def _simulate(name: str, duration_s: float, events: tuple[ScenarioEvent, ...]
+              ) -> RoadSimulationResult:
+    """A shipped scenario with a shorter duration and the given pressure events."""
+    scenario = load_scenario(SCENARIOS / f'{name}.yaml')
+    return simulate_scenario(dataclasses.replace(scenario, duration_s=duration_s,
+                                                 events=events))
+
+
+def _run_simulated(result: RoadSimulationResult, params: StiffnessObserverParams
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Calibrate over the first CALIBRATION_S, feed 250-sample chunks as the node does.
+
+    Returns:
+        (update times, estimated pressure (N, 4), true pressure (N, 4), estimates).
+    """
+    observer = TireStiffnessObserver(params)
+    observer.start_calibration(CALIBRATION_S)
+    t, omega = result.wheel_speed_t, result.wheel_speed
+    est = [observer.update(omega[s:s + BLOCK], stamps=t[s:s + BLOCK])
+           for s in range(0, t.size - BLOCK + 1, BLOCK)]
+    stamps = np.array([e.stamp for e in est])
+    truth = np.column_stack([np.interp(stamps, result.handling.t, result.pressure_kpa[:, w])
+                             for w in range(4)])
+    return stamps, np.array([e.pressure_kpa for e in est]), truth, est
+
+
+@pytest.fixture(scope='module')
+def umeno_step() -> RoadSimulationResult:
+    """Umeno test, one level: 60 km/h smooth asphalt, FR and RL 200 -> 140 kPa at 35-38 s."""
+    return _simulate('umeno_step_60kmh_smooth_asphalt', 100.0, (
+        ScenarioEvent('pressure_step', STEP_AT_S, (1, 2), to_kpa=140.0, duration_s=3.0),))
+
+
+def _steady_rms(result: RoadSimulationResult, params: StiffnessObserverParams) -> np.ndarray:
+    """(4,) RMS pressure error over the last STEADY_S (about 4 RLS time constants after the
+    step); the calibration must have finished before the step."""
+    stamps, pressure, truth, est = _run_simulated(result, params)
+    calibrated_at = stamps[np.argmax([e.calibrated and not e.calibrating for e in est])]
+    assert est[-1].calibrated and calibrated_at < STEP_AT_S
+    steady = stamps > stamps[-1] - STEADY_S
+    return np.sqrt(np.mean((pressure[steady] - truth[steady]) ** 2, axis=0))
+
+
+def test_tooth_corrector_learns_the_simulated_ring_and_is_chunk_invariant():
+    """The learned per-tooth pattern is the simulated ring's spacing error; chunking is moot.
+
+    The simulator's tooth k spans ``pitch + e_(k+1) - e_k``, so its held speed is off by
+    ``-log(1 + (e_(k+1) - e_k) / pitch)``; the learned pattern must match it up to the unknown
+    ring angle (a cyclic shift).
+    """
+    result = _simulate('umeno_step_60kmh_smooth_asphalt', 15.0, ())
+    speed = result.wheel_speed
+    reference = sig.sosfiltfilt(sig.butter(2, 2.0, fs=FS, output='sos'), speed, axis=0)
+    learn = np.ones(speed.shape, dtype=bool)
+    whole = ToothErrorCorrector(4, 48, FS, 30.0, 0.5, BLOCK)
+    out_whole = whole.process(speed, reference, learn)
+    parts = ToothErrorCorrector(4, 48, FS, 30.0, 0.5, BLOCK)
+    rng = np.random.default_rng(7)
+    cuts = np.sort(rng.choice(np.arange(1, speed.shape[0]), 60, replace=False))
+    out_parts = np.concatenate([parts.process(speed[a:b], reference[a:b], learn[a:b])
+                                for a, b in zip(np.r_[0, cuts], np.r_[cuts, speed.shape[0]],
+                                                strict=True)])
+    np.testing.assert_allclose(out_parts, out_whole, rtol=1e-12)
+    pitch = 2 * np.pi / 48
+    for w in range(4):
+        error = result.tooth_error[w]
+        want = -np.log1p((np.roll(error, -1) - error) / pitch)
+        got = whole.pattern[w]
+        best = max(np.corrcoef(np.roll(got, k), want)[0, 1] for k in range(48))
+        # measured: 0.989-0.998 after 15 s; rms ratio 1.00-1.03
+        assert best > 0.97, (w, best)
+        assert got.std() == pytest.approx(want.std(), rel=0.1)
+
+
+def test_umeno_step_non_driven_meets_target_and_tooth_correction_earns_its_place(umeno_step):
+    """FR (non-driven) 200 -> 140 kPa on the simulator: steady-state error < 10 kPa.
+
+    FL is unchanged (no cross-talk: within 10 kPa). Without the tooth-error correction the
+    ring's spacing error flattens the spectrum and FR reads a fraction of the drop.
+    """
+    fixed = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='rear'))
+    # measured RMS (kPa, FL FR): 2.8, 1.4
+    assert fixed[1] < 10.0 and fixed[0] < 10.0, fixed
+    raw = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='rear',
+                                                          tooth_correction=False))
+    # measured RMS without tooth correction (FL FR): 4.0, 33.6
+    assert raw[1] > 3.0 * fixed[1], raw
+
+
+def test_umeno_step_driven_wheel_compensation_earns_its_place(umeno_step):
+    """RL (driven) 200 -> 140 kPa: compensated error within bounds, uncompensated visibly worse.
+
+    Known limit (asserted so a change shows): the in-phase driveline torque reaches the two
+    rims through tires of different stiffness once RL is soft, so eq. 14 does not cancel it
+    completely: the unchanged RR reads ~10 kPa low with compensation (cross-talk).
+    Without compensation RR is also off (8 kPa): the wandering driveline resonances move
+    its raw coefficient away from the calibration.
+    """
+    comp = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='rear'))
+    none = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='none'))
+    # measured RMS (kPa, RL RR): compensated 8.8 11.9, uncompensated 26.3 8.3
+    assert comp[2] < 12.0, comp
+    assert none[2] > 2.0 * comp[2], none
+    assert comp[3] < 15.0, comp
+
+
+@pytest.mark.parametrize('drop_kpa', [30.0, 50.0])
+def test_four_tire_diffusion_flagged_on_all_four_on_simulator(drop_kpa):
+    """Equal loss on all four tires (15 % and 25 %), 80 km/h with curves: all four flagged at
+    the default threshold (0.9: warn 20 kPa below placard). The relative (radius-comparison)
+    methods cannot see an equal loss at all.
+    """
+    result = _simulate('diffusion_15pct', 75.0, (
+        ScenarioEvent('pressure_step', STEP_AT_S, (0, 1, 2, 3), to_kpa=200.0 - drop_kpa,
+                      duration_s=5.0),))
+    params = StiffnessObserverParams(driven_axle='rear')
+    stamps, pressure, truth, est = _run_simulated(result, params)
+    before = (stamps > CALIBRATION_S + 1.0) & (stamps < STEP_AT_S)
+    after = stamps > stamps[-1] - 10.0
+    flags = np.array([e.underinflated for e in est])
+    assert not flags[before].any()
+    # measured: flagged in every update of the last 10 s on all four tires, first flags
+    # 10-20 s after the step starts; mean |error| 0.7-3.5 kPa
+    assert flags[after].mean(axis=0).min() > 0.9, flags[after].mean(axis=0)
+    assert np.all(np.abs(pressure[after] - truth[after]).mean(axis=0) < 10.0)

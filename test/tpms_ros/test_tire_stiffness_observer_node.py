@@ -178,12 +178,12 @@ def test_tracks_truth_calibrates_and_persists(
     late = (t_out > 12.0) & (t_out < 15.5)
     assert np.all(np.array([m.valid for m in harness.stiffness])[late])
     est = got[late].mean(axis=0)
-    # Unchanged tires stay near 200 kPa (block noise of a 3 s memory: tens of kPa).
-    assert np.all(np.abs(est[[0, 2, 3]] - 200.0) < 25.0), est
-    # FR (truth 140 kPa) reads clearly below the others; the core under-reads the step size
-    # on this simulator (about half of the 60 kPa drop), so only the direction is held tight.
+    # Unchanged tires stay near 200 kPa (measured 195.3-197.7, spread ~2 kPa).
+    assert np.all(np.abs(est[[0, 2, 3]] - 200.0) < 10.0), est
+    # FR (truth 140 kPa) follows the 60 kPa drop (measured 151.7 kPa: most of the rest is the
+    # lag of the 3.3 s RLS memory, 4-7.5 s after the step).
     assert truth[late, 1].mean() < 141.0
-    assert est[1] < est[[0, 2, 3]].mean() - 20.0, est
+    assert est[1] < 160.0 and est[1] < est[[0, 2, 3]].mean() - 35.0, est
 
     reloaded = make_node(TireStiffnessObserverNode, node_name='tire_stiffness_observer_2',
                          parameter_overrides=_overrides(params))

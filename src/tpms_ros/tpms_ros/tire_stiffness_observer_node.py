@@ -114,7 +114,7 @@ class StiffnessNodeParameters:
     pressure_slope: float = param(0.234375 / 0.4, 'K <-> pressure relation: relative stiffness '
                                   'change per relative pressure change (K/K0 = 1 - slope '
                                   '(1 - p/p0))', low=0.01, high=10.0)
-    warning_pressure_ratio: float = param(0.85, 'a tire is flagged below this fraction of its '
+    warning_pressure_ratio: float = param(0.9, 'a tire is flagged below this fraction of its '
                                           'nominal pressure', low=0.01, high=0.999)
     rolling_radius_m: float = param(0.3, 'nominal rolling radius for the speed gates, m',
                                     low=0.05, high=2.0)
