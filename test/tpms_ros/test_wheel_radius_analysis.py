@@ -117,9 +117,10 @@ def test_lateral_filter_equals_filterpy() -> None:
     w = drive.omega
     for i in range(drive.stamps.size):
         kf.predict()
+        # delta's coefficient from the axle's mean wheel speed (errors-in-variables fix)
         kf.H = np.array([[1, 0, 1, 0, 0],
-                         [1, 0, 0, -R_N * w[i, 2] / TRACK, 0],
-                         [1, 0, 0, 0, -R_N * w[i, 0] / TRACK]])
+                         [1, 0, 0, -R_N * 0.5 * (w[i, 2] + w[i, 3]) / TRACK, 0],
+                         [1, 0, 0, 0, -R_N * 0.5 * (w[i, 0] + w[i, 1]) / TRACK]])
         z = np.array([-drive.yaw_rate[i], R_N * (w[i, 2] - w[i, 3]) / TRACK,
                       R_N * (w[i, 0] - w[i, 1]) / TRACK])
         kf.update(z)

@@ -3,7 +3,13 @@
 The tire's torsional mode (40-50 Hz; the vertical mode is at 10-20 Hz) is excited by road
 roughness and shows in the wheel speed. Its frequency drops with pressure. Per wheel:
 
-1. pre-processing: de-trend and band-pass around the mode (Butterworth, ``sosfilt`` with
+1. pre-processing: tooth-error correction (the 48-tooth ring's spacing errors modulate the
+   measured speed periodically in wheel angle, lines at k x the rotation rate sweep through
+   the band with speed and pull the AR(2); Persson 2002 pre-processes for this): the pattern
+   is learned online per wheel by synchronous averaging of the relative speed deviation
+   against the integrated wheel angle (``TOOTH_HARMONICS`` Fourier coefficients, exponential
+   memory ``TOOTH_MEMORY_S``, vectorised with ``lfilter``) and divided out; then de-trend
+   and band-pass around the mode (Butterworth, ``sosfilt`` with
    carried state; the filter's initial state is the steady state of the first sample, so the
    large DC of the wheel speed does not ring), then decimation to ``analysis_rate_hz`` (the
    band-pass is the anti-alias filter);
@@ -46,6 +52,18 @@ VERTICAL_MODE_HZ = (10.0, 20.0)
 """The paper's vertical tire mode band, Hz."""
 
 CALIBRATION_VERSION = 1
+
+TOOTH_HARMONICS = 16
+"""Harmonics of the wheel revolution learned by the tooth-error correction. The encoder's
+tooth-spacing errors repeat every revolution, so they put lines at k x the wheel's rotation
+rate; 16 cover the passband from about 30 km/h up (k f_rev > 67 Hz above that)."""
+TOOTH_MEMORY_S = 20.0
+"""Memory of the synchronous averaging that learns the tooth-error pattern, s: long against
+the torsional vibration (not phase-locked to the wheel angle, it averages out), short against
+tyre or sensor changes."""
+_EWMA_BLOCK = 10_000
+TOOTH_SMOOTH_HZ = 3.0
+"""Corner of the low-pass giving the smooth wheel speed the tooth errors are relative to, Hz."""
 
 
 @dataclass(frozen=True)
@@ -275,14 +293,26 @@ def ar2_rls_reference(y: np.ndarray, forgetting: float, regularization: float) -
 
 
 class VibrationAnalyzer:
-    """Recursive AR(2) resonance estimate, calibration and indication for four tires."""
+    """Recursive AR(2) resonance estimate, calibration and indication for four tires.
 
-    def __init__(self, params: VibrationParams | None = None) -> None:
+    Args:
+        params: the parameters (defaults: :class:`VibrationParams`).
+        tooth_correction: learn and divide out the encoder's tooth-error pattern; off, the
+            band-pass sees the raw speed (e.g. to compare with the textbook RLS).
+    """
+
+    def __init__(self, params: VibrationParams | None = None, *,
+                 tooth_correction: bool = True) -> None:
         self.params = params if params is not None else VibrationParams()
+        self._tooth_correction = tooth_correction
         p = self.params
         self._sos = signal.butter(p.filter_order, p.passband_hz, btype='bandpass',
                                   fs=p.sample_rate_hz, output='sos')
         self._sos_zi_unit = signal.sosfilt_zi(self._sos)              # (sections, 2)
+        self._lp_sos = signal.butter(2, TOOTH_SMOOTH_HZ, fs=p.sample_rate_hz, output='sos')
+        self._lp_zi_unit = signal.sosfilt_zi(self._lp_sos)
+        self._tooth_lambda = math.exp(-1.0 / (TOOTH_MEMORY_S * p.sample_rate_hz))
+        self._harmonics = np.arange(1, TOOTH_HARMONICS + 1, dtype=float)
         self._lambda = p.forgetting
         self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
         self._stuck_samples = max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz)))
@@ -296,6 +326,12 @@ class VibrationAnalyzer:
     def reset_filters(self) -> None:
         """Restart pre-processing and RLS (after a gap in the data); keeps the calibration."""
         self._sos_state = np.zeros((self._sos.shape[0], 2, N_TIRES))
+        # tooth-error correction: integrated wheel angle, smooth-speed low-pass, and the
+        # exponentially weighted sums of (deviation x cos/sin k angle) and of the weights. The
+        # learned pattern is tied to the angle origin, so a gap restarts it too.
+        self._angle = np.zeros(N_TIRES)
+        self._lp_state = np.zeros((self._lp_sos.shape[0], 2, N_TIRES))
+        self._tooth_sum = np.zeros((TOOTH_HARMONICS + 1, N_TIRES), dtype=complex)
         self._wheel_started = np.zeros(N_TIRES, dtype=bool)
         self._last_good = np.full(N_TIRES, np.nan)      # held input for bad samples
         self._since_bad = np.full(N_TIRES, self._guard_samples, dtype=np.int64)
@@ -416,9 +452,12 @@ class VibrationAnalyzer:
         x_first = x[np.argmax(started, axis=0), np.arange(N_TIRES)]
         newly = has_good & ~self._wheel_started
         self._sos_state[:, :, newly] = self._sos_zi_unit[:, :, None] * x_first[newly]
+        self._lp_state[:, :, newly] = self._lp_zi_unit[:, :, None] * x_first[newly]
         self._wheel_started |= has_good
         x = np.where(started, x, np.where(has_good, x_first, 0.0))
         self._last_good = np.where(self._wheel_started, x[-1], np.nan)
+        if self._tooth_correction:
+            x = self._correct_tooth_error(x, started & ~bad & ~slow)
         y, self._sos_state = signal.sosfilt(self._sos, x, axis=0, zi=self._sos_state)
 
         # samples since the last bad/gated one, carried across chunks
@@ -465,6 +504,56 @@ class VibrationAnalyzer:
         if self._calibrating:
             self._accumulate_calibration(trace_hz)
         return self._estimate(trace_hz, keep)
+
+    def _correct_tooth_error(self, x: np.ndarray, learn: np.ndarray) -> np.ndarray:
+        """Learn the per-wheel tooth-error pattern on ``x`` (N, 4) and divide it out.
+
+        Model: measured = true * (1 + g(angle)), g periodic per revolution,
+        g = Re(sum_k c_k exp(i k angle)). The deviation r = x / smooth(x) - 1 is averaged
+        against exp(-i k angle) where ``learn``: c_k = 2 sum(w r exp(-i k angle)) / sum(w), with
+        exponential weights (memory ``TOOTH_MEMORY_S``), per sample so the result does not
+        depend on the chunking. The correction is applied in proportion to how much of the
+        memory is filled, so a fresh, noisy pattern is not divided out in full.
+        """
+        dt = 1.0 / self.params.sample_rate_hz
+        angle = self._angle + dt * np.cumsum(np.where(np.isfinite(x), x, 0.0), axis=0)
+        self._angle = np.mod(angle[-1], 2.0 * np.pi)
+        smooth, self._lp_state = signal.sosfilt(self._lp_sos, x, axis=0, zi=self._lp_state)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            deviation = np.where(learn & (smooth > 0.0), x / smooth - 1.0, 0.0)
+        # exp(i k angle) for k = 1..K by repeated products: a third of the cost of cos + sin
+        rotor = np.exp(1j * angle)
+        harmonics = np.empty((x.shape[0], TOOTH_HARMONICS, N_TIRES), dtype=complex)
+        harmonics[:, 0] = rotor
+        for k in range(1, TOOTH_HARMONICS):
+            np.multiply(harmonics[:, k - 1], rotor, out=harmonics[:, k])
+        products = np.concatenate([deviation[:, None, :] * harmonics.conj(),
+                                   learn.astype(float)[:, None, :]], axis=1)  # (N, K+1, 4)
+        sums = self._exponential_average(products)
+        filled = sums[:, -1, :].real                 # weight sum, in units of a full memory
+        with np.errstate(invalid='ignore', divide='ignore'):
+            coef = np.where(filled[:, None, :] > 0.0,
+                            2.0 * sums[:, :-1, :] / filled[:, None, :], 0.0)
+        pattern = np.einsum('nkw,nkw->nw', coef, harmonics).real           # (N, 4)
+        return x / (1.0 + np.clip(filled, 0.0, 1.0) * pattern)
+
+    def _exponential_average(self, values: np.ndarray) -> np.ndarray:
+        """s_n = lam s_(n-1) + (1 - lam) v_n along axis 0 with carried state, in closed form.
+
+        Equal to ``lfilter([1 - lam], [1, -lam])`` but a few vectorised passes (cumsum of
+        lam^-m v_m, rescaled); blocks of ``_EWMA_BLOCK`` samples keep lam^-m well scaled.
+        """
+        lam = self._tooth_lambda
+        out = np.empty_like(values)
+        for start in range(0, values.shape[0], _EWMA_BLOCK):
+            block = values[start:start + _EWMA_BLOCK]
+            m = np.arange(1, block.shape[0] + 1, dtype=float)
+            grow = ((1.0 - lam) * lam ** -m)[:, None, None]
+            acc = (self._tooth_sum[None] + np.cumsum(block * grow, axis=0)) \
+                * (lam ** m)[:, None, None]
+            out[start:start + block.shape[0]] = acc
+            self._tooth_sum = acc[-1].copy()
+        return out
 
     def _accumulate_calibration(self, trace_hz: np.ndarray) -> None:
         settle = int(round(self.params.calibration_settle_s * self.params.effective_rate_hz))

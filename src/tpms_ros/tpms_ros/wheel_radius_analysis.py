@@ -18,6 +18,10 @@ the outer wheels travel faster. The paper writes psi_dot = (v3 - v4) / L_rear, w
 J670 convention (z down, yaw rate positive turning right). With delta_34 = r3 / r4 - 1 and
 r4 ~ r_n this gives psi_dot_m,rear = r_n (omega3 - omega4) / L_rear
 = psi_dot - (r_n omega3 / L_rear) delta_34, hence the SPEC's H row (1, 0, 0, -r_n omega3 / L, 0).
+Deliberate deviation: the core puts the axle's mean speed (omega3 + omega4) / 2 in place of
+omega3 in H (second-order difference), because omega3's noise would otherwise sit in both the
+measurement and its regressor and bias delta along the ridge that is unobservable at constant
+speed (see ``process``).
 The IMU follows REP 103 (z up, yaw rate positive turning left), so the core feeds the filter
 psi_dot_gyro = -angular_velocity.z: then F and H are literally the SPEC's, psi_dot_m = (v_left -
 v_right) / track, and the state's yaw rate and gyro offset are in the SAE sense. The reported
@@ -114,6 +118,9 @@ class WheelRadiusParams:
         min_calibration_s: least seconds of valid updates per pair for a calibration, s.
         radius_noise_floor: floor of the per-tire radius noise (relative radius): wear,
             temperature and load shifts a calibration does not see.
+            Vehicle-specific: measure it on nominal driving with speed changes (on the
+            road simulator's car the offsets wander ~0.7e-3 rms, 2e-3 peak, around the truth
+            while a calibration on steady cruising sees almost none of it: 1e-3 there).
         informative_std: a pair whose posterior std exceeds this carries no information.
         z_flag: flag a tire whose radius drop exceeds this many noise sigmas.
         z_full: radius drop in sigmas at which the confidence reaches 1.
@@ -284,6 +291,78 @@ class RadiusEstimate:
     counts: dict[str, int]
     gyro_ok: bool
     calibrated: bool
+
+
+def bin_wheel_speeds(wheel_stamps_s: np.ndarray, omega: np.ndarray, bin_ends_s: np.ndarray,
+                     bin_s: float, max_wheel_speed: float) -> np.ndarray:
+    """Mean wheel speed over each bin (max(previous end, end - bin_s), end], vectorised.
+
+    The offline form of the ``wheel_radius_analyzer`` node's alignment: each IMU stamp closes a
+    bin of at most ``bin_s``; the wheel speeds stamped in it are averaged. A wheel with a bad
+    sample in its bin (non-finite, negative, above ``max_wheel_speed``) is NaN there (the core
+    rejects it); an empty bin is all NaN.
+
+    Args:
+        wheel_stamps_s: (N,) increasing wheel-speed stamps, s.
+        omega: (N, 4) wheel speeds, rad/s.
+        bin_ends_s: (M,) increasing bin ends (IMU stamps), s.
+        bin_s: longest bin, s (1 / the core's sample rate).
+        max_wheel_speed: wheel speeds above this are bad, rad/s.
+
+    Returns:
+        (M, 4) mean wheel speed per bin.
+    """
+    stamps = np.asarray(wheel_stamps_s, dtype=float)
+    omega = np.asarray(omega, dtype=float)
+    ends = np.asarray(bin_ends_s, dtype=float)
+    if stamps.ndim != 1 or omega.shape != (stamps.size, N_TIRES) or ends.ndim != 1:
+        raise ValueError(f'bin_wheel_speeds: expected stamps (N,), omega (N, 4), bin ends '
+                         f'(M,); got {stamps.shape}, {omega.shape}, {ends.shape}')
+    if not (math.isfinite(bin_s) and bin_s > 0.0):
+        raise ValueError(f'bin_wheel_speeds: bin_s must be finite and > 0, got {bin_s}')
+    starts = np.maximum(np.concatenate([[-math.inf], ends[:-1]]), ends - bin_s)
+    with np.errstate(invalid='ignore'):
+        bad = ~np.isfinite(omega) | (omega < 0.0) | (omega > max_wheel_speed)
+    # cumulative sums over the samples give every bin's sum and bad count in one pass
+    csum = np.vstack([np.zeros(N_TIRES), np.cumsum(np.where(bad, 0.0, omega), axis=0)])
+    cbad = np.vstack([np.zeros(N_TIRES, dtype=np.int64), np.cumsum(bad, axis=0)])
+    lo = np.searchsorted(stamps, starts, side='right')
+    hi = np.searchsorted(stamps, ends, side='right')
+    count = (hi - lo)[:, None]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        mean = (csum[hi] - csum[lo]) / count
+    return np.where((count > 0) & (cbad[hi] - cbad[lo] == 0), mean, np.nan)
+
+
+def sample_and_hold(source_stamps_s: np.ndarray, values: np.ndarray, query_s: np.ndarray,
+                    max_age_s: float) -> np.ndarray:
+    """The newest value stamped at or before each query time; NaN where none or too old.
+
+    The offline form of the nodes' driver-input hold (torque and steering at a bin's stamp).
+
+    Args:
+        source_stamps_s: (K,) increasing stamps of the held signal, s.
+        values: (K,) or (K, D) values.
+        query_s: (M,) query times, s.
+        max_age_s: a value older than this at the query is stale (NaN), s.
+
+    Returns:
+        (M,) or (M, D) held values.
+    """
+    src = np.asarray(source_stamps_s, dtype=float)
+    vals = np.asarray(values, dtype=float)
+    query = np.asarray(query_s, dtype=float)
+    if src.ndim != 1 or vals.shape[0] != src.size or query.ndim != 1:
+        raise ValueError(f'sample_and_hold: expected stamps (K,), values (K, ...), query (M,); '
+                         f'got {src.shape}, {vals.shape}, {query.shape}')
+    if not src.size:
+        return np.full((query.size,) + vals.shape[1:], np.nan)
+    index = np.searchsorted(src, query, side='right') - 1
+    safe = np.maximum(index, 0)
+    fresh = (index >= 0) & (query - src[safe] <= max_age_s)
+    held = vals[safe]
+    mask = fresh.reshape((-1,) + (1,) * (vals.ndim - 1))
+    return np.where(mask, held, np.nan)
 
 
 def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
@@ -472,8 +551,16 @@ class WheelRadiusAnalyzer:
         # wheel-based yaw rates, SAE sign (v_left - v_right) / track
         yaw_rear = r_n * (w[:, 2] - w[:, 3]) / p.track_rear_m
         yaw_front = r_n * (w[:, 0] - w[:, 1]) / (p.track_front_m * cos_steer)
-        c_rear = r_n * w[:, 2] / p.track_rear_m
-        c_front = r_n * w[:, 0] / (p.track_front_m * cos_steer)
+        # H's coefficient of delta uses the axle's mean wheel speed, not omega3 / omega1 as
+        # written in the paper: the measurement r_n (omega3 - omega4) / L carries omega3's noise
+        # too, and with omega3 in H that common noise is an errors-in-variables regressor that
+        # drags delta towards -1 along the (delta_o, delta) ridge left unobservable at
+        # constant speed (measured: delta_34 = -4.6 % and a gyro offset of -1 rad/s after
+        # 90 s of steady cruising on the road simulator). (omega3 + omega4) / 2 has noise
+        # uncorrelated with omega3 - omega4 when the two wheels are equally noisy; the
+        # difference to the paper's coefficient is second order (delta x psi_dot / 2).
+        c_rear = r_n * 0.5 * (w[:, 2] + w[:, 3]) / p.track_rear_m
+        c_front = r_n * 0.5 * (w[:, 0] + w[:, 1]) / (p.track_front_m * cos_steer)
         n_ok = wheel_ok.sum(axis=1)
         speed = r_n * w.sum(axis=1) / np.maximum(n_ok, 1)
         yaw_wheels = np.where(rear_ok, yaw_rear, yaw_front)
