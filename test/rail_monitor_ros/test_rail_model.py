@@ -23,7 +23,6 @@ from rail_monitor_ros.rail_model import (
     max_real_eigenvalue,
     modal_frequencies,
     reduced_bogie_body_model,
-    reduced_full_car_model,
     vehicle_modes,
     wheelset_inputs_from_track,
 )
@@ -263,48 +262,3 @@ def test_track_profile_has_the_published_spectrum() -> None:
     sigma = math.sqrt(spectrum.variance(1.0, 120.0))
     assert sigma == pytest.approx(1.86e-3, rel=0.01)
     assert np.std(profile.alignment) == pytest.approx(sigma, rel=0.15)
-
-
-@pytest.mark.parametrize('spring, damper', [(1.0, 1.0), (1.5, 0.5)])
-def test_reduced_full_car_is_the_full_car_with_wheelsets_as_inputs(spring: float,
-                                                                   damper: float) -> None:
-    """Its A, B, C, D are the full car's bogie and body rows, the wheelset columns as inputs,
-    and the front bogie's sensor rows (front spring/damper ratio applied, rear nominal)."""
-    full = full_car_state_space(PARAMS, 1.0, (spring, 1.0), (damper, 1.0))
-    reduced = reduced_full_car_model(PARAMS, spring, damper)
-    rows = [full.state_names.index(n) for n in reduced.state_names]
-    # Wheelset displacement columns; the full car's wheelset rates do not act on the bogies.
-    cols = [full.state_names.index(n) for n in reduced.input_names]
-    np.testing.assert_allclose(reduced.a, full.a[np.ix_(rows, rows)], rtol=1e-12, atol=1e-9)
-    np.testing.assert_allclose(reduced.b, full.a[np.ix_(rows, cols)], rtol=1e-12, atol=1e-9)
-    rates = [full.state_names.index(f'd{n}') for n in reduced.input_names]
-    assert np.all(full.a[np.ix_(rows, rates)] == 0.0)
-    np.testing.assert_allclose(reduced.c, full.c[:3][:, rows], rtol=1e-12, atol=1e-9)
-    np.testing.assert_allclose(reduced.d, full.c[:3][:, cols], rtol=1e-12, atol=1e-9)
-    assert reduced.output_names == ('ddy_b1', 'dpsi_b1', 'ddy_v_above_b1')
-    # Free of the creep terms and stable (the bogies hang on the primary springs).
-    assert np.max(np.linalg.eigvals(reduced.a).real) < 0.0
-
-
-def test_reduced_full_car_reproduces_the_full_car_sensors() -> None:
-    """Driven by a full-car response's wheelset motion, its outputs equal the full car's front
-    sensors to rounding: the model error of the IMM is only in the unknown inputs."""
-    full = full_car_state_space(PARAMS)
-    reduced = reduced_full_car_model(PARAMS)
-    rng = np.random.default_rng(5)
-    t = np.arange(2000) * 0.005
-    track = np.cumsum(rng.standard_normal((t.size, 4)), axis=0) * 1e-5
-    _, y, x = scipy.signal.lsim((full.a, full.b, full.c, full.d), track, t)
-    x_red = x[:, [full.state_names.index(n) for n in reduced.state_names]]
-    u_red = x[:, [full.state_names.index(n) for n in reduced.input_names]]
-    y_red = x_red @ reduced.c.T + u_red @ reduced.d.T
-    np.testing.assert_allclose(y_red, y[:, :3], rtol=0, atol=1e-9 * np.abs(y[:, :3]).max())
-    assert np.abs(y[:, :3]).max() > 1e-3
-
-
-def test_reduced_full_car_refuses_bad_ratios() -> None:
-    """Ratios outside (0, 5] raise ValueError naming the parameter."""
-    with pytest.raises(ValueError, match='damper_ratio'):
-        reduced_full_car_model(PARAMS, 1.0, 0.0)
-    with pytest.raises(ValueError, match='spring_ratio'):
-        reduced_full_car_model(PARAMS, math.nan, 1.0)

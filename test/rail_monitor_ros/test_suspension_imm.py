@@ -1,7 +1,7 @@
 """IMM suspension fault detection (SPEC §5): mode set, transitions, filterpy equivalence, the
-paper's scenario on the rail simulator's 14-DOF full car (full-car estimation model) and on the
-paper's own truth (7-DOF half car, half-car model), the healthy run, numerical health and bad
-input."""
+paper's scenario on the rail simulator's 14-DOF full car (full-car estimation model driven by
+the track) and on the paper's own truth (7-DOF half car, half-car model), healthy runs,
+numerical health and bad input."""
 
 from __future__ import annotations
 
@@ -9,14 +9,12 @@ from dataclasses import replace
 from functools import cache
 import math
 from pathlib import Path
+import sys
 
 import numpy as np
 import pytest
 
-from rail_monitor_ros.rail_model import (
-    REDUCED_FULL_CAR_INPUT_NAMES,
-    wheelset_inputs_from_track,
-)
+from rail_monitor_ros.rail_model import RailVehicleParams
 from rail_monitor_ros.rail_scenario import shipped_scenario
 from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
 from rail_monitor_ros.suspension_imm import (
@@ -30,6 +28,7 @@ from rail_monitor_ros.suspension_imm import (
     markov_transition_matrix,
     plot_mode_probabilities,
     run_suspension_imm,
+    track_shaping_model,
 )
 
 
@@ -117,7 +116,13 @@ def test_bad_configuration_is_refused(kwargs: dict[str, object], match: str) -> 
 
 
 def test_batched_imm_matches_filterpy_imm_estimator() -> None:
-    """Same fixed mode set, same data: mode probabilities and combined state as filterpy's."""
+    """Same fixed mode set, same data: mode probabilities and combined state as filterpy's.
+
+    Compared while every filterpy likelihood is representable: filterpy multiplies plain
+    likelihoods and floors an underflowed one (log-likelihood below ~-708) at the smallest
+    float, which the log-space IMM does not do. On this stretch that first happens about 0.9 s
+    after the fault; by then the spring fault has moved the probabilities.
+    """
     from filterpy.kalman import IMMEstimator, KalmanFilter
 
     z = _imu(_simulation('rail_imm_spring_damper_fault'))[500:900]   # spans the fault at 3 s
@@ -134,56 +139,96 @@ def test_batched_imm_matches_filterpy_imm_estimator() -> None:
         kf.R = imm._r_sensor.copy()
         filters.append(kf)
     reference = IMMEstimator(filters, imm.mu.copy(), imm.transition.copy())
-    worst_mu, worst_x = 0.0, 0.0
+    worst_mu, worst_x, compared = 0.0, 0.0, 0
+    lowest = math.log(sys.float_info.min)
     for k, sample in enumerate(z):
         if k > 0:
             reference.predict()
         reference.update(sample)
         out = imm.step(sample)
+        if min(f.log_likelihood for f in filters) < lowest:
+            break
+        compared += 1
         worst_mu = max(worst_mu, float(np.max(np.abs(out.probability - reference.mu))))
         n = imm.n_states
         scale = np.maximum(np.abs(reference.x[:n]), 1e-9)
         worst_x = max(worst_x, float(np.max(np.abs(out.state - reference.x[:n]) / scale)))
+    assert compared > 150, compared
     assert worst_mu < 1e-8, worst_mu
     assert worst_x < 1e-6, worst_x
-    # The run is not trivial: the spring fault moved the probabilities.
+    # The compared stretch is not trivial: the spring fault moved the probabilities.
     assert reference.mu[0] < 0.5
 
 
-def test_paper_scenario_on_the_full_car_simulator() -> None:
-    """Spring 150 % at 3 s, damper 50 % added at 6 s, 14-DOF full-car truth, inputs as noise.
+def _non_normal(res: ImmRunResult) -> np.ndarray:
+    """(N,) largest smoothed probability of a mode that is not normal-equivalent (the
+    adaptive damper_100 mode at spring 1.0 is normal)."""
+    faulty = ((np.abs(res.mode_spring_ratio - 1.0) > 0.05)
+              | (np.abs(res.mode_damper_ratio - 1.0) > 0.05)[None, :])
+    return np.where(faulty, res.smoothed_probability, 0.0).max(axis=1)
 
-    Measured (seed 3): spring_150 smoothed > 0.5 0.125 s after the fault (target 0.5 s met),
-    damper_50 0.35 s after 6 s (target 1 s met), but before 3 s spring_150 reaches 0.44 at
-    0.5-2 s (target 0.2 NOT met; no fault declared before 3 s).
+
+def test_paper_scenario_on_the_full_car_simulator() -> None:
+    """Spring 150 % at 3 s, damper 50 % added at 6 s, 14-DOF full-car truth, track unknown.
+
+    Targets met (seed 3, measured): spring_150 smoothed > 0.5 0.075 s after the fault (target
+    0.5 s), damper_50 0.115 s after 6 s (target 1 s), non-normal modes <= 0.06 before 3 s
+    (target 0.2); estimates 1.50 / 0.50 after 7 s; declared 0.34 s and 0.38 s after the faults.
     """
     res = _paper_run()
     before = res.time < 3.0
     assert res.first_time_above('spring_150', 0.5, 3.0) - 3.0 < 0.5
     assert res.first_time_above('damper_50', 0.5, 6.0) - 6.0 < 1.0
     assert not res.fault_detected[before].any()
-    assert res.smoothed_probability[before, 1:].max() < 0.6
+    assert _non_normal(res)[before].max() < 0.2
     spring_window = (res.time > 4.0) & (res.time < 6.0)
-    assert abs(res.spring_ratio[spring_window].mean() - 1.5) < 0.1
+    assert abs(res.spring_ratio[spring_window].mean() - 1.5) < 0.05
     late = res.time > 7.0
-    assert abs(res.damper_ratio[late].mean() - 0.5) < 0.1
-    assert res.first_detection('spring+damper', 6.0) - 6.0 < 1.5
+    assert abs(res.spring_ratio[late].mean() - 1.5) < 0.05
+    assert abs(res.damper_ratio[late].mean() - 0.5) < 0.05
+    assert res.first_detection('spring', 3.0) - 3.0 < 0.75
+    assert res.first_detection('spring+damper', 6.0) - 6.0 < 0.75
 
 
-def test_full_car_model_is_right_given_the_wheelset_motion() -> None:
-    """With the true wheelset motion as known inputs the full-car model fits the simulator:
-    20 s healthy, no fault, every non-normal mode below 0.2 after the first second (measured
-    0.16). Separates model structure from the unknown-input model."""
-    r = simulate(replace(shipped_scenario('rail_healthy'), duration=20.0))
-    u = np.column_stack([r.state_column(n) for n in REDUCED_FULL_CAR_INPUT_NAMES])
-    config = SuspensionImmConfig(known_input_lateral_std=1e-5, known_input_yaw_std=1e-5)
-    res = run_suspension_imm(_imu(r), u, config, time=r.time)
-    assert res.known_input
+def test_track_shaping_model_has_the_track_spectrum_and_delays() -> None:
+    """The track model's variance is the spectrum's integral and its outputs are the first
+    wheelset's alignment delayed by distance / speed (gain 1, phase within 2 degrees at 4 Hz
+    and 40 m/s, a 10 m wavelength)."""
+    import scipy.linalg
+
+    v = RailVehicleParams()
+    roughness, omega_c, omega_r = 2.119e-7, 0.8246, 0.0206
+    track = track_shaping_model(roughness, omega_c, omega_r, 40.0, v.wheelset_offsets, 5.0)
+    cov = scipy.linalg.solve_continuous_lyapunov(
+        track.a, -track.noise_density * np.outer(track.g, track.g))
+    variance = math.pi * roughness * omega_c / (2 * omega_r * (omega_r + omega_c))
+    np.testing.assert_allclose(np.diag(track.c @ cov @ track.c.T), variance, rtol=1e-6)
+    omega = 2 * math.pi * 4.0
+    response = track.c @ np.linalg.solve(1j * omega * np.eye(track.a.shape[0]) - track.a,
+                                         track.g)
+    ratio = response / response[0]
+    np.testing.assert_allclose(np.abs(ratio), 1.0, atol=1e-9)
+    phase_error = np.angle(ratio * np.exp(1j * omega * v.wheelset_offsets / 40.0))
+    assert np.max(np.abs(phase_error)) < math.radians(2.0)
+    with pytest.raises(ValueError, match='speed'):
+        track_shaping_model(roughness, omega_c, omega_r, 0.0, v.wheelset_offsets, 5.0)
+
+
+@cache
+def _full_car_healthy_run() -> ImmRunResult:
+    r = simulate(replace(shipped_scenario('rail_healthy'), duration=10.0))
+    return run_suspension_imm(_imu(r), None, time=r.time)
+
+
+def test_healthy_full_car_declares_no_fault() -> None:
+    """10 s healthy on the full-car simulator, track unknown: no fault, non-normal modes below
+    0.3, spring and damper estimates within 5 %. (Over 10 minutes, benchmark: no fault, non-normal
+    above 0.2 for 0.1 % of the time, one 0.13 s excursion of damper_90 to 0.97.)"""
+    res = _full_car_healthy_run()
     assert not res.fault_detected.any()
-    faulty = ((np.abs(res.mode_spring_ratio - 1.0) > 0.05)
-              | (np.abs(res.mode_damper_ratio - 1.0) > 0.05)[None, :])
-    assert np.where(faulty, res.smoothed_probability, 0.0)[res.time > 1.0].max() < 0.2
-    assert np.all(np.abs(res.damper_ratio[res.time > 1.0] - 1.0) < 0.1)
+    assert _non_normal(res).max() < 0.3
+    assert np.all(np.abs(res.spring_ratio - 1.0) < 0.05)
+    assert np.all(np.abs(res.damper_ratio - 1.0) < 0.05)
 
 
 def test_paper_scenario_on_the_half_car_truth() -> None:
@@ -211,23 +256,34 @@ def test_probabilities_and_covariances_stay_healthy_over_a_long_run() -> None:
     np.testing.assert_allclose(res.probability.sum(axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(res.smoothed_probability.sum(axis=1), 1.0, atol=1e-9)
     assert res.probability.min() >= 0.9 * SuspensionImmConfig().probability_floor
-    eig = np.linalg.eigvalsh(res.covariance)
-    assert eig.min() > 0.0
+    assert _semi_definite(res.covariance)
     np.testing.assert_allclose(res.covariance, res.covariance.transpose(0, 2, 1), atol=0.0)
 
 
+def _semi_definite(p: np.ndarray) -> bool:
+    """Every covariance in the stack is positive semi-definite up to rounding (the full-car
+    covariances are nearly singular by nature: condition numbers ~1e26)."""
+    eig = np.linalg.eigvalsh(p)
+    return bool(np.all(eig.min(axis=-1) > -1e-9 * eig.max(axis=-1)))
+
+
 def test_bank_covariances_spd_and_repair() -> None:
-    """Every mode's covariance is SPD after a run; a corrupted one is detected and repaired."""
+    """Every mode's covariance is semi-definite after a run; a corrupted one is detected and
+    restarted from the prior, the others are left alone."""
     z = _imu(_simulation('rail_imm_spring_damper_fault'))
     imm = SuspensionImm()
     for sample in z[:400]:
         imm.step(sample)
-    assert np.linalg.eigvalsh(imm.P).min() > 0.0
+    assert _semi_definite(imm.P)
     imm.P[3] = -np.eye(imm.P.shape[1])
     before = imm.covariance_repairs
+    kept = imm.P[5].copy()
+    imm._repair_covariances()
+    assert imm.covariance_repairs == before + 1
+    np.testing.assert_array_equal(imm.P[3], imm._p0)
+    np.testing.assert_array_equal(imm.P[5], kept)
     out = imm.step(z[400])
-    assert imm.covariance_repairs > before
-    assert np.linalg.eigvalsh(imm.P).min() > 0.0
+    assert _semi_definite(imm.P)
     assert np.all(np.isfinite(out.probability))
 
 
@@ -264,9 +320,8 @@ def test_extreme_outlier_does_not_collapse_modes() -> None:
 
 
 def test_adaptive_step_moves_damper_modes_to_the_estimated_spring() -> None:
-    """Between the spring fault and the damper fault the damper modes carry ~1.5; without
-    adaptation they stay 1. (Full car: after the damper fault the spring estimate falls to
-    ~1.25, a known limitation.)"""
+    """Between the spring fault and the damper fault, and after it, the damper modes carry
+    ~1.5; without adaptation they stay 1."""
     res = _paper_run()
     damper = [i for i, m in enumerate(res.modes) if m.kind == 'damper']
     late = (res.time > 4.0) & (res.time < 6.0)
@@ -274,25 +329,26 @@ def test_adaptive_step_moves_damper_modes_to_the_estimated_spring() -> None:
     assert np.all(carried == carried[:, :1])
     assert abs(np.median(carried) - 1.5) < 0.05
     assert np.mean(np.abs(carried - 1.5) < 0.1) > 0.7
-    # Before the fault mostly nominal (the excursions toward stiffer springs at 0.5-2 s move
-    # them for a while).
-    assert np.median(res.mode_spring_ratio[res.time < 2.9][:, damper]) == pytest.approx(1.0)
+    after = res.mode_spring_ratio[res.time > 7.0][:, damper]
+    assert abs(np.median(after) - 1.5) < 0.05
+    assert np.all(res.mode_spring_ratio[res.time < 2.9][:, damper] < 1.05)
     z = _imu(_simulation('rail_imm_spring_damper_fault'))
-    fixed = run_suspension_imm(z[:1300], None,
+    fixed = run_suspension_imm(z[:700], None,
                                replace(SuspensionImmConfig(), adaptive=False))
     assert np.all(fixed.mode_spring_ratio[:, damper] == 1.0)
 
 
 def test_known_input_mode_is_used_when_given() -> None:
-    """With the measured track alignment under all four wheelsets the known-input model runs
-    and still sees the spring fault."""
+    """With the measured track alignment under all four wheelsets (the track model's outputs
+    measured) the known-input model runs, stays quiet before the fault and sees it."""
     r = _simulation('rail_imm_spring_damper_fault')
-    known = np.hstack([wheelset_inputs_from_track(r.measured_track_alignment[:, i:i + 2],
-                                                  r.measured_track_alignment_rate[:, i:i + 2],
-                                                  r.speed) for i in (0, 2)])
-    res = run_suspension_imm(_imu(r)[:1100], known[:1100], time=r.time[:1100])
+    rows = slice(0, 1100)
+    res = run_suspension_imm(_imu(r)[rows], r.measured_track_alignment[rows],
+                             time=r.time[rows])
     assert res.known_input
-    assert res.spring_ratio[-200:].mean() > 1.3
+    assert _non_normal(res)[res.time < 3.0].max() < 0.2
+    assert res.first_time_above('spring_150', 0.5, 3.0) - 3.0 < 0.5
+    assert abs(res.spring_ratio[-200:].mean() - 1.5) < 0.05
 
 
 def test_fault_decision_holds_and_clears_symmetrically() -> None:

@@ -213,7 +213,9 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
 
 
 def test_parameters_validated(make_node: Callable[..., Any]) -> None:
-    """A bad grid is refused at start; a bad runtime threshold is refused, a good one taken."""
+    """A bad grid is refused at start; a bad runtime threshold is refused, a good one taken;
+    a speed change re-discretises the full-car bank (its creep forces and track delays
+    depend on it)."""
     with pytest.raises(ConfigurationError, match='spring_stop|mean_sojourn'):
         make_node(SuspensionMonitor, parameter_overrides=[
             Parameter('mean_sojourn_time', value=0.001)])
@@ -222,5 +224,9 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
     assert not result.successful and 'fault_threshold' in result.reason
     (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])
     assert result.successful and node.imm.decision.threshold == 0.8
+    f_before = node.imm._f.copy()
+    (result,) = node.set_parameters([Parameter('speed', value=30.0)])
+    assert result.successful and node.imm.vehicle.speed == 30.0
+    assert not np.allclose(node.imm._f, f_before)
     (result,) = node.set_parameters([Parameter('body_mass', value=9000.0)])
     assert not result.successful

@@ -585,58 +585,6 @@ def _wheelsets_as_inputs(asm: _Assembly, kept: Sequence[str], inputs: Sequence[s
     return a, b
 
 
-REDUCED_FULL_CAR_STATE_NAMES = (
-    'y_b1', 'dy_b1', 'psi_b1', 'dpsi_b1', 'y_b2', 'dy_b2', 'psi_b2', 'dpsi_b2',
-    'y_v', 'dy_v', 'psi_v', 'dpsi_v')
-# The monitored (front) bogie's wheelsets first, in the order of REDUCED_INPUT_NAMES.
-REDUCED_FULL_CAR_INPUT_NAMES = (
-    'y_w1', 'y_w2', 'psi_w1', 'psi_w2', 'y_w3', 'y_w4', 'psi_w3', 'psi_w4')
-
-
-def reduced_full_car_model(params: RailVehicleParams, spring_ratio: float = 1.0,
-                           damper_ratio: float = 1.0) -> StateSpace:
-    """The full car with the wheelset motion removed: an IMM estimation model for the sensors
-    where a real car has them (the body accelerometer above the front bogie).
-
-    Both bogies (lateral, yaw) and the body (lateral, yaw), with rates: state
-    x = [y_b1, y_b1', psi_b1, psi_b1', y_b2, ..., y_v, y_v', psi_v, psi_v']. The body
-    accelerometer above the front bogie measures y_v'' + lv psi_v''; without body yaw (the
-    half car of :func:`reduced_bogie_body_model`) the body looks lighter there and the rear
-    bogie's and the anti-yaw dampers' moments are missing. The rear bogie is unmeasured but
-    modelled: its secondary forces on the body follow from its states.
-
-    Inputs u = [y_w1, y_w2, psi_w1, psi_w2, y_w3, y_w4, psi_w3, psi_w4] (front bogie's
-    wheelsets first), the wheelsets acting through the primary suspension as in
-    :func:`reduced_bogie_body_model` (known from the track, or process noise). Outputs: the
-    front bogie's sensors [bogie lateral acceleration, bogie yaw rate, body lateral
-    acceleration above the bogie] (``FULL_CAR_SENSOR_OUTPUT_NAMES[:3]``). The bogie, body and
-    suspension matrices are those of :func:`full_car_state_space` (same assembly code).
-
-    Args:
-        params: vehicle parameters (the speed is not used).
-        spring_ratio: Ksy multiplier of the monitored (front) bogie, in (0, 5]; rear nominal.
-        damper_ratio: Csy multiplier of the front bogie, in (0, 5]; rear nominal.
-    """
-    sr = _check_ratio('spring_ratio', spring_ratio, MAX_SUSPENSION_RATIO)
-    dr = _check_ratio('damper_ratio', damper_ratio, MAX_SUSPENSION_RATIO)
-    kept = ('y_b1', 'psi_b1', 'y_b2', 'psi_b2', 'y_v', 'psi_v')
-    asm = _Assembly(kept + REDUCED_FULL_CAR_INPUT_NAMES, ())
-    for i, (bogie, lead_sign) in enumerate((('b1', 1.0), ('b1', -1.0), ('b2', 1.0),
-                                           ('b2', -1.0))):
-        _primary(asm, params, f'w{i + 1}', bogie, lead_sign)
-    _full_car_bogies_and_body(asm, params, np.array([sr, 1.0]), np.array([dr, 1.0]))
-    a, b = _wheelsets_as_inputs(asm, kept, REDUCED_FULL_CAR_INPUT_NAMES)
-    names = REDUCED_FULL_CAR_STATE_NAMES
-    lv = params.bogie_pivot_semi_spacing
-    cb, db = _rows_of_derivative(a, b, names, 'y_b1')
-    cy, dy = _rows_of_derivative(a, b, names, 'y_v')
-    cp, dp = _rows_of_derivative(a, b, names, 'psi_v')
-    c_out = np.array([cb, np.eye(len(names))[names.index('dpsi_b1')], cy + lv * cp])
-    d_out = np.array([db, np.zeros(b.shape[1]), dy + lv * dp])
-    return StateSpace(a, b, c_out, d_out, names, REDUCED_FULL_CAR_INPUT_NAMES,
-                      FULL_CAR_SENSOR_OUTPUT_NAMES[:3])
-
-
 def wheelset_inputs_from_track(alignment: np.ndarray, alignment_rate: np.ndarray | None,
                                speed: float | np.ndarray) -> np.ndarray:
     """Known inputs of :func:`reduced_bogie_body_model` from the track alignment.

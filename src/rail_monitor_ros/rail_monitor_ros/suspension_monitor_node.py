@@ -3,8 +3,9 @@
 Subscribes ``rail/bogie/imu`` (sensor_msgs/Imu: linear_acceleration.y, angular_velocity.z),
 ``rail/body/imu`` (linear_acceleration.y, the body accelerometer above the monitored front
 bogie) and optionally ``rail/track_irregularity`` (TrackIrregularity: wheelsets front to rear,
-the monitored bogie's are indices 0 and 1; with four entries and the full-car model all four
-are used); publishes
+the monitored bogie's are indices 0 and 1; the full-car model takes the alignment under all
+four (or the first two) as measurements of its track model, the half-car model turns the first
+two into wheelset inputs); publishes
 ``rail/suspension/modes`` (ModeProbabilities) and ``/diagnostics``. The estimator is
 :class:`rail_monitor_ros.suspension_imm.SuspensionImm`; this node converts and checks messages.
 
@@ -60,8 +61,9 @@ class SuspensionMonitorParameters:
 
     sample_rate: float = param(200.0, 'IMU sample rate, Hz', low=1.0, high=10000.0,
                                read_only=True)
-    estimation_model: str = param('full_car', 'IMM model: full_car (bogies and body with yaw; '
-                                  'body IMU above the front bogie) or half_car (the paper)',
+    estimation_model: str = param('full_car', 'IMM model: full_car (14-DOF car driven by the '
+                                  'track; body IMU above the front bogie) or half_car (the '
+                                  'paper)',
                                   choices=('full_car', 'half_car'), read_only=True)
     spring_start: float = param(1.1, 'first spring-mode ratio', low=0.01, high=5.0,
                                 read_only=True)
@@ -83,19 +85,32 @@ class SuspensionMonitorParameters:
                                     low=0.0, high=60.0, read_only=True)
     adaptive: bool = param(True, 'damper modes take the estimated spring ratio (compound '
                            'faults)', read_only=True)
-    input_correlation_time: float = param(1.0, 'wheelset motion model slow pole (time '
-                                          'constant), s', low=1e-3, high=100.0,
+    track_roughness: float = param(2.119e-7, 'full car: track alignment spectrum A_a, m rad',
+                                   low=1e-12, high=1e-3, read_only=True)
+    track_corner_wavenumber: float = param(0.8246, 'full car: alignment spectrum Omega_c, '
+                                           'rad/m', low=1e-4, high=100.0, read_only=True)
+    track_long_wavenumber: float = param(0.0206, 'full car: alignment spectrum Omega_r, rad/m',
+                                         low=1e-5, high=100.0, read_only=True)
+    delay_min_wavelength: float = param(5.0, 'full car: wheelset-to-wheelset delays accurate '
+                                        'down to this track wavelength, m', low=0.1,
+                                        high=100.0, read_only=True)
+    known_track_std: float = param(5e-4, 'full car: measured track alignment std, m',
+                                   low=1e-9, high=1.0, read_only=True)
+    input_correlation_time: float = param(1.0, 'half car: wheelset motion model slow pole '
+                                          '(time constant), s', low=1e-3, high=100.0,
                                           read_only=True)
-    input_bandwidth: float = param(3.0, 'wheelset motion model fast pole, Hz', low=0.01,
+    input_bandwidth: float = param(3.0, 'half car: wheelset motion model fast pole, Hz', low=0.01,
                                    high=100.0, read_only=True)
-    wheelset_lateral_std: float = param(3e-3, 'wheelset lateral motion std, m', low=1e-9,
+    wheelset_lateral_std: float = param(3e-3, 'half car: wheelset lateral std, m', low=1e-9,
                                         high=1.0, read_only=True)
-    wheelset_yaw_std: float = param(2e-3, 'wheelset yaw motion std, rad', low=1e-9, high=1.0,
+    wheelset_yaw_std: float = param(2e-3, 'half car: wheelset yaw std, rad', low=1e-9, high=1.0,
                                     read_only=True)
-    known_input_lateral_std: float = param(1.5e-3, 'wheelset deviation from the track '
-                                           'alignment, m', low=1e-9, high=1.0, read_only=True)
-    known_input_yaw_std: float = param(1.5e-3, 'wheelset yaw deviation from alignment rate / '
-                                       'speed, rad', low=1e-9, high=1.0, read_only=True)
+    known_input_lateral_std: float = param(1.5e-3, 'half car: wheelset deviation from the '
+                                           'track alignment, m', low=1e-9, high=1.0,
+                                           read_only=True)
+    known_input_yaw_std: float = param(1.5e-3, 'half car: wheelset yaw deviation from '
+                                       'alignment rate / speed, rad', low=1e-9, high=1.0,
+                                       read_only=True)
     bogie_accel_noise: float = param(0.02, 'bogie lateral accelerometer noise std, m/s^2',
                                      low=1e-9, high=100.0, read_only=True)
     bogie_gyro_noise: float = param(1e-3, 'bogie yaw-rate gyro noise std, rad/s', low=1e-9,
@@ -106,7 +121,8 @@ class SuspensionMonitorParameters:
                                    'a fault', low=0.01, high=0.99)
     hold_time: float = param(0.25, 'time above the threshold before declaring, s', low=0.0,
                              high=600.0)
-    speed: float = param(40.0, 'forward speed for the known inputs (yaw = rate / speed), m/s',
+    speed: float = param(40.0, 'forward speed, m/s (full car: creep forces, track bandwidth '
+                         'and delays, re-discretised on change; half car: known inputs)',
                          low=0.1, high=150.0)
     body_mass: float = param(11000.0, 'body mass carried by one bogie (half the body), kg',
                              low=1.0, high=1e6, read_only=True)
@@ -160,7 +176,12 @@ class SuspensionMonitorParameters:
             damper_step=self.damper_step, mean_sojourn_time=self.mean_sojourn_time,
             probability_floor=self.probability_floor,
             smoothing_window=max(self.smoothing_window, 1.0 / self.sample_rate),
-            adaptive=self.adaptive, input_correlation_time=self.input_correlation_time,
+            adaptive=self.adaptive, track_roughness=self.track_roughness,
+            track_corner_wavenumber=self.track_corner_wavenumber,
+            track_long_wavenumber=self.track_long_wavenumber,
+            delay_min_wavelength=self.delay_min_wavelength,
+            known_track_std=self.known_track_std,
+            input_correlation_time=self.input_correlation_time,
             input_bandwidth=self.input_bandwidth,
             wheelset_lateral_std=self.wheelset_lateral_std,
             wheelset_yaw_std=self.wheelset_yaw_std,
@@ -249,6 +270,7 @@ class SuspensionMonitor(Node):
 
     def _on_change(self, p: SuspensionMonitorParameters) -> None:
         self.imm.decision = FaultDecision(p.fault_threshold, p.hold_time, 1.0 / p.sample_rate)
+        self.imm.set_speed(p.speed)
 
     # ------------------------------------------------------------------ inputs
     def _reject(self, reason: str) -> None:
@@ -272,7 +294,8 @@ class SuspensionMonitor(Node):
             self._reject('track_irregularity_size')
             return
         # All four wheelsets when the model has the rear bogie, else the monitored bogie's.
-        used = 4 if alignment.size >= 4 and self.imm.n_inputs == 8 else 2
+        full_car = self.parameters.estimation_model == 'full_car'
+        used = 4 if alignment.size >= 4 and full_car else 2
         if not (np.all(np.isfinite(alignment[:used])) and np.all(np.isfinite(rate[:used]))):
             self._reject('track_irregularity_non_finite')
             return
@@ -323,12 +346,11 @@ class SuspensionMonitor(Node):
             self._track_state = f'stale ({age:.3f} s): process-noise model'
             return None
         self._track_state = 'fresh: known-input model'
-        # Per bogie [y_lead, y_trail, psi_lead, psi_trail], front bogie first.
-        return np.concatenate([
-            wheelset_inputs_from_track(alignment[None, i:i + 2],
-                                       None if rate is None else rate[None, i:i + 2],
-                                       p.speed)[0]
-            for i in range(0, alignment.size, 2)])
+        if p.estimation_model == 'full_car':
+            return alignment   # measurements of the track model under the wheelsets
+        # Half car: the monitored bogie's [y_lead, y_trail, psi_lead, psi_trail].
+        return wheelset_inputs_from_track(alignment[None, :2],
+                                          None if rate is None else rate[None, :2], p.speed)[0]
 
     def _process(self, stamp: int, z: np.ndarray) -> None:
         p = self.parameters
