@@ -1,16 +1,11 @@
 #!/usr/bin/env bash
 # The main job: set up (idempotent), then run the road and the rail monitoring graphs on the
-# shipped scenario bags and print what every topic carried. Extra arguments go to run_graph
-# (e.g. -p vehicle_simulator.rate:=1.0).
+# shipped scenario bags, print the scoreboard (key figure per scenario and method against the
+# SPEC §8 targets, and each graph's real-time factor) and write the figures, report.md and
+# results.json into out/demo. Extra arguments go to monitor_demo (e.g. --out DIR,
+# --only SCENARIO, --update-readme).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/tools/bootstrap.sh"
 cd "$ROOT"
-# shellcheck disable=SC1091
-source tools/env.sh
-for domain in tpms_ros/road rail_monitor_ros/rail; do
-  package="${domain%/*}" graph="${domain#*/}"
-  share=$(python -c "from ament_index_python.packages import get_package_share_directory as g; print(g('$package'))")
-  echo "== $graph graph ($share/config/${graph}_graph.yaml)"
-  tools/ros2run vehicle_monitor_common run_graph "$share/config/${graph}_graph.yaml" "$@"
-done
+exec tools/ros2run vehicle_monitor_common monitor_demo "$@"

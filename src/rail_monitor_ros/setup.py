@@ -32,5 +32,9 @@ setup(
             'creep_estimator = rail_monitor_ros.creep_estimator_node:CreepEstimatorNode',
             'suspension_monitor = rail_monitor_ros.suspension_monitor_node:SuspensionMonitor',
         ],
+        # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
+        'vehicle_monitor.evaluations': [
+            'rail = rail_monitor_ros.evaluation:domain',
+        ],
     },
 )

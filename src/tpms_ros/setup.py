@@ -35,8 +35,14 @@ setup(
             'vibration_analyzer = tpms_ros.vibration_analyzer_node:VibrationAnalyzerNode',
             'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',
             'tpms_voter = tpms_ros.tpms_voter_node:TpmsVoterNode',
-            'tire_stiffness_observer = tpms_ros.tire_stiffness_observer_node:TireStiffnessObserverNode',
-            'lateral_force_observer = tpms_ros.lateral_force_observer_node:LateralForceObserverNode',
+            'tire_stiffness_observer = '
+            'tpms_ros.tire_stiffness_observer_node:TireStiffnessObserverNode',
+            'lateral_force_observer = '
+            'tpms_ros.lateral_force_observer_node:LateralForceObserverNode',
+        ],
+        # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
+        'vehicle_monitor.evaluations': [
+            'road = tpms_ros.evaluation:domain',
         ],
     },
 )

@@ -19,6 +19,8 @@ setup(
     entry_points={
         'console_scripts': [
             'run_graph = vehicle_monitor_common.runner:main',
+            'monitor_demo = vehicle_monitor_common.main_job:main',
+            'evaluate = vehicle_monitor_common.evaluate_cli:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [

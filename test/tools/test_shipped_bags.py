@@ -1,4 +1,4 @@
-"""The shipped bags are what their scenario files generate: regenerated, they come out identical."""
+"""The shipped bags are what their scenario files generate: regenerated, they come out the same."""
 
 from __future__ import annotations
 

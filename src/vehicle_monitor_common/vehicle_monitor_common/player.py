@@ -31,8 +31,8 @@ import time
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -43,10 +43,6 @@ from vehicle_monitor_common.node_helpers import ConfigurationError, TypedParamet
 # Reliable with a deep queue: a replay must not lose messages to a slow reader.
 REPLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE)
-# Every this many messages on a topic, wait until its reliable readers acknowledged them, so the
-# writer's history (REPLAY_QOS depth) never overwrites a sample a loaded reader has not yet
-# received. What a reader does with its own queue stays its choice (sync_topics pace the rest).
-ACK_EVERY = 100
 ACK_TIMEOUT = Duration(seconds=5.0)
 PROGRESS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                           reliability=ReliabilityPolicy.RELIABLE)
@@ -83,6 +79,12 @@ class PlayerParameters:
     sync_timeout: float = param(10.0, 'a sync topic silent this long (wall time, s) no longer '
                                 'paces the replay', low=0.1, high=3600.0)
     exit_when_done: bool = param(True, 'the executable exits when the replay ends')
+    # Backpressure: waiting for the reliable readers' acknowledgements keeps the writer's
+    # history (REPLAY_QOS depth) from overwriting a sample a loaded reader has not received yet.
+    # In one process acknowledgements come at once; across processes Fast DDS acknowledges on
+    # the writer's heartbeat (seconds apart by default), so there set 0 and rely on sync_topics.
+    ack_every: int = param(100, 'every this many messages on a topic, wait until its reliable '
+                           'readers acknowledged them (0: never)', low=0, high=1000)
 
 
 def message_class(msgtype: str) -> Any:
@@ -231,8 +233,10 @@ class ScenarioPlayer(Node):
                 if not self.parameters.loop:
                     break
             if self.parameters.as_fast_as_possible and not self._stop.is_set():
-                # Let the graph finish the tail before declaring the replay done.
-                self._wait_for_progress(last + int(self.parameters.max_lead * 1e9), last)
+                # Let the graph finish the tail (outputs within max_lead of the last input: a
+                # node publishing at a lower rate never stamps the very last one) before
+                # declaring the replay done; the runner's drain collects what is in flight.
+                self._wait_for_progress(last, last)
         except BagError as exc:
             self.error = str(exc)
         except Exception as exc:  # the node must report, not die silently in a thread
@@ -269,8 +273,8 @@ class ScenarioPlayer(Node):
             publisher = self._replay_publishers[topic]
             publisher.publish(bytes(data))
             self.published[topic] += 1
-            if self.published[topic] % ACK_EVERY == 0 and not publisher.wait_for_all_acked(
-                    ACK_TIMEOUT):
+            if (p.ack_every and self.published[topic] % p.ack_every == 0
+                    and not publisher.wait_for_all_acked(ACK_TIMEOUT)):
                 self.get_logger().warning(
                     f'{topic}: a subscriber did not acknowledge within '
                     f'{ACK_TIMEOUT.nanoseconds * 1e-9:g} s; replay goes on', once=True)
