@@ -307,7 +307,11 @@ R_N = 0.31
 TRACK = 1.55
 RAD_TEST = {'calibration_settle_s': 0.5, 'min_calibration_s': 2.0,
             'calibration_duration_s': 3.0, 'diagnostics_period_s': 0.1, 'publish_rate_hz': 100.0,
-            'wheel_recover_s': 0.5}
+            'wheel_recover_s': 0.5,
+            # the synthetic drive below weaves its speed at up to 3 m/s^2 and has no wheel
+            # inertia nor load transfer: the core's acceleration gates and corrections are off
+            'accel_max_longitudinal': 10.0, 'accel_max_lateral': 10.0,
+            'wheel_inertia_kgm2': 0.0, 'cg_height_m': 0.0}
 
 
 def _drive(n_imu: int, seed: int, t0: float, eps: np.ndarray) -> dict[str, np.ndarray]:

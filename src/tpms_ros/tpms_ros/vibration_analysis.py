@@ -21,6 +21,9 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    whole chunk with carried state, and theta follows from the closed-form 2x2 solve. No
    per-sample Python loop; :func:`ar2_rls_reference` is the textbook per-sample recursion it
    equals (tested);
+   On a driven axle (``driveline_compensation``) each driven wheel's regression sums are
+   taken less the symmetrised left-right cross products, which remove the driveline modes
+   both rims share (see :class:`VibrationParams`);
 3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2);
 4. calibration: each tire's nominal frequency and the noise of its estimate;
 5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
@@ -100,6 +103,15 @@ class VibrationParams:
         rel_noise_floor: floor of the noise sigma relative to the nominal frequency: the
             frequency also wanders with road, speed and temperature, which a short
             calibration does not see.
+        driveline_compensation: driven axle whose common driveline vibration is removed,
+            'none', 'front' or 'rear' (VEHICLE-SPECIFIC). Driveline and suspension-member
+            modes (e.g. 25 and 52 Hz, frequencies moving with speed) reach both driven rims in
+            phase and pull each driven wheel's AR(2) by several Hz, a bias that a calibration
+            at one speed does not absorb. Their contribution to each wheel's covariances is
+            the left-right cross-covariance (the road excites the two tires independently),
+            so the regression sums of each driven wheel are taken less the symmetrised
+            left-right cross products, the covariance form of Umeno's left-right difference.
+            It needs both driven wheels: a bad sample on one leaves both out of the sums.
     """
 
     sample_rate_hz: float = 1000.0
@@ -119,6 +131,7 @@ class VibrationParams:
     z_flag: float = 3.0
     z_full: float = 8.0
     rel_noise_floor: float = 0.005
+    driveline_compensation: str = 'none'
 
     def __post_init__(self) -> None:
         positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
@@ -148,6 +161,9 @@ class VibrationParams:
                              f'{self.min_valid_fraction}')
         if not self.z_flag < self.z_full:
             raise ValueError('VibrationParams.z_flag must be < z_full')
+        if self.driveline_compensation not in ('none', 'front', 'rear'):
+            raise ValueError(f"VibrationParams.driveline_compensation must be 'none', 'front' "
+                             f"or 'rear', got {self.driveline_compensation!r}")
         if self.analysis_rate_hz > self.sample_rate_hz:
             raise ValueError(f'VibrationParams.analysis_rate_hz ({self.analysis_rate_hz}) must '
                              f'be <= sample_rate_hz ({self.sample_rate_hz})')
@@ -314,6 +330,8 @@ class VibrationAnalyzer:
         self._tooth_lambda = math.exp(-1.0 / (TOOTH_MEMORY_S * p.sample_rate_hz))
         self._harmonics = np.arange(1, TOOTH_HARMONICS + 1, dtype=float)
         self._lambda = p.forgetting
+        self._driven: tuple[int, int] | None = {'none': None, 'front': (0, 1),
+                                                 'rear': (2, 3)}[p.driveline_compensation]
         self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
         self._stuck_samples = max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz)))
         self._calibration: VibrationCalibration | None = None
@@ -482,8 +500,22 @@ class VibrationAnalyzer:
         y0, y1, y2 = y_all[2:], y_all[1:-1], y_all[:-2]
         w = (v_all[2:] & v_all[1:-1] & v_all[:-2]).astype(float)
 
+        if self._driven is not None:
+            i, j = self._driven
+            # both driven wheels valid; sums of each less the symmetrised cross products
+            w_pair = w[:, i] * w[:, j]
+            w[:, i] = w[:, j] = w_pair
         products = np.stack([w * y1 * y1, w * y1 * y2, w * y2 * y2,
                              w * y1 * y0, w * y2 * y0, w], axis=1)      # (M, 6, 4)
+        if self._driven is not None:
+            cross = w_pair[:, None] * np.stack([
+                y1[:, i] * y1[:, j],
+                0.5 * (y1[:, i] * y2[:, j] + y1[:, j] * y2[:, i]),
+                y2[:, i] * y2[:, j],
+                0.5 * (y1[:, i] * y0[:, j] + y1[:, j] * y0[:, i]),
+                0.5 * (y2[:, i] * y0[:, j] + y2[:, j] * y0[:, i])], axis=1)   # (M, 5)
+            products[:, :5, i] -= cross
+            products[:, :5, j] -= cross
         sums, self._ls_state = signal.lfilter([1.0], [1.0, -self._lambda], products, axis=0,
                                               zi=self._ls_state)
         r11, r12, r22, q1, q2, count = np.moveaxis(sums, 1, 0)

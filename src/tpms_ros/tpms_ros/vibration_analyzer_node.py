@@ -97,6 +97,11 @@ class VibrationAnalyzerParameters:
                           'reaches 1', low=0.1, high=100.0)
     rel_noise_floor: float = param(_DEFAULTS.rel_noise_floor, 'floor of the frequency noise '
                                    'relative to the nominal frequency', low=1e-5, high=0.5)
+    driveline_compensation: str = param(_DEFAULTS.driveline_compensation, 'driven axle whose '
+                                        'common driveline vibration is removed by the left-'
+                                        'right cross-covariance', choices=('none', 'front',
+                                                                           'rear'),
+                                        read_only=True)
     block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
                            'duration, s', low=0.005, high=5.0, read_only=True)
     max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '

@@ -12,6 +12,14 @@ mu = Fx / Fz = T_driven / (r_n Fz_static) the linear slip model is s = mu / k + 
 x = (1/k, delta) random walk, measurement s_t = (mu_t, 1) x_t + e_t. Here delta is
 1 - r_driven / r_nondriven; it is reported as the paper's delta_13 = 1 - r1 / r3 (left) and
 delta_24 = 1 - r2 / r4 (right) whichever axle is driven (exact conversion for rear drive).
+Deviations, measured on the road simulator's nominal driving: mu counts the wheel's inertia
+torque and the longitudinal load transfer, mu = (T - I_w omega_dot) / (r_n (Fz + m h ax /
+(2 L))), and the model pauses while |ax| > ``accel_max_longitudinal`` (braking and hard
+acceleration moved delta by 5-10e-3 there). At constant traction 1/k and delta are not
+separable, so a calibration on steady cruising cannot know delta alone: it keeps the slip line's
+height at its mean traction, and the indication compares the current line at that traction
+(the same holds for the lateral pairs and the gyro offset at constant speed; see
+:class:`WheelRadiusCalibration`).
 
 **Lateral (both axles and the gyro).** Sign conventions, checked against the physics: in a turn
 the outer wheels travel faster. The paper writes psi_dot = (v3 - v4) / L_rear, which is the SAE
@@ -52,17 +60,18 @@ No ROS import.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, signal
 
 from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
 
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2
 PAIR_NAMES = ('delta_13', 'delta_24', 'delta_34', 'delta_12')
+GRAVITY = 9.80665
 # d(pair offset) / d(relative radius change eps_i of tire i), to first order:
 # delta_13 = 1 - r1/r3 ~ eps3 - eps1, delta_24 ~ eps4 - eps2, delta_34 = r3/r4 - 1 ~ eps3 - eps4,
 # delta_12 ~ eps1 - eps2
@@ -98,6 +107,24 @@ class WheelRadiusParams:
             rear wheels of a side travel different radii), m/s^2.
         ay_max_lateral: cornering limit of the lateral model (load transfer changes radii),
             m/s^2.
+        accel_max_longitudinal: longitudinal acceleration limit |ax| of the longitudinal model,
+            m/s^2. ax is the filtered derivative of the non-driven wheels' speed. Under strong
+            acceleration or braking the slip model's mu is corrupted (wheel inertia, load
+            transfer, the non-driven wheel's own brake slip) and delta moves by 5-10e-3 on the
+            road simulator's car, several times a 15 % loss; the updates there are skipped.
+        accel_max_lateral: the same limit for the lateral model's updates, m/s^2. Measured on
+            the road simulator: at the onset of a 2 m/s^2 braking the lateral offsets swing by
+            up to 1.1e-2 for 2-3 s (pitch and brake transients in the wheel-speed difference)
+            and settle back, which alone gave a full-confidence false warning.
+        accel_filter_hz: corner of the 2nd-order low-pass before differentiating the wheel
+            speeds (ax and each wheel's angular acceleration), Hz.
+        wheel_inertia_kgm2: spin inertia of a driven wheel (tire, rim, brake, its share of the
+            driveline) I_w: the contact force is (T - I_w omega_dot) / r_n, kg m^2.
+            VEHICLE-SPECIFIC; 0 ignores the inertia torque.
+        cg_height_m: centre-of-gravity height h for the longitudinal load transfer
+            +-m h ax / (2 wheelbase) per wheel (rear gains under acceleration), m; the mass is
+            sum(static_load_n) / g. VEHICLE-SPECIFIC; 0 ignores the load transfer.
+        wheelbase_m: wheelbase, m. VEHICLE-SPECIFIC.
         gyro_stuck_s: a gyro reading repeated exactly this long is a stopped gyro: the lateral
             filter pauses rather than drift, s.
         wheel_recover_s: a tire stays unknown this long after its last bad sample, s.
@@ -115,6 +142,9 @@ class WheelRadiusParams:
             speed only delta_o + c delta is observable, speed changes separate them.
         gyro_offset0_std: initial std of the gyro offset, rad/s.
         calibration_settle_s: first part of a calibration window not used, s.
+            The longitudinal nominal is kept as the slip line's height at the calibration's
+            mean traction (see :class:`WheelRadiusCalibration`), because at constant traction
+            1/k and delta are not separable: delta alone would carry mu * (1/k error).
         min_calibration_s: least seconds of valid updates per pair for a calibration, s.
         radius_noise_floor: floor of the per-tire radius noise (relative radius): wear,
             temperature and load shifts a calibration does not see.
@@ -141,6 +171,12 @@ class WheelRadiusParams:
     brake_torque_nm: float = 20.0
     ay_max_longitudinal: float = 2.0
     ay_max_lateral: float = 4.0
+    accel_max_longitudinal: float = 0.8
+    accel_max_lateral: float = 1.0
+    accel_filter_hz: float = 2.0
+    wheel_inertia_kgm2: float = 1.0
+    cg_height_m: float = 0.55
+    wheelbase_m: float = 2.7
     gyro_stuck_s: float = 0.5
     wheel_recover_s: float = 1.0
     slip_noise_std: float = 1e-3
@@ -164,6 +200,8 @@ class WheelRadiusParams:
         positive = ('nominal_radius_m', 'track_front_m', 'track_rear_m', 'sample_rate_hz',
                     'max_gap_s', 'max_wheel_speed', 'max_speed_mps', 'mu_max', 'slip_max',
                     'ay_max_longitudinal', 'ay_max_lateral', 'gyro_stuck_s', 'slip_noise_std',
+                    'accel_max_longitudinal', 'accel_max_lateral', 'accel_filter_hz',
+                    'wheelbase_m',
                     'inv_stiffness0_std', 'delta0_std', 'gyro_noise_std',
                     'wheel_yaw_noise_std', 'gyro_offset0_std', 'min_calibration_s',
                     'radius_noise_floor', 'informative_std', 'z_flag', 'z_full', 'yaw_jerk_std')
@@ -173,7 +211,7 @@ class WheelRadiusParams:
                 raise ValueError(f'WheelRadiusParams.{name} must be finite and > 0, got {value}')
         non_negative = ('min_speed_mps', 'brake_torque_nm', 'wheel_recover_s',
                         'inv_stiffness_rw', 'delta_rw', 'gyro_offset_rw',
-                        'calibration_settle_s')
+                        'calibration_settle_s', 'wheel_inertia_kgm2', 'cg_height_m')
         for name in non_negative:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -189,6 +227,9 @@ class WheelRadiusParams:
             raise ValueError('WheelRadiusParams.min_speed_mps must be < max_speed_mps')
         if not self.z_flag < self.z_full:
             raise ValueError('WheelRadiusParams.z_flag must be < z_full')
+        if not self.accel_filter_hz < 0.5 * self.sample_rate_hz:
+            raise ValueError(f'WheelRadiusParams.accel_filter_hz must be below half the sample '
+                             f'rate, got {self.accel_filter_hz}')
 
 
 @dataclass(frozen=True)
@@ -196,14 +237,26 @@ class WheelRadiusCalibration:
     """Nominal pair offsets learned by calibration.
 
     Attributes:
-        nominal_offsets: (4,) nominal delta_13, delta_24, delta_34, delta_12.
+        nominal_offsets: (4,) nominal delta_13, delta_24, delta_34, delta_12 (the mean of the
+            estimates over the calibration window).
         noise: (4,) std of each offset estimate over the calibration window.
         duration_s: (4,) seconds of valid updates behind each nominal.
+        reference: (4,) the coefficient a of each pair's observable combination
+            u = delta + a z over the window, with z its companion state. A calibration drive at
+            steady speed and traction cannot separate delta from z: longitudinal pairs see only
+            the slip line's height delta + mu / k at the window's mean traction (a = mean mu,
+            z = 1/k); lateral pairs see only delta + delta_o / c (a = 1 / mean c, c = r_n
+            omega_axle / track, z = the gyro offset delta_o in the filter's SAE sign). The
+            nominal is compared with the current filter's u at the same a, so it holds
+            whatever split the filter had (0: delta itself, as in version 1 files).
+        companion: (4,) mean z of each pair over the window (1/k left, right, delta_o twice).
     """
 
     nominal_offsets: np.ndarray
     noise: np.ndarray
     duration_s: np.ndarray
+    reference: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    companion: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON/YAML-serialisable state."""
@@ -213,30 +266,39 @@ class WheelRadiusCalibration:
             'nominal_offsets': dict(zip(PAIR_NAMES, self.nominal_offsets.tolist(), strict=True)),
             'noise': dict(zip(PAIR_NAMES, self.noise.tolist(), strict=True)),
             'duration_s': dict(zip(PAIR_NAMES, self.duration_s.tolist(), strict=True)),
+            'reference': dict(zip(PAIR_NAMES, self.reference.tolist(), strict=True)),
+            'companion': dict(zip(PAIR_NAMES, self.companion.tolist(), strict=True)),
         }
 
     @classmethod
     def from_dict(cls, state: Mapping[str, Any]) -> WheelRadiusCalibration:
-        """Rebuild from :meth:`to_dict` output; raises ValueError on anything corrupt."""
+        """Rebuild from :meth:`to_dict` output (or a version 1 file); ValueError if corrupt."""
         if not isinstance(state, Mapping):
             raise ValueError(f'calibration state must be a mapping, got {type(state).__name__}')
-        if state.get('version') != CALIBRATION_VERSION or state.get('method') != 'wheel_radius':
-            raise ValueError(f'calibration state: expected version {CALIBRATION_VERSION} of '
+        version = state.get('version')
+        if version not in (1, CALIBRATION_VERSION) or state.get('method') != 'wheel_radius':
+            raise ValueError(f'calibration state: expected version 1..{CALIBRATION_VERSION} of '
                              f'method wheel_radius, got {state.get("version")!r}/'
                              f'{state.get("method")!r}')
+        tables = [('nominal_offsets', PAIR_NAMES, 0.1), ('noise', PAIR_NAMES, 0.1),
+                  ('duration_s', PAIR_NAMES, math.inf)]
+        if version == CALIBRATION_VERSION:
+            # |mu| and 1 / c (c ~ speed / track) stay below 1; 1/k and a gyro offset below 10
+            tables += [('reference', PAIR_NAMES, 1.0), ('companion', PAIR_NAMES, 10.0)]
         arrays = []
-        for key, lower, upper in (('nominal_offsets', -0.1, 0.1), ('noise', 0.0, 0.1),
-                                  ('duration_s', 0.0, math.inf)):
+        for key, names, upper in tables:
             table = state.get(key)
-            if not isinstance(table, Mapping) or set(table) != set(PAIR_NAMES):
-                raise ValueError(f'calibration state: {key!r} must map {PAIR_NAMES}')
+            if not isinstance(table, Mapping) or set(table) != set(names):
+                raise ValueError(f'calibration state: {key!r} must map {names}')
             try:
-                arr = np.array([float(table[name]) for name in PAIR_NAMES])
+                arr = np.array([float(table[name]) for name in names])
             except (TypeError, ValueError) as exc:
                 raise ValueError(f'calibration state: {key!r} is not numeric') from exc
             # offsets of more than 10 % radius are no tire; noise and duration must be > 0
-            ok = np.isfinite(arr) & (arr > lower) & (arr < upper) if key != 'nominal_offsets' \
-                else np.isfinite(arr) & (np.abs(arr) < upper)
+            if key in ('noise', 'duration_s'):
+                ok = np.isfinite(arr) & (arr > 0.0) & (arr < upper)
+            else:
+                ok = np.isfinite(arr) & (np.abs(arr) < upper)
             if not np.all(ok):
                 raise ValueError(f'calibration state: {key!r} out of range: {table!r}')
             arrays.append(arr)
@@ -415,11 +477,17 @@ class WheelRadiusAnalyzer:
         self._driven = np.array([0, 1]) if front else np.array([2, 3])
         self._nondriven = np.array([2, 3]) if front else np.array([0, 1])
         self._loads = np.asarray(p.static_load_n, dtype=float)
+        # longitudinal load transfer per driven wheel and m/s^2 of ax: + on the rear axle
+        transfer = float(self._loads.sum()) / GRAVITY * p.cg_height_m / (2.0 * p.wheelbase_m)
+        self._load_transfer = transfer if not front else -transfer
+        self._accel_sos = signal.butter(2, p.accel_filter_hz, fs=p.sample_rate_hz,
+                                        output='sos')
+        self._accel_zi_unit = signal.sosfilt_zi(self._accel_sos)
         self._calibration: WheelRadiusCalibration | None = None
         self._calibrating = False
         self.counts: dict[str, int] = dict.fromkeys(
             ('accepted', 'out_of_order', 'gap', 'bad_wheel_speed', 'bad_torque', 'bad_gyro',
-             'gyro_stuck', 'long_gated', 'lat_gated'), 0)
+             'gyro_stuck', 'long_gated', 'accel_gated', 'lat_gated'), 0)
         self.reset()
 
     def reset(self) -> None:
@@ -435,7 +503,13 @@ class WheelRadiusAnalyzer:
         self._gyro_repeat_s = 0.0
         self._last_bad_wheel = np.full(N_TIRES, -math.inf)
         self._cal_sum = np.zeros((3, 4))                # count, sum, sum of squares per pair
+        # per pair, in the filter's terms: sums of a, z, z^2, delta z, delta, delta^2 (see
+        # WheelRadiusCalibration.reference)
+        self._cal_pair = np.zeros((6, 4))
         self._cal_start: float | None = None
+        self._accel_state: np.ndarray | None = None      # wheel-speed low-pass (sos, zi)
+        self._last_smooth = np.zeros(N_TIRES)
+        self._last_good_w = np.full(N_TIRES, np.nan)
 
     # ----------------------------------------------------------- calibration
     @property
@@ -447,6 +521,7 @@ class WheelRadiusAnalyzer:
         """Start learning the nominal pair offsets from the data processed from now on."""
         self._calibrating = True
         self._cal_sum[:] = 0.0
+        self._cal_pair[:] = 0.0
         self._cal_start = None
 
     def finish_calibration(self) -> WheelRadiusCalibration:
@@ -465,8 +540,18 @@ class WheelRadiusAnalyzer:
                              f'updates for {PAIR_NAMES}, need {self.params.min_calibration_s} s')
         mean = total / count
         std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+        # the nominal is the observable combination u = delta + a z at the window's mean a;
+        # its spread over the window is that of u, not of delta alone
+        a_sum, z_sum, z_sq, dz_sum, d_sum, d_sq = self._cal_pair / count
+        reference = a_sum.copy()
+        reference[2:] = 1.0 / a_sum[2:]                  # lateral: a = 1 / mean(c)
+        u_var = (d_sq - d_sum * d_sum + 2.0 * reference * (dz_sum - d_sum * z_sum)
+                 + reference * reference * (z_sq - z_sum * z_sum))
+        std = np.sqrt(np.maximum(u_var, 0.0))
+        if self.params.driven_axle == 'rear':
+            std[:2] = std[:2] / (1.0 - d_sum[:2]) ** 2
         std = np.maximum(std, 1e-9)
-        self._calibration = WheelRadiusCalibration(mean, std, duration)
+        self._calibration = WheelRadiusCalibration(mean, std, duration, reference, z_sum)
         self._calibrating = False
         return self._calibration
 
@@ -573,27 +658,63 @@ class WheelRadiusAnalyzer:
         side_ok = wheel_ok[:, self._driven] & wheel_ok[:, self._nondriven] & (wn > 0.0)
         with np.errstate(divide='ignore', invalid='ignore'):
             slip = np.where(side_ok, wd / wn - 1.0, 0.0)
-        mu = np.where(torque_ok[:, None], torque[:, self._driven], 0.0) / (
-            r_n * self._loads[self._driven])
+        omega_dot = self._wheel_acceleration(omega, wheel_ok, dt)
+        ax = r_n * omega_dot[:, self._nondriven].mean(axis=1)
+        # mu = Fx / Fz at the contact: the drive torque less what spins the wheel up, over the
+        # static load plus the longitudinal load transfer
+        drive = np.where(torque_ok[:, None], torque[:, self._driven], 0.0)
+        force = (drive - p.wheel_inertia_kgm2 * omega_dot[:, self._driven]) / r_n
+        load = self._loads[self._driven] + self._load_transfer * ax[:, None]
+        mu = force / np.maximum(load, 0.1 * self._loads[self._driven])
         braking = np.any(np.where(torque_ok[:, None], torque, 0.0) < -p.brake_torque_nm, axis=1)
-        long_cond = (in_band & torque_ok & ~braking
+        # a wheel bad within wheel_recover_s leaves its filtered derivative unreliable
+        recent_bad = (stamps[:, None] - self._last_bad_wheel < p.wheel_recover_s).any(axis=1)
+        steady = (np.abs(ax) <= p.accel_max_longitudinal) & ~recent_bad
+        lat_steady = (np.abs(ax) <= p.accel_max_lateral) & ~recent_bad
+        self.counts['accel_gated'] += int((in_band & ~steady).sum())
+        long_cond = (in_band & torque_ok & ~braking & steady
                      & (lateral_acc <= p.ay_max_longitudinal))[:, None]
         long_valid = side_ok & long_cond & (np.abs(mu) <= p.mu_max) & (np.abs(slip) <= p.slip_max)
         self.counts['long_gated'] += int((side_ok & ~long_valid).sum())
 
-        lat_cond = in_band & (lateral_acc <= p.ay_max_lateral) & ~gyro_stuck
+        lat_cond = in_band & (lateral_acc <= p.ay_max_lateral) & ~gyro_stuck & lat_steady
         use_gyro = lat_cond & gyro_finite & (rear_ok | front_ok)
         use_rear = lat_cond & rear_ok
         use_front = lat_cond & front_ok
         self.counts['lat_gated'] += int((~lat_cond & (rear_ok | front_ok)).sum())
         y_gyro = np.where(gyro_finite, -gyro, 0.0)      # REP 103 -> SAE sign
 
-        trace = self._run_filters(dt, gap, slip, mu, long_valid, y_gyro, yaw_rear, yaw_front,
-                                  c_rear, c_front, use_gyro, use_rear, use_front)
+        trace, long_trace = self._run_filters(dt, gap, slip, mu, long_valid, y_gyro, yaw_rear,
+                                              yaw_front, c_rear, c_front, use_gyro, use_rear,
+                                              use_front)
         if self._calibrating:
-            self._accumulate_calibration(stamps, trace, long_valid, use_rear, use_front)
+            self._accumulate_calibration(stamps, trace, long_trace, mu, c_rear, c_front,
+                                         long_valid, use_rear, use_front)
         trace[:, 4] = -trace[:, 4]                        # gyro offset back to REP 103
         return self._estimate(stamps, trace)
+
+    def _wheel_acceleration(self, omega: np.ndarray, wheel_ok: np.ndarray,
+                            dt: np.ndarray) -> np.ndarray:
+        """(N, 4) low-passed wheel angular accelerations, rad/s^2, state carried.
+
+        Bad samples hold the last good speed (a dead wheel reads 0 acceleration; its own gate
+        is ``wheel_recover_s``). The 2nd-order Butterworth starts in the steady state of the
+        first good sample so the filter does not ring from zero.
+        """
+        x = np.vstack([self._last_good_w[None, :], np.where(wheel_ok, omega, np.nan)])
+        idx = np.where(np.isnan(x), 0, np.arange(x.shape[0])[:, None])
+        np.maximum.accumulate(idx, axis=0, out=idx)
+        x = np.take_along_axis(x, idx, axis=0)
+        self._last_good_w = x[-1].copy()
+        x = np.nan_to_num(x[1:], nan=0.0)
+        if self._accel_state is None:
+            self._accel_state = self._accel_zi_unit[:, :, None] * x[0]
+            self._last_smooth = x[0].copy()
+        smooth, self._accel_state = signal.sosfilt(self._accel_sos, x, axis=0,
+                                                   zi=self._accel_state)
+        previous = np.vstack([self._last_smooth[None, :], smooth[:-1]])
+        self._last_smooth = smooth[-1].copy()
+        return (smooth - previous) / dt[:, None]
 
     def _gyro_stuck(self, gyro: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """Flag samples where the gyro has repeated the exact same value too long."""
@@ -613,11 +734,17 @@ class WheelRadiusAnalyzer:
                      long_valid: np.ndarray, y_gyro: np.ndarray, yaw_rear: np.ndarray,
                      yaw_front: np.ndarray, c_rear: np.ndarray, c_front: np.ndarray,
                      use_gyro: np.ndarray, use_rear: np.ndarray, use_front: np.ndarray
-                     ) -> np.ndarray:
-        """The recursion: one predict and up to five scalar updates per sample."""
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """The recursion: one predict and up to five scalar updates per sample.
+
+        Returns:
+            (M, 5) trace as in :class:`RadiusEstimate` and (M, 4) longitudinal states in the
+            filter's own terms: delta left, delta right, 1/k left, 1/k right.
+        """
         p = self.params
         m = dt.shape[0]
         trace = np.empty((m, 5))
+        long_trace = np.empty((m, 4))
         q_k = p.inv_stiffness_rw ** 2
         q_d = p.delta_rw ** 2
         q_o = p.gyro_offset_rw ** 2
@@ -691,19 +818,22 @@ class WheelRadiusAnalyzer:
                 s = ph[0] - c * ph[4] + r_wheel
                 x += ph * ((y[2] - x[0] + c * x[4]) / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
-            trace[i, 0] = long_x[0][1]
-            trace[i, 1] = long_x[1][1]
+            trace[i, 0] = long_trace[i, 0] = long_x[0][1]
+            trace[i, 1] = long_trace[i, 1] = long_x[1][1]
+            long_trace[i, 2] = long_x[0][0]
+            long_trace[i, 3] = long_x[1][0]
             trace[i, 2] = x[3]
             trace[i, 3] = x[4]
             trace[i, 4] = x[2]
         if p.driven_axle == 'rear':
             # filter delta = 1 - r_rear / r_front; paper's delta_13 = 1 - r1 / r3 = -d / (1 - d)
             trace[:, :2] = -trace[:, :2] / (1.0 - trace[:, :2])
-        return trace
+        return trace, long_trace
 
     def _accumulate_calibration(self, stamps: np.ndarray, trace: np.ndarray,
-                                long_valid: np.ndarray, use_rear: np.ndarray,
-                                use_front: np.ndarray) -> None:
+                                long_trace: np.ndarray, mu: np.ndarray, c_rear: np.ndarray,
+                                c_front: np.ndarray, long_valid: np.ndarray,
+                                use_rear: np.ndarray, use_front: np.ndarray) -> None:
         if self._cal_start is None:
             self._cal_start = float(stamps[0])
         settled = stamps >= self._cal_start + self.params.calibration_settle_s
@@ -712,6 +842,14 @@ class WheelRadiusAnalyzer:
         vals = np.where(valid, trace[:, :4], 0.0)
         self._cal_sum += np.stack([valid.sum(axis=0), vals.sum(axis=0),
                                    (vals * vals).sum(axis=0)])
+        # in the filter's terms: a = mu (longitudinal) or c (lateral, inverted at the end)
+        delta = np.where(valid, np.column_stack([long_trace[:, :2], trace[:, 2:4]]), 0.0)
+        comp = np.where(valid, np.column_stack([long_trace[:, 2:], trace[:, 4], trace[:, 4]]),
+                        0.0)
+        coef = np.where(valid, np.column_stack([mu, c_rear, c_front]), 0.0)
+        self._cal_pair += np.stack([coef.sum(axis=0), comp.sum(axis=0),
+                                    (comp * comp).sum(axis=0), (delta * comp).sum(axis=0),
+                                    delta.sum(axis=0), (delta * delta).sum(axis=0)])
 
     def _offsets_std(self) -> np.ndarray:
         lp = self._long_p
@@ -752,21 +890,51 @@ class WheelRadiusAnalyzer:
         cal = self._calibration
         if cal is None:
             return None
-        std = np.sqrt(self._offsets_std() ** 2 + cal.noise ** 2)
-        return localise_low_tires(self.offsets() - cal.nominal_offsets, std, self.params)
+        change, estimate_std = self._offset_change(cal)
+        std = np.sqrt(estimate_std ** 2 + cal.noise ** 2)
+        return localise_low_tires(change, std, self.params)
+
+    def _offset_change(self, cal: WheelRadiusCalibration) -> tuple[np.ndarray, np.ndarray]:
+        """(4,) pair offsets relative to the calibration and (4,) the std of the estimate."""
+        ref = cal.reference
+        lp, lat_p = self._long_p, self._lat_p
+        # current u = delta + a z per pair in the filter's terms, and its posterior std
+        delta = np.array([self._long_x[0][1], self._long_x[1][1], self._lat_x[3],
+                          self._lat_x[4]])
+        comp = np.array([self._long_x[0][0], self._long_x[1][0], self._lat_x[2],
+                         self._lat_x[2]])
+        var = np.array([lp[0][2] + 2.0 * ref[0] * lp[0][1] + ref[0] ** 2 * lp[0][0],
+                        lp[1][2] + 2.0 * ref[1] * lp[1][1] + ref[1] ** 2 * lp[1][0],
+                        lat_p[3, 3] + 2.0 * ref[2] * lat_p[2, 3] + ref[2] ** 2 * lat_p[2, 2],
+                        lat_p[4, 4] + 2.0 * ref[3] * lat_p[2, 4] + ref[3] ** 2 * lat_p[2, 2]])
+        u_now = delta + ref * comp
+        std = np.sqrt(np.maximum(var, 0.0))
+        d_cal = cal.nominal_offsets.copy()
+        if self.params.driven_axle == 'rear':
+            # filter terms back from the paper's delta_13 = -d / (1 - d) (an involution)
+            d_cal[:2] = -d_cal[:2] / (1.0 - d_cal[:2])
+        u_cal = d_cal + ref * cal.companion
+        if self.params.driven_axle == 'rear':
+            std[:2] = std[:2] / (1.0 - u_now[:2]) ** 2
+            u_now[:2] = -u_now[:2] / (1.0 - u_now[:2])
+            u_cal[:2] = -u_cal[:2] / (1.0 - u_cal[:2])
+        return u_now - u_cal, std
 
     def indication(self, stamp_s: float) -> TpmsIndication:
         """Per-tire flag and confidence (all unknown before calibration).
 
         A tire is unknown while its wheel speed was bad within ``wheel_recover_s`` or when no
-        pair it belongs to is informative (posterior std above ``informative_std``).
+        pair it belongs to is informative (posterior std of the compared combination above
+        ``informative_std``).
         """
         loc = self.localise()
-        if loc is None:
+        cal = self._calibration
+        if loc is None or cal is None:
             zeros = np.zeros(N_TIRES)
             return TpmsIndication('wheel_radius', stamp_s, zeros.astype(bool), zeros,
                                   zeros.astype(bool))
-        informative_pair = self._offsets_std() <= self.params.informative_std
+        # informative: the std of what is compared (the pair's observable combination)
+        informative_pair = self._offset_change(cal)[1] <= self.params.informative_std
         informative = np.zeros(N_TIRES, dtype=bool)
         for pair, tires in enumerate(PAIR_TIRES):
             if informative_pair[pair]:

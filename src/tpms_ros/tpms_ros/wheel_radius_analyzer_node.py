@@ -97,6 +97,21 @@ class WheelRadiusAnalyzerParameters:
                                        'longitudinal model, m/s^2', low=0.01, high=20.0)
     ay_max_lateral: float = param(_D.ay_max_lateral, 'cornering limit of the lateral model, '
                                   'm/s^2', low=0.01, high=20.0)
+    accel_max_longitudinal: float = param(_D.accel_max_longitudinal, 'longitudinal '
+                                          'acceleration limit |ax| of the longitudinal model, '
+                                          'm/s^2', low=0.01, high=20.0)
+    accel_max_lateral: float = param(_D.accel_max_lateral, 'longitudinal acceleration limit '
+                                     '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
+    accel_filter_hz: float = param(_D.accel_filter_hz, 'low-pass corner before '
+                                   'differentiating the wheel speeds, Hz', low=0.01, high=40.0,
+                                   read_only=True)
+    wheel_inertia_kgm2: float = param(_D.wheel_inertia_kgm2, 'spin inertia of a driven wheel '
+                                      '(0: ignored), kg m^2', low=0.0, high=100.0,
+                                      read_only=True)
+    cg_height_m: float = param(_D.cg_height_m, 'centre-of-gravity height for the load transfer '
+                               '(0: ignored), m', low=0.0, high=5.0, read_only=True)
+    wheelbase_m: float = param(_D.wheelbase_m, 'wheelbase, m', low=0.5, high=10.0,
+                               read_only=True)
     gyro_stuck_s: float = param(_D.gyro_stuck_s, 'a yaw rate repeated this long is a stopped '
                                 'gyro: the lateral filter pauses, s', low=0.01, high=60.0)
     wheel_recover_s: float = param(_D.wheel_recover_s, 'a tire stays unknown this long after '
