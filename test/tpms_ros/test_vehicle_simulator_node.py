@@ -26,7 +26,7 @@ def test_kim_huh_scenario_replays_every_wheel_speed(
     simulator = make_node(VehicleSimulator, parameter_overrides=[
         Parameter('scenario', value='kim_huh_lateral'),
         Parameter('output_bag', value=str(tmp_path / 'kh')),
-        Parameter('wait_for_subscribers', value=1), Parameter('rate', value=10.0),
+        Parameter('wait_for_subscribers', value=1), Parameter('rate', value=2.0),
         Parameter('topics', value=['/vehicle/wheel_speeds'])])
     expected = bag_topics(simulator.bag)['/vehicle/wheel_speeds'].count
     assert expected == 10_001
