@@ -284,8 +284,8 @@ class CreepEstimatorNode(Node):
             self.create_subscription(TrackIrregularity, 'rail/track_irregularity',
                                      self._on_track, SENSOR_QOS,
                                      qos_overriding_options=qos_options)
-        self._diagnostics = Diagnostics(self, f'rail/creep/{p.bogie}', p.diagnostics_period_s)
-        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._diagnostics = Diagnostics(self, f'rail/creep/{p.bogie}', p.diagnostics_period_s,
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property

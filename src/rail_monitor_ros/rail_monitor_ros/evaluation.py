@@ -105,7 +105,7 @@ def imm_metrics(series: Mapping[str, TopicSeries], t0: int) -> list[Metric]:
     first_onset = onsets[0][1] if onsets else np.inf
     false_alarms = int((rising_edges(declared) & (t < first_onset)).sum())
     if not onsets:
-        return [Metric('IMM', 'false alarms (healthy run)', float(false_alarms), '', '0',
+        return [Metric('IMM', 'false alarms (healthy suspension)', float(false_alarms), '', '0',
                        false_alarms == 0,
                        f'fault declared {false_alarms} time(s)' if false_alarms
                        else 'no fault declared')]

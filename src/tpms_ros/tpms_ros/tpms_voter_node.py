@@ -133,8 +133,8 @@ class TpmsVoterNode(Node):
                 functools.partial(self._on_indication, method), SENSOR_QOS,
                 qos_overriding_options=overrides)
         self.create_timer(1.0 / p.publish_rate_hz, self._on_timer)
-        self._diagnostics = Diagnostics(self, 'tpms/voter', p.diagnostics_period_s)
-        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._diagnostics = Diagnostics(self, 'tpms/voter', p.diagnostics_period_s,
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property

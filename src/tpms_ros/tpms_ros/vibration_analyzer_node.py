@@ -183,8 +183,8 @@ class VibrationAnalyzerNode(Node):
             WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds, SENSOR_QOS,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
-        self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s)
-        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s,
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property

@@ -233,8 +233,8 @@ class WheelRadiusAnalyzerNode(Node):
         self.create_subscription(DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs,
                                  SENSOR_QOS, qos_overriding_options=overrides)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
-        self._diagnostics = Diagnostics(self, 'tpms/wheel_radius', p.diagnostics_period_s)
-        self.create_timer(p.diagnostics_period_s, self._update_diagnostics)
+        self._diagnostics = Diagnostics(self, 'tpms/wheel_radius', p.diagnostics_period_s,
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property

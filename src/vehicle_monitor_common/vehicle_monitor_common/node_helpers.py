@@ -190,16 +190,24 @@ class Diagnostics:
     """Publishes one DiagnosticStatus for a node on ``/diagnostics`` at a fixed period.
 
     The status name is the node's fully qualified name, so graphs in several namespaces stay
-    apart in an aggregator. Values are replaced by each :meth:`set`.
+    apart in an aggregator. Values are replaced by each :meth:`set`; ``update``, if given, is
+    called before each periodic publication to refresh them (one timer for both).
     """
 
-    def __init__(self, node: Node, hardware_id: str, period_s: float = 1.0) -> None:
+    def __init__(self, node: Node, hardware_id: str, period_s: float = 1.0,
+                 update: Callable[[], None] | None = None) -> None:
         self._node = node
+        self._update = update
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', OUTPUT_QOS)
         self._status = DiagnosticStatus(
             level=STALE, name=node.get_fully_qualified_name(), hardware_id=hardware_id,
             message='starting')
-        self._timer = node.create_timer(period_s, self.publish)
+        self._timer = node.create_timer(period_s, self._tick)
+
+    def _tick(self) -> None:
+        if self._update is not None:
+            self._update()
+        self.publish()
 
     def set(self, level: bytes | int, message: str, values: dict[str, Any]) -> None:
         """Replace the current status."""
@@ -208,7 +216,7 @@ class Diagnostics:
         self._status.values = [KeyValue(key=str(k), value=_format(v)) for k, v in values.items()]
 
     def publish(self) -> None:
-        """Publish the current status now (also called by the timer)."""
+        """Publish the current status now."""
         array = DiagnosticArray()
         array.header.stamp = self._node.get_clock().now().to_msg()
         array.status = [self._status]
