@@ -37,7 +37,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregularity
 
@@ -54,13 +53,13 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     WARN,
     Diagnostics,
     StampCheck,
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -270,20 +269,14 @@ class CreepEstimatorNode(Node):
         self._track_stale = True
 
         self._publisher = self.create_publisher(CreepFactor, 'rail/creep_factor', OUTPUT_QOS)
-        qos_options = QoSOverridingOptions.with_default_policies()
         if p.pattern == 'D':
-            self.create_subscription(Imu, 'rail/bogie/imu', self._on_bogie_imu, SENSOR_QOS,
-                                     qos_overriding_options=qos_options)
-            self.create_subscription(Imu, 'rail/body/imu', self._on_body_imu, SENSOR_QOS,
-                                     qos_overriding_options=qos_options)
+            sensor_subscription(self, Imu, 'rail/bogie/imu', self._on_bogie_imu)
+            sensor_subscription(self, Imu, 'rail/body/imu', self._on_body_imu)
         else:
-            self.create_subscription(RailLateralStates, 'rail/lateral_states',
-                                     self._on_lateral_states, SENSOR_QOS,
-                                     qos_overriding_options=qos_options)
+            sensor_subscription(self, RailLateralStates, 'rail/lateral_states',
+                                self._on_lateral_states)
         if p.use_track_input:
-            self.create_subscription(TrackIrregularity, 'rail/track_irregularity',
-                                     self._on_track, SENSOR_QOS,
-                                     qos_overriding_options=qos_options)
+            sensor_subscription(self, TrackIrregularity, 'rail/track_irregularity', self._on_track)
         self._diagnostics = Diagnostics(self, f'rail/creep/{p.bogie}', p.diagnostics_period_s,
                                         update=self._update_diagnostics)
         self._update_diagnostics()

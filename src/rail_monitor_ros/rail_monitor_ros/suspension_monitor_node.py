@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import ModeProbabilities, TrackIrregularity
 
@@ -46,11 +45,11 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     WARN,
     Diagnostics,
     TypedParameters,
     param,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -249,15 +248,10 @@ class SuspensionMonitor(Node):
         self._input_fault = ''
         self._first_wall: float | None = None
         self.last_output: ModeProbabilities | None = None
-        qos_options = QoSOverridingOptions.with_default_policies()
-        self.create_subscription(Imu, 'rail/bogie/imu', self._on_bogie, SENSOR_QOS,
-                                 qos_overriding_options=qos_options)
-        self.create_subscription(Imu, 'rail/body/imu', self._on_body, SENSOR_QOS,
-                                 qos_overriding_options=qos_options)
+        sensor_subscription(self, Imu, 'rail/bogie/imu', self._on_bogie)
+        sensor_subscription(self, Imu, 'rail/body/imu', self._on_body)
         if p.use_track_irregularity:
-            self.create_subscription(TrackIrregularity, 'rail/track_irregularity',
-                                     self._on_track, SENSOR_QOS,
-                                     qos_overriding_options=qos_options)
+            sensor_subscription(self, TrackIrregularity, 'rail/track_irregularity', self._on_track)
         self._publisher = self.create_publisher(ModeProbabilities, 'rail/suspension/modes',
                                                 OUTPUT_QOS)
         self.diagnostics = Diagnostics(self, 'rail_suspension_imm', p.diagnostics_period)

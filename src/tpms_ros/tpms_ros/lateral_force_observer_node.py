@@ -48,7 +48,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import DriverInputs, TireForces, WheelSpeeds
 
@@ -63,7 +62,6 @@ from tpms_ros.lateral_force_observer import (
 from vehicle_monitor_common.node_helpers import (
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     STALE,
     WARN,
     Diagnostics,
@@ -71,6 +69,7 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -202,14 +201,10 @@ class LateralForceObserverNode(Node):
         self._period_events: dict[str, int] = {}
         self._filter_rejected_seen = 0
 
-        overrides = QoSOverridingOptions.with_default_policies()
         self._publisher = self.create_publisher(TireForces, 'vehicle/tire_forces', OUTPUT_QOS)
-        self.create_subscription(Imu, 'vehicle/imu', self._on_imu, SENSOR_QOS,
-                                 qos_overriding_options=overrides)
-        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
-                                 SENSOR_QOS, qos_overriding_options=overrides)
-        self.create_subscription(DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs,
-                                 SENSOR_QOS, qos_overriding_options=overrides)
+        sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
+        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
         self._diagnostics = Diagnostics(self, hardware_id='vehicle_imu')
         self._update_diagnostics()
 

@@ -44,7 +44,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
 
@@ -60,7 +59,6 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     STALE,
     WARN,
     Diagnostics,
@@ -68,6 +66,7 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -216,17 +215,14 @@ class TireStiffnessObserverNode(Node):
         if p.calibrate_on_start and self.calibration_state != 'loaded':
             self._start_calibration()
 
-        overrides = QoSOverridingOptions.with_default_policies()
         self._stiffness_pub = self.create_publisher(TireStiffness, 'tpms/tire_stiffness',
                                                     OUTPUT_QOS)
         self._indication_pub = self.create_publisher(TpmsIndication, 'tpms/indication/stiffness',
                                                      OUTPUT_QOS)
-        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
-                                 SENSOR_QOS, qos_overriding_options=overrides)
+        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
         if p.use_wheel_torque:
-            self.create_subscription(DriverInputs, 'vehicle/driver_inputs',
-                                     self._on_driver_inputs, SENSOR_QOS,
-                                     qos_overriding_options=overrides)
+            sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs',
+                                self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
         self._diagnostics = Diagnostics(self, hardware_id='wheel_speed_sensors')
         self._update_diagnostics()

@@ -28,7 +28,6 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 from vehicle_monitor_msgs.msg import TpmsWarning
 
@@ -37,7 +36,6 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     WARN,
     ConfigurationError,
     Diagnostics,
@@ -45,6 +43,7 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -126,12 +125,9 @@ class TpmsVoterNode(Node):
         self._last_result: Any = None
         self._latest_stamp: dict[str, float] = {}
         self._publisher = self.create_publisher(TpmsWarning, 'tpms/warning', OUTPUT_QOS)
-        overrides = QoSOverridingOptions.with_default_policies()
         for method in p.methods:
-            self.create_subscription(
-                IndicationMsg, f'tpms/indication/{method}',
-                functools.partial(self._on_indication, method), SENSOR_QOS,
-                qos_overriding_options=overrides)
+            sensor_subscription(self, IndicationMsg, f'tpms/indication/{method}',
+                                functools.partial(self._on_indication, method))
         self.create_timer(1.0 / p.publish_rate_hz, self._on_timer)
         self._diagnostics = Diagnostics(self, 'tpms/voter', p.diagnostics_period_s,
                                         update=self._update_diagnostics)

@@ -23,7 +23,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import TireResonance, WheelSpeeds
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
@@ -35,7 +34,6 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     WARN,
     ConfigurationError,
     Diagnostics,
@@ -43,6 +41,7 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -179,9 +178,7 @@ class VibrationAnalyzerNode(Node):
                                                     OUTPUT_QOS)
         self._indication_pub = self.create_publisher(IndicationMsg, 'tpms/indication/vibration',
                                                      OUTPUT_QOS)
-        self.create_subscription(
-            WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds, SENSOR_QOS,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
         self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s,
                                         update=self._update_diagnostics)

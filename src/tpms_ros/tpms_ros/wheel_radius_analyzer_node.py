@@ -31,7 +31,6 @@ from typing import Any
 from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets, WheelSpeeds
@@ -44,13 +43,13 @@ from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
-    SENSOR_QOS,
     WARN,
     Diagnostics,
     StampCheck,
     TypedParameters,
     param,
     run_node,
+    sensor_subscription,
     stamp_ns,
 )
 
@@ -225,13 +224,9 @@ class WheelRadiusAnalyzerNode(Node):
                                                  OUTPUT_QOS)
         self._indication_pub = self.create_publisher(
             IndicationMsg, 'tpms/indication/wheel_radius', OUTPUT_QOS)
-        overrides = QoSOverridingOptions.with_default_policies()
-        self.create_subscription(WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds,
-                                 SENSOR_QOS, qos_overriding_options=overrides)
-        self.create_subscription(Imu, 'vehicle/imu', self._on_imu, SENSOR_QOS,
-                                 qos_overriding_options=overrides)
-        self.create_subscription(DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs,
-                                 SENSOR_QOS, qos_overriding_options=overrides)
+        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
+        sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
         self._diagnostics = Diagnostics(self, 'tpms/wheel_radius', p.diagnostics_period_s,
                                         update=self._update_diagnostics)

@@ -29,6 +29,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
 
 P = TypeVar('P')
 
@@ -47,6 +48,15 @@ SENSOR_QOS = QoSProfile(
 # Outputs: reliable, depth 10.
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE)
+
+
+def sensor_subscription(node: Node, msg_type: Any, topic: str,
+                        callback: Callable[[Any], None]) -> Any:
+    """Subscribe a sensor input: SENSOR_QOS, overridable through the standard
+    ``qos_overrides.<topic>.subscription.*`` parameters (how a replay makes inputs reliable)."""
+    return node.create_subscription(
+        msg_type, topic, callback, SENSOR_QOS,
+        qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
 
 class ConfigurationError(ValueError):
