@@ -126,7 +126,8 @@ def test_batched_imm_matches_filterpy_imm_estimator() -> None:
     from filterpy.kalman import IMMEstimator, KalmanFilter
 
     z = _imu(_simulation('rail_imm_spring_damper_fault'))[500:900]   # spans the fault at 3 s
-    config = SuspensionImmConfig(adaptive=False, probability_floor=0.0)
+    config = SuspensionImmConfig(adaptive=False, probability_floor=0.0,
+                                 steady_state_gains=False)
     imm = SuspensionImm(config)
     filters = []
     for j in range(imm.n_modes):
@@ -349,6 +350,46 @@ def test_known_input_mode_is_used_when_given() -> None:
     assert _non_normal(res)[res.time < 3.0].max() < 0.2
     assert res.first_time_above('spring_150', 0.5, 3.0) - 3.0 < 0.5
     assert abs(res.spring_ratio[-200:].mean() - 1.5) < 0.05
+
+
+def test_steady_state_prior_solves_the_riccati_equation() -> None:
+    """Each mode's steady-state prior is the fixed point of its filter's covariance cycle."""
+    imm = SuspensionImm()
+    for j in (0, 5, 12):
+        model = imm._mode_models[j]
+        for known in (0, 2):
+            steady = model.steady_state(known, imm._r[known])
+            h = model.h[known]
+            # P+ = P- - P-H^T S^-1 H P-, and P- = F P+ F^T + Q.
+            np.testing.assert_allclose(steady.innovation,
+                                       h @ steady.prior_ht + imm._r[known], rtol=1e-9)
+            predicted = model.f @ steady.posterior @ model.f.T + model.q
+            np.testing.assert_allclose(predicted @ h.T, steady.prior_ht, rtol=1e-5,
+                                       atol=1e-6 * np.abs(steady.prior_ht).max())
+            assert _semi_definite(steady.posterior[None])
+
+
+@pytest.mark.parametrize('wheelsets', [0, 2])
+def test_steady_state_cycle_agrees_with_the_exact_imm(wheelsets: int) -> None:
+    """The paper's run with and without the steady-state gains: the same mode wins nearly
+    everywhere and the detections agree within a few samples, with the track unknown and
+    with it measured (where the mixing spread term carries the damper detection)."""
+    r = _simulation('rail_imm_spring_damper_fault')
+    u = r.measured_track_alignment[:, :wheelsets] if wheelsets else None
+    runs = [run_suspension_imm(_imu(r), u, replace(SuspensionImmConfig(),
+                                                   steady_state_gains=steady), time=r.time)
+            for steady in (False, True)]
+    exact, steady = runs
+    after_warmup = r.time >= SuspensionImmConfig().warmup_time
+    same_winner = (np.argmax(exact.smoothed_probability, axis=1)
+                   == np.argmax(steady.smoothed_probability, axis=1))[after_warmup]
+    assert same_winner.mean() > 0.97
+    for name, at in (('spring_150', 3.0), ('damper_50', 6.0)):
+        assert abs(exact.first_time_above(name, 0.5, at)
+                   - steady.first_time_above(name, 0.5, at)) <= 0.03
+    late = r.time > 7.0
+    assert abs(steady.spring_ratio[late].mean() - 1.5) < 0.05
+    assert abs(steady.damper_ratio[late].mean() - 0.5) < 0.05
 
 
 def test_fault_decision_holds_and_clears_symmetrically() -> None:

@@ -74,11 +74,54 @@ ESTIMATION_MODELS = ('full_car', 'half_car')
 MODE_KINDS = ('normal', 'spring', 'damper')
 FAULT_COMPONENTS = ('', 'spring', 'damper', 'spring+damper')
 _LOG_2PI = math.log(2.0 * math.pi)
+
+@dataclass(frozen=True)
+class SteadyStateGain:
+    """A mode-matched filter's steady state for one measurement set (sensors + k known).
+
+    Attributes:
+        prior_ht: (n, p) P- H^T of the steady-state predicted covariance P-.
+        innovation: (p, p) S = H P- H^T + R.
+        posterior: (n, n) updated covariance P- - P- H^T S^-1 H P-.
+    """
+
+    prior_ht: np.ndarray
+    innovation: np.ndarray
+    posterior: np.ndarray
+
+
+@dataclass
+class ModeModel:
+    """One mode's discrete model: transition, process noise, measurement matrices per known
+    input count, and its steady-state gains (solved on first use)."""
+
+    f: np.ndarray
+    q: np.ndarray
+    h: dict[int, np.ndarray]
+    steady: dict[int, SteadyStateGain] = field(default_factory=dict)
+
+    def steady_state(self, known: int, r: np.ndarray) -> SteadyStateGain:
+        """The steady-state gain with ``known`` known inputs and measurement noise r.
+
+        Raises:
+            numpy.linalg.LinAlgError, ValueError: no stabilising solution (scipy's DARE).
+        """
+        if known not in self.steady:
+            h = self.h[known]
+            prior = scipy.linalg.solve_discrete_are(self.f.T, h.T, self.q, r)
+            prior = 0.5 * (prior + prior.T)
+            prior_ht = prior @ h.T
+            s = h @ prior_ht + r
+            s = 0.5 * (s + s.T)
+            posterior = prior - prior_ht @ np.linalg.solve(s, prior_ht.T)
+            self.steady[known] = SteadyStateGain(prior_ht, s, 0.5 * (posterior + posterior.T))
+        return self.steady[known]
+
+
 # Mode discretisations shared by all instances with the same configuration and vehicle (a
 # sweep or a test suite builds many; one full-car mode costs a 120 x 120 matrix exponential).
 # Bounded: the oldest entry goes first.
-_SHARED_DISCRETIZATIONS: dict[tuple[object, ...], tuple[np.ndarray, np.ndarray,
-                                                        dict[int, np.ndarray]]] = {}
+_SHARED_DISCRETIZATIONS: dict[tuple[object, ...], ModeModel] = {}
 _SHARED_DISCRETIZATIONS_MAX = 512
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
 _SPD_TOLERANCE = 1e-9
@@ -236,6 +279,17 @@ class SuspensionImmConfig:
         hold_time: how long it must stay above the threshold, s.
         spd_check_interval: full eigenvalue check of the bank covariances every so many
             steps (the innovation covariances are checked every step).
+        steady_state_gains: after ``warmup_time`` of exact IMM cycles, every mode-matched
+            filter runs on its steady-state Kalman gain (the discrete algebraic Riccati
+            equation of its model, solved once per model and cached): the covariance
+            propagation, nine tenths of a full-car cycle, goes away; mixing of the states,
+            likelihoods, probabilities and the decision are unchanged. What is dropped is the
+            mixing's spread-of-means term in the covariances (the measured effect on detection
+            is in docs/methods/suspension_monitor.md). False: the exact IMM every step (the
+            cycle of filterpy's IMMEstimator).
+        warmup_time: exact IMM cycles after every (re)start of the bank states, s: the
+            states start from the stationary prior, far from the steady-state covariance, and
+            frozen gains would mis-weigh the first residuals.
     """
 
     sample_rate: float = 200.0
@@ -275,13 +329,15 @@ class SuspensionImmConfig:
     fault_threshold: float = 0.6
     hold_time: float = 0.25
     spd_check_interval: int = 200
+    steady_state_gains: bool = True
+    warmup_time: float = 3.0
 
     _NON_NEGATIVE = frozenset({'probability_floor', 'model_accel_noise'})
 
     def __post_init__(self) -> None:
         for spec in fields(self):
             value = getattr(self, spec.name)
-            if spec.name == 'adaptive':
+            if spec.name in ('adaptive', 'steady_state_gains'):
                 if not isinstance(value, bool):
                     raise ValueError(f'{spec.name} must be a bool, got {value!r}')
                 continue
@@ -316,6 +372,11 @@ class SuspensionImmConfig:
     def dt(self) -> float:
         """Sample period, s."""
         return 1.0 / self.sample_rate
+
+    @property
+    def warmup_samples(self) -> int:
+        """Exact IMM cycles before the steady-state gains take over."""
+        return max(1, int(round(self.warmup_time * self.sample_rate)))
 
     @property
     def smoothing_samples(self) -> int:
@@ -699,12 +760,12 @@ class SuspensionImm:
                 q_model[k - 1:k + 1, k - 1:k + 1] = std ** 2 * np.array(
                     [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
         self._q_model = q_model
-        self._discretized: dict[tuple[float, float],
-                                tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]] = {}
+        self._discretized: dict[tuple[float, float], ModeModel] = {}
         self._p0 = self._prior()
         self.decision = FaultDecision(cfg.fault_threshold, cfg.hold_time, dt)
         self.covariance_repairs = 0
         self.rediscretizations = 0
+        self.steady_state_failures = 0
         self._damper_spring = 1.0
         self._build_bank(1.0)
         self.reset()
@@ -729,8 +790,8 @@ class SuspensionImm:
         modelled track (the car is running when monitoring starts); half car, the configured
         initial stds and the input states at their stationary variance."""
         if self._full_car:
-            f, q, _ = self._discretize(1.0, 1.0)
-            p = scipy.linalg.solve_discrete_lyapunov(f, q)
+            nominal = self._discretize(1.0, 1.0)
+            p = scipy.linalg.solve_discrete_lyapunov(nominal.f, nominal.q)
             return 0.5 * (p + p.T)
         cfg = self.config
         initial_std = [_initial_std(name, cfg) for name in self.state_names]
@@ -740,8 +801,7 @@ class SuspensionImm:
                                      poles * self._combination_std ** 2]).ravel()
         return np.diag(np.concatenate([np.square(initial_std), input_var]))
 
-    def _discretize(self, spring: float, damper: float,
-                    ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+    def _discretize(self, spring: float, damper: float) -> ModeModel:
         key = (round(spring, _RATIO_DECIMALS), round(damper, _RATIO_DECIMALS))
         shared_key = (self.config, self.vehicle, key)
         cached = self._discretized.get(key, _SHARED_DISCRETIZATIONS.get(shared_key))
@@ -760,7 +820,7 @@ class SuspensionImm:
                 eye = np.eye(f.shape[0])
                 h_known = {k: np.vstack([h, eye[self.n_states + 2 * np.arange(k // 2)]])
                            for k in self._known_sizes}
-            cached = (f, q + self._q_model, h_known)
+            cached = ModeModel(f, q + self._q_model, h_known)
             if len(_SHARED_DISCRETIZATIONS) >= _SHARED_DISCRETIZATIONS_MAX:
                 del _SHARED_DISCRETIZATIONS[next(iter(_SHARED_DISCRETIZATIONS))]
             _SHARED_DISCRETIZATIONS[shared_key] = cached
@@ -789,8 +849,9 @@ class SuspensionImm:
         self.mode_spring_ratio = np.where(self._is_damper, damper_spring, self._base_spring)
         pairs = list(zip(self.mode_spring_ratio.tolist(), self.mode_damper_ratio.tolist(),
                          strict=True))
-        mats = [self._discretize(s, d) for s, d in pairs]
-        self._f = np.stack([m[0] for m in mats])
+        self._mode_models = [self._discretize(s, d) for s, d in pairs]
+        self._f = np.stack([m.f for m in self._mode_models])
+        self._f_rows = self._f.reshape(-1, self._f.shape[2])          # (M n, n): one GEMM
         # F = [[F_x, F_xw], [0, F_w]]: the input (track) states do not depend on the vehicle
         # and F_w is the same for every mode, so F P F^T is computed by blocks (exact, about
         # half the products).
@@ -801,8 +862,9 @@ class SuspensionImm:
         if not (np.all(self._f[:, n:, :n] == 0.0)
                 and np.all(self._f[:, n:, n:] == self._f[0, n:, n:])):
             raise RuntimeError('input states must be shared and independent of the vehicle')
-        self._q = np.stack([m[1] for m in mats])
-        self._h = {k: np.stack([m[2][k] for m in mats]) for k in self._known_sizes}
+        self._q = np.stack([m.q for m in self._mode_models])
+        self._h = {k: np.stack([m.h[k] for m in self._mode_models]) for k in self._known_sizes}
+        self._steady_bank: dict[int, tuple[np.ndarray, ...] | None] = {}
         self._ht = {k: np.ascontiguousarray(v.transpose(0, 2, 1)) for k, v in self._h.items()}
         snapped_s = self._spring_grid[np.argmin(
             np.abs(self.mode_spring_ratio[:, None] - self._spring_grid[None, :]), axis=1)]
@@ -837,6 +899,25 @@ class SuspensionImm:
         self.x = np.zeros((self.n_modes, n_aug))
         self.P = np.broadcast_to(self._p0, (self.n_modes, n_aug, n_aug)).copy()
         self._steps = 0
+        self._steady = False
+
+    def _steady_state_bank(self, known: int) -> tuple[np.ndarray, ...] | None:
+        """Stacked steady-state (P- H^T, S, posterior, H F as rows) of every mode with
+        ``known`` known inputs, or None when a mode has no stabilising Riccati solution (the
+        bank then stays exact; counted in ``steady_state_failures``)."""
+        if known not in self._steady_bank:
+            try:
+                gains = [m.steady_state(known, self._r[known]) for m in self._mode_models]
+            except (np.linalg.LinAlgError, ValueError):
+                self.steady_state_failures += 1
+                self._steady_bank[known] = None
+            else:
+                self._steady_bank[known] = (
+                    np.stack([g.prior_ht for g in gains]),
+                    np.stack([g.innovation for g in gains]),
+                    np.stack([g.posterior for g in gains]),
+                    np.matmul(self._h[known], self._f).reshape(-1, self._f.shape[2]))
+        return self._steady_bank[known]
 
     # ----------------------------------------------------------------------- IMM cycle
     def _mixing_weights(self) -> np.ndarray:
@@ -896,6 +977,54 @@ class SuspensionImm:
         log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
         return -0.5 * (maha + log_det + z.size * _LOG_2PI)
 
+    def _steady_cycle(self, z: np.ndarray | None, known: int,
+                      steady: tuple[np.ndarray, ...]) -> np.ndarray | None:
+        """The IMM cycle on the steady-state covariances plus the mixing's spread of means.
+
+        Exact IMM: P-_j = F_j (sum_i w_ji P_i) F_j^T + Q_j + F_j Spread_j F_j^T with
+        Spread_j = sum_i w_ji (x_i - x0_j)(x_i - x0_j)^T. Here the first two terms are the
+        mode's steady-state prior P-ss_j, and the spread is kept exactly but never formed: it
+        is low-rank (at most M columns e_ij = F_j (x_i - x0_j)), so S_j = S_ss,j
+        + sum_i w_ji (H e_ij)(H e_ij)^T and P-_j H^T = P-ss_j H^T + sum_i w_ji e_ij (H e_ij)^T
+        cost O(M^2 n^2) instead of the O(M n^3) covariance propagation. The spread is what
+        lets the mismatched modes follow a change (measured: with known inputs, which make
+        P-ss small, dropping it delayed the damper detection from 0.12 s to 1.5 s). The mode
+        covariances left in ``P`` are the steady-state posteriors. Log-likelihoods or None.
+        """
+        prior_ht, s_ss, posterior, hf_rows = steady
+        m, n = self.x.shape
+        w = self._mixing_weights()                                    # (M, M): w[j, i]
+        # F_j x_i (and H F_j x_i) for every pair in one product each; the predictions
+        # F_j x0_j and the spread columns e_ij follow by weighting with w.
+        propagated = (self._f_rows @ self.x.T).reshape(m, n, m)       # (M, n, M)
+        x = np.matmul(propagated, w[:, :, None])                      # (M, n, 1)
+        self.P = posterior
+        if z is None:
+            self.x = x[:, :, 0]
+            return None
+        measured = (hf_rows @ self.x.T).reshape(m, -1, m)             # (M, p, M)
+        predicted_z = np.matmul(measured, w[:, :, None])              # (M, p, 1)
+        spread = propagated - x                                       # e_ij
+        spread_h = measured - predicted_z                             # H e_ij
+        weighted_h = spread_h * w[:, None, :]
+        s = s_ss + np.matmul(weighted_h, spread_h.transpose(0, 2, 1))
+        residual = z[None, :, None] - predicted_z
+        try:
+            chol = np.linalg.cholesky(s)
+        except np.linalg.LinAlgError:
+            # Only non-finite states can do this (S_ss is positive definite, the spread
+            # semi-definite): restart the states, exact cycles first.
+            self.covariance_repairs += 1
+            self.reset_states()
+            return None
+        s_inv_res = np.linalg.solve(s, residual)
+        # (P-ss H^T + sum_i w_ji e_ij (H e_ij)^T) S^-1 r without forming the gain.
+        self.x = (x + np.matmul(prior_ht, s_inv_res) + np.matmul(
+            spread, np.matmul(weighted_h.transpose(0, 2, 1), s_inv_res)))[:, :, 0]
+        maha = (residual * s_inv_res).sum(axis=(1, 2))
+        log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
+        return -0.5 * (maha + log_det + z.size * _LOG_2PI)
+
     def _repair_covariances(self, force: bool = False) -> None:
         """Detect and repair a bank covariance that lost positive semi-definiteness.
 
@@ -921,9 +1050,8 @@ class SuspensionImm:
 
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (see :meth:`_weighted`)."""
-        estimate = self._weighted(self.smoothed, self.mode_spring_ratio)
         quantum = self.config.adaptation_resolution
-        snapped = round(round(estimate / quantum) * quantum, _RATIO_DECIMALS)
+        snapped = round(round(self.spring_ratio / quantum) * quantum, _RATIO_DECIMALS)
         if snapped != self._damper_spring:
             self._build_bank(snapped)
             self.rediscretizations += 1
@@ -962,8 +1090,15 @@ class SuspensionImm:
         known = 0 if u is None or z is None else u.size
         if known and z is not None and u is not None:
             z = np.concatenate([z, self._t_known[known] @ u])
-        self._mix_and_predict()
-        log_lik = None if z is None else self._update(z, known, self._r[known])
+        steady = None
+        if self.config.steady_state_gains and self._steps >= self.config.warmup_samples:
+            steady = self._steady_state_bank(known)
+        self._steady = steady is not None
+        if steady is not None:
+            log_lik = self._steady_cycle(z, known, steady)
+        else:
+            self._mix_and_predict()
+            log_lik = None if z is None else self._update(z, known, self._r[known])
         if log_lik is not None:
             log_post = log_lik + np.log(np.maximum(self._cbar, 1e-300))
             mu = np.exp(log_post - log_post.max())
@@ -976,7 +1111,8 @@ class SuspensionImm:
         else:
             self.mu = self._cbar / self._cbar.sum()
         self._steps += 1
-        if self.config.spd_check_interval and self._steps % self.config.spd_check_interval == 0:
+        if (not self._steady and self.config.spd_check_interval
+                and self._steps % self.config.spd_check_interval == 0):
             self._repair_covariances()
         self._smooth_and_decide()
         if self.config.adaptive and z is not None:
