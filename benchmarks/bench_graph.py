@@ -11,8 +11,9 @@ Prints (figures, not timed tests; SPEC §8 targets in brackets):
 2. The same graph with one process per node (each on its own executor, DDS between processes)
    vs composed: real-time factor and the CPU of each process.
 3. End-to-end latency at real rate: from a wheel-speed sample to the first ``/tpms/warning``
-   stamped with it, p50/p99 [p99 < 5 ms]. The sample's publish time is its bag time plus the
-   player's schedule offset (the smallest receive-minus-stamp delay of any wheel-speed sample).
+   stamped with it, p50/p99 [p99 < 5 ms], composed in one process and one process per node.
+   The sample's publish time is its bag time plus the player's schedule offset (the smallest
+   receive-minus-stamp delay of any wheel-speed sample).
 4. Each estimator's offline throughput vs the plainest per-sample implementation of the same
    maths, collected from the estimator benchmarks (benchmarks/bench_*.py, run as they are).
 
@@ -314,8 +315,13 @@ class LatencyProbe(Node):
         self.outputs[topic].setdefault(self._stamp(msg), time.monotonic())
 
 
-def latency(seconds: float) -> None:
-    """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99."""
+def latency(seconds: float, per_process: bool) -> None:
+    """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99.
+
+    Composed: every node and the probe on one executor (a sample's callbacks, and any chunk
+    work due with it, run one after the other). Per process: each node in its own process,
+    the probe in this one.
+    """
     road = next(d for d in domains() if d.name == 'road')
     spec = load_graph(road.graph)
     nodes = tuple(n for n in spec.nodes if n.name != road.recorder)
@@ -325,25 +331,53 @@ def latency(seconds: float) -> None:
                                               '/vehicle/driver_inputs']}})
     context = rclpy.Context()
     rclpy.init(context=context)
-    graph = Graph(spec, context)
+    processes: list[Any] = []
+    stop: Any = None
+    if per_process:
+        spawn = multiprocessing.get_context('spawn')
+        stop = spawn.Event()
+        results = spawn.Queue()
+        ordered = sorted(spec.nodes, key=lambda n: n.name == road.player)
+        processes = [spawn.Process(target=_node_process, args=(
+            n, spec.use_sim_time, spec.executor, stop, results, {}), daemon=True)
+            for n in ordered]
+        graph = None
+        from rclpy.experimental import EventsExecutor
+        executor: Any = EventsExecutor(context=context)
+    else:
+        graph = Graph(spec, context)
+        executor = graph.executor
     probe = LatencyProbe(context=context)
-    graph.executor.add_node(probe)
+    executor.add_node(probe)
+    for process in processes:
+        process.start()
+    never: Future = Future()
     try:
-        graph.spin_until(lambda: bool(probe.samples), timeout_s=30.0)
+        deadline = time.monotonic() + 60.0
+        while not probe.samples and time.monotonic() < deadline:
+            executor.spin_until_future_complete(never, timeout_sec=0.2)
         stop_at = time.monotonic() + seconds
-        never: Future = Future()
         while time.monotonic() < stop_at:
-            graph.executor.spin_until_future_complete(never, timeout_sec=0.5)
+            executor.spin_until_future_complete(never, timeout_sec=0.5)
     finally:
-        graph.executor.remove_node(probe)
+        if stop is not None:
+            stop.set()
+        for process in processes:
+            process.join(timeout=10.0)
+        executor.remove_node(probe)
         probe.destroy_node()
-        graph.destroy()
+        if graph is not None:
+            graph.destroy()
         rclpy.try_shutdown(context=context)
+    if not probe.samples:
+        print('  no wheel-speed sample reached the probe')
+        return
     stamps = np.array(sorted(probe.samples), dtype=np.int64)
     received = np.array([probe.samples[s] for s in stamps])
     offset = float(np.min(received - stamps * 1e-9))  # the player's schedule: stamp -> wall
-    print(f'  road graph at real rate for {seconds:.0f} s; a wheel-speed sample reaches the '
-          f'graph after p50 {1e3 * np.median(received - stamps * 1e-9 - offset):.2f} ms')
+    layout = 'one process per node' if per_process else 'composed in one process'
+    print(f'  road graph at real rate for {seconds:.0f} s, {layout}; a wheel-speed sample reaches '
+          f'the probe after p50 {1e3 * np.median(received - stamps * 1e-9 - offset):.2f} ms')
     for topic in LatencyProbe.OUTPUTS:
         matched = [(s, t) for s, t in probe.outputs[topic].items() if s in probe.samples]
         if not matched:
@@ -413,7 +447,8 @@ def main() -> None:
             process_per_node(domain, short)
     if not args.skip_latency:
         print('3. input-to-warning latency at real rate')
-        latency(args.latency_seconds)
+        for per_process in (False, True):
+            latency(args.latency_seconds, per_process)
     if not args.skip_offline:
         print('4. offline throughput of each estimator vs its plainest implementation')
         offline()

@@ -106,7 +106,7 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
 
 
 @pytest.mark.parametrize('values, match', [
-    ({'publish_rate_hz': 50.0}, 'fewer than 100 samples'),
+    ({'process_period_s': 0.002, 'sample_rate_hz': 400.0}, 'shorter than one sample'),
     ({'band_low_hz': 70.0}, 'band_hz'),
     ({'observer_pole_factor': 20.0}, 'Nyquist'),
     ({'driven_axle': 'middle'}, 'driven_axle'),

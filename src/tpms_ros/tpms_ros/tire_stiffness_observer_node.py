@@ -12,9 +12,11 @@ Topics (relative, so a namespace moves them):
 * service ``~/calibrate`` (std_srvs/Trigger): learn every tire's nominal stiffness over the next
   ``calibration_s`` of *valid* data (the tires must be at ``nominal_pressure_kpa``).
 
-Processing: wheel speeds are buffered and handed to the core in chunks of one output period
-(``1 / publish_rate_hz`` of *data* time, at least 100 samples), so a replay at any speed gives
-the same outputs. Each output is stamped with the last wheel-speed sample of its chunk.
+Processing: wheel speeds are buffered and handed to the core in chunks of ``process_period_s``
+of *data* time (the core's result does not depend on the chunking; short chunks keep the work
+left when an output falls due, hence its latency, small), and an output is published every
+``1 / publish_rate_hz`` of data time, so a replay at any speed gives the same outputs. Each
+output is stamped with the last wheel-speed sample it answers.
 
 Time alignment of the driver inputs: each wheel-speed sample takes the latest driver-input
 message not newer than itself (sample and hold); one older than ``driver_inputs_max_age_s`` is
@@ -71,13 +73,20 @@ from vehicle_monitor_common.node_helpers import (
 )
 
 WHEELS = ('FL', 'FR', 'RL', 'RR')
-# The core's author: each update() call should hold at least this many samples.
-MIN_CHUNK_SAMPLES = 100
 # Core reasons that mean the sensor data are bad (ERROR), not that the method is paused.
 SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
 # Relative input-rate deviation reported as a mismatch (the core's default timing tolerance).
 RATE_TOLERANCE = 0.25
 
+
+
+def _spans(first_ns: int, last_ns: int, count: int, rate_hz: float,
+           sample_rate_hz: float) -> bool:
+    """Whether ``count`` samples from first_ns to last_ns cover one period of rate_hz: n
+    samples cover n mean intervals (one sample: one nominal interval)."""
+    if count < 2:
+        return rate_hz >= sample_rate_hz * 0.999
+    return (last_ns - first_ns) * count >= 1e9 / rate_hz * (count - 1) * 0.999
 
 @dataclass(frozen=True)
 class StiffnessNodeParameters:
@@ -138,15 +147,16 @@ class StiffnessNodeParameters:
                                      'calibration file was loaded', read_only=True)
     calibration_file: str = param('', 'YAML file the calibration is saved to and loaded '
                                   'from at start; empty: not persisted', read_only=True)
-    publish_rate_hz: float = param(4.0, 'output rate in data time, Hz (each output answers '
-                                   'sample_rate_hz / publish_rate_hz >= 100 samples)',
-                                   low=0.01, high=100.0)
+    publish_rate_hz: float = param(4.0, 'output rate in data time, Hz', low=0.01, high=100.0)
+    process_period_s: float = param(0.25, 'wheel speeds go to the core in chunks of this much '
+                                    'data time, s (no effect on the result; shorter: less '
+                                    'work when an output falls due, more per-call '
+                                    'overhead)', low=0.001, high=10.0)
 
     def __post_init__(self) -> None:
-        if self.sample_rate_hz / self.publish_rate_hz < MIN_CHUNK_SAMPLES:
-            raise ValueError(f'publish_rate_hz {self.publish_rate_hz:g} leaves fewer than '
-                             f'{MIN_CHUNK_SAMPLES} samples per update at sample_rate_hz '
-                             f'{self.sample_rate_hz:g}')
+        if self.process_period_s * self.sample_rate_hz < 1.0:
+            raise ValueError(f'process_period_s {self.process_period_s:g} is shorter than one '
+                             f'sample at sample_rate_hz {self.sample_rate_hz:g}')
         if len(self.nominal_pressure_kpa) != 4:
             raise ValueError('nominal_pressure_kpa must hold 4 values (FL, FR, RL, RR), got '
                              f'{len(self.nominal_pressure_kpa)}')
@@ -202,6 +212,9 @@ class TireStiffnessObserverNode(Node):
         self.published = 0
         self._buffer_ns: list[int] = []
         self._buffer_omega: list[Any] = []
+        # Samples since the last output and the first of them (outputs every publish period).
+        self._window_count = 0
+        self._window_first_ns = 0
         self._driver: deque[tuple[int, np.ndarray]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
         self._input_rate_hz = math.nan
@@ -339,13 +352,16 @@ class TireStiffnessObserverNode(Node):
             return
         self._buffer_ns.append(stamp)
         self._buffer_omega.append(omega)
+        if not self._window_count:
+            self._window_first_ns = stamp
+        self._window_count += 1
         p = self.parameters
-        period_ns = 1e9 / p.publish_rate_hz
-        # A chunk spans one output period of data time: n samples cover n mean intervals.
-        count = len(self._buffer_ns)
-        if (count >= MIN_CHUNK_SAMPLES
-                and (stamp - self._buffer_ns[0]) * count >= period_ns * (count - 1) * 0.999):
-            self._process()
+        # A span of n samples covers n mean intervals of data time.
+        publish = _spans(self._window_first_ns, stamp, self._window_count, p.publish_rate_hz,
+                         p.sample_rate_hz)
+        if publish or _spans(self._buffer_ns[0], stamp, len(self._buffer_ns),
+                             1.0 / p.process_period_s, p.sample_rate_hz):
+            self._process(publish)
 
     def _torque_for(self, stamps: np.ndarray) -> np.ndarray | None:
         """Sample-and-hold driver torque for each wheel-speed stamp (NaN where stale)."""
@@ -363,7 +379,7 @@ class TireStiffnessObserverNode(Node):
             return None
         return np.where(fresh[:, None], torque[np.maximum(index, 0)], np.nan)
 
-    def _process(self) -> None:
+    def _process(self, publish: bool) -> None:
         stamps = np.array(self._buffer_ns, dtype=np.int64)
         omega = np.array(self._buffer_omega, dtype=float)
         self._buffer_ns.clear()
@@ -378,8 +394,10 @@ class TireStiffnessObserverNode(Node):
         self.processed += int(stamps.size)
         self._estimate = estimate
         self._check_calibration()
-        self._publish(estimate, int(stamps[-1]))
-        self._update_diagnostics()
+        if publish:
+            self._window_count = 0
+            self._publish(estimate, int(stamps[-1]))
+            self._update_diagnostics()
 
     # -- outputs -----------------------------------------------------------------------------
 

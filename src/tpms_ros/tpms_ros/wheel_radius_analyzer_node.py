@@ -155,6 +155,10 @@ class WheelRadiusAnalyzerParameters:
                                    'within this long, s', low=0.01, high=600.0)
     publish_rate_hz: float = param(10.0, 'highest output rate (in data time), Hz', low=0.01,
                                    high=1000.0)
+    process_period_s: float = param(0.1, 'aligned bins go to the core in chunks of this much '
+                                    'IMU time, or sooner when an output falls due, s (no '
+                                    'effect on the result; per-call overhead)', low=0.0,
+                                    high=10.0)
     calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
                                           low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
@@ -196,6 +200,8 @@ class WheelRadiusAnalyzerNode(Node):
                         for topic in ('wheel_speeds', 'imu', 'driver_inputs')}
         self._wheels: deque[tuple[int, np.ndarray]] = deque()
         self._imu: deque[tuple[int, float]] = deque()
+        # Aligned bins waiting for the core (see process_period_s).
+        self._pending: list[tuple[float, np.ndarray, float, float, np.ndarray]] = []
         self._driver: deque[tuple[int, float, np.ndarray]] = deque()
         self._last_bin_end: int | None = None
         self._counts = dict.fromkeys(('wrong_size', 'empty_bins', 'stale_driver_inputs',
@@ -317,8 +323,14 @@ class WheelRadiusAnalyzerNode(Node):
             self._last_bin_end = t_k
             rows.append((t_k * 1e-9, self._bin_mean(start, t_k), yaw,
                          *self._driver_at(t_k)))
-        if rows:
-            self._process(rows)
+        self._pending.extend(rows)
+        if not self._pending:
+            return
+        first_s, last_s = self._pending[0][0], self._pending[-1][0]
+        if (last_s - first_s >= p.process_period_s - 1e-9
+                or last_s - self._last_publish_s >= 1.0 / p.publish_rate_hz - 1e-9):
+            pending, self._pending = self._pending, []
+            self._process(pending)
 
     def _bin_mean(self, start: int, end: int) -> np.ndarray:
         """Mean wheel speeds stamped in (start, end]; NaN for a wheel with a bad sample."""
