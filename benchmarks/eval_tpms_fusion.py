@@ -10,9 +10,9 @@ by diffusion at the leak rate.
 
 Every method is fed the way its node feeds it (:mod:`tpms_ros.tpms_fusion_replay`): vibration in
 0.1 s blocks, wheel radius on 10 ms wheel-speed means closed at the IMU stamps with the driver
-inputs held, the stiffness observer in 0.25 s chunks with held torques. All three calibrate
-over [0, ``CALIBRATION_END_S``] (nominal pressure, a production system's "reset" button). The
-voter (core defaults) runs at 10 Hz; "time to warning" of one method is the same voter fed that
+inputs held, the stiffness observer in 0.25 s chunks with held torques and steering. All three
+calibrate over [0, ``CALIBRATION_END_S``] (nominal pressure, a production system's "reset"
+button). The voter (core defaults) runs at 10 Hz; "time to warning" of one method is the same voter fed that
 method alone (its own h_i and the same hold-off).
 
 Detection time is counted from the moment the true loss reaches the case's level (end of the
@@ -103,7 +103,8 @@ def method_params(scenario: Scenario) -> MethodParams:
             sample_rate_hz=rates.imu_hz, radius_noise_floor=RADIUS_NOISE_FLOOR,
             wheel_inertia_kgm2=v.iw, cg_height_m=v.h, wheelbase_m=wheelbase),
         stiffness=StiffnessObserverParams(sample_rate_hz=rates.wheel_speed_hz,
-                                          driven_axle=v.driven_axle, rolling_radius_m=v.rw))
+                                          driven_axle=v.driven_axle, rolling_radius_m=v.rw,
+                                          wheelbase_m=wheelbase))
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,7 @@ def replay_methods(result: RoadSimulationResult, calibration_end_s: float,
     steer_bins = sample_and_hold(t_driver, driver.fields['steering_angle'], imu_t,
                                  DRIVER_MAX_AGE_S)
     torque_w = sample_and_hold(t_driver, driver.fields['wheel_torque'], t_w, DRIVER_MAX_AGE_S)
+    steer_w = sample_and_hold(t_driver, driver.fields['steering_angle'], t_w, DRIVER_MAX_AGE_S)
 
     vib = VibrationAnalyzer(p.vibration)
     rad = WheelRadiusAnalyzer(rp)
@@ -203,7 +205,8 @@ def replay_methods(result: RoadSimulationResult, calibration_end_s: float,
             imu_pos = imu_end
         while stiff_pos + chunk <= end:
             sl = slice(stiff_pos, stiff_pos + chunk)
-            s_est = stiff.update(omega[sl], stamps=t_w[sl], wheel_torque=torque_w[sl])
+            s_est = stiff.update(omega[sl], stamps=t_w[sl], wheel_torque=torque_w[sl],
+                                 steering_angle=steer_w[sl])
             s_known = np.asarray(s_est.valid) & np.asarray(s_est.wheel_calibrated)
             latest['stiffness'] = TpmsIndication(
                 'stiffness', float(t_w[stiff_pos + chunk - 1]),

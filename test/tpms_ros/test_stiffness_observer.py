@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -319,6 +320,29 @@ def test_bad_samples_do_not_corrupt_and_mark_unknown():
     nan_tail[:, 1] = np.nan
     est = run(observer, nan_tail)[-1]
     assert est.status[1] == 'invalid_sample' and not est.underinflated.any()
+
+
+def test_cornering_gate_holds_the_estimate():
+    """With a steering angle that means more lateral acceleration than the limit, every wheel
+    is paused ('cornering') and the estimate holds; a non-finite angle skips the gate."""
+    omega = synthesize(MODEL.k * np.array([1.0, 1.0, 0.9, 1.0]), 40.0, seed=52)
+    observer = TireStiffnessObserver()
+    before = run(observer, omega[:20000])[-1]
+    p = observer.params
+    speed = float(np.median(omega[:20000])) * p.rolling_radius_m
+    # v^2 tan(delta) / L = 2 m/s^2, twice the default limit
+    steering = np.full(BLOCK, math.atan(2.0 * p.wheelbase_m / speed ** 2))
+    for start in range(20000, 30000, BLOCK):
+        during = observer.update(omega[start:start + BLOCK], steering_angle=steering)
+    assert set(during.status) == {'cornering'}
+    np.testing.assert_array_equal(during.stiffness, before.stiffness)
+    assert observer.counters['cornering'][0] == 10000
+    steering[:] = math.nan
+    after = observer.update(omega[30000:30000 + BLOCK], steering_angle=steering)
+    assert observer.counters['steering_invalid'][0] == BLOCK
+    assert 'cornering' not in set(after.status)
+    with pytest.raises(ValueError, match='steering_angle'):
+        observer.update(omega[:10], steering_angle=np.zeros(3))
 
 
 def test_timing_faults_reset_and_are_counted():

@@ -88,7 +88,7 @@ class SuspensionMonitorParameters:
                                      'steady-state covariance plus the mixing spread (about 8x '
                                      'faster on the full car); false: the exact IMM',
                                      read_only=True)
-    warmup_time: float = param(3.0, 'exact IMM cycles after every start of the states, s',
+    warmup_time: float = param(1.0, 'exact IMM cycles after every start of the states, s',
                                low=0.005, high=600.0, read_only=True)
     track_roughness: float = param(2.119e-7, 'full car: track alignment spectrum A_a, m rad',
                                    low=1e-12, high=1e-3, read_only=True)

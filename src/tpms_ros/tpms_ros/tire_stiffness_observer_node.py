@@ -20,7 +20,8 @@ output is stamped with the last wheel-speed sample it answers.
 
 Time alignment of the driver inputs: each wheel-speed sample takes the latest driver-input
 message not newer than itself (sample and hold); one older than ``driver_inputs_max_age_s`` is
-stale and the torque gate is skipped for that sample (counted in the core's ``torque_invalid``).
+stale and the torque and cornering gates are skipped for that sample (counted in the core's
+``torque_invalid`` and ``steering_invalid``).
 
 Bad input: a message with other than four speeds, or a repeated or out-of-order stamp, is
 rejected and counted here; non-finite, negative, dead and stuck speeds, gaps and sample-rate
@@ -136,10 +137,15 @@ class StiffnessNodeParameters:
                             'the wheel', low=1e-3, high=1.0)
     max_wheel_torque_nm: float = param(1000.0, '|wheel torque| above this pauses the wheel, '
                                        'N m', low=1.0, high=1e5)
-    use_wheel_torque: bool = param(True, 'subscribe vehicle/driver_inputs for the torque gate',
-                                   read_only=True)
+    max_lateral_accel_mps2: float = param(1.0, 'lateral acceleration (from steering and speed) '
+                                          'above this pauses the estimate, m/s^2', low=0.01,
+                                          high=50.0)
+    wheelbase_m: float = param(2.7, 'wheelbase for the lateral acceleration, m', low=0.5,
+                               high=20.0)
+    use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
+                                    'cornering gates', read_only=True)
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
-                                           'stale (torque gate skipped), s', low=1e-3,
+                                           'stale (torque and cornering gates skipped), s', low=1e-3,
                                            high=10.0)
     calibration_s: float = param(60.0, 'valid data per tire a calibration collects, s',
                                  low=1.0, high=3600.0)
@@ -189,7 +195,8 @@ class StiffnessNodeParameters:
             rolling_radius_m=self.rolling_radius_m,
             speed_band_kmh=(self.speed_min_kmh, self.speed_max_kmh),
             max_accel_mps2=self.max_accel_mps2, max_slip=self.max_slip,
-            max_wheel_torque_nm=self.max_wheel_torque_nm)
+            max_wheel_torque_nm=self.max_wheel_torque_nm,
+            max_lateral_accel_mps2=self.max_lateral_accel_mps2, wheelbase_m=self.wheelbase_m)
 
 
 def _time_msg(ns: int) -> Time:
@@ -215,7 +222,8 @@ class TireStiffnessObserverNode(Node):
         # Samples since the last output and the first of them (outputs every publish period).
         self._window_count = 0
         self._window_first_ns = 0
-        self._driver: deque[tuple[int, np.ndarray]] = deque(maxlen=1000)
+        # (stamp ns, wheel torques, steering angle) of the driver inputs, for the gates.
+        self._driver: deque[tuple[int, np.ndarray, float]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
         self._input_rate_hz = math.nan
         self._estimate: StiffnessEstimate | None = None
@@ -233,7 +241,7 @@ class TireStiffnessObserverNode(Node):
         self._indication_pub = self.create_publisher(TpmsIndication, 'tpms/indication/stiffness',
                                                      OUTPUT_QOS)
         sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
-        if p.use_wheel_torque:
+        if p.use_driver_inputs:
             sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs',
                                 self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
@@ -336,8 +344,8 @@ class TireStiffnessObserverNode(Node):
         torque = np.asarray(msg.wheel_torque, dtype=float)
         stamp = stamp_ns(msg.header.stamp)
         if torque.shape != (4,) or (self._driver and stamp <= self._driver[-1][0]):
-            return  # the gate simply holds the previous torque
-        self._driver.append((stamp, torque))
+            return  # the gates simply hold the previous inputs
+        self._driver.append((stamp, torque, float(msg.steering_angle)))
 
     def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
         self.received += 1
@@ -363,12 +371,15 @@ class TireStiffnessObserverNode(Node):
                              1.0 / p.process_period_s, p.sample_rate_hz):
             self._process(publish)
 
-    def _torque_for(self, stamps: np.ndarray) -> np.ndarray | None:
-        """Sample-and-hold driver torque for each wheel-speed stamp (NaN where stale)."""
+    def _driver_inputs_for(self, stamps: np.ndarray,
+                           ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Sample-and-hold wheel torques (N, 4) and steering angle (N,) for each wheel-speed
+        stamp (NaN where stale), or None without driver inputs."""
         if not self._driver:
-            return None
-        driver_ns = np.array([s for s, _ in self._driver], dtype=np.int64)
-        torque = np.array([t for _, t in self._driver])
+            return None, None
+        driver_ns = np.array([d[0] for d in self._driver], dtype=np.int64)
+        torque = np.array([d[1] for d in self._driver])
+        steering = np.array([d[2] for d in self._driver])
         index = np.searchsorted(driver_ns, stamps, side='right') - 1
         max_age_ns = self.parameters.driver_inputs_max_age_s * 1e9
         fresh = (index >= 0) & (stamps - driver_ns[np.maximum(index, 0)] <= max_age_ns)
@@ -376,8 +387,10 @@ class TireStiffnessObserverNode(Node):
         for _ in range(max(int(index[-1]), 0)):
             self._driver.popleft()
         if not fresh.any():
-            return None
-        return np.where(fresh[:, None], torque[np.maximum(index, 0)], np.nan)
+            return None, None
+        held = np.maximum(index, 0)
+        return (np.where(fresh[:, None], torque[held], np.nan),
+                np.where(fresh, steering[held], np.nan))
 
     def _process(self, publish: bool) -> None:
         stamps = np.array(self._buffer_ns, dtype=np.int64)
@@ -390,7 +403,9 @@ class TireStiffnessObserverNode(Node):
         t = (stamps - self._origin_ns) * 1e-9
         if stamps.size > 1:
             self._input_rate_hz = 1.0 / float(np.median(np.diff(t)))
-        estimate = self._observer.update(omega, stamps=t, wheel_torque=self._torque_for(stamps))
+        torque, steering = self._driver_inputs_for(stamps)
+        estimate = self._observer.update(omega, stamps=t, wheel_torque=torque,
+                                         steering_angle=steering)
         self.processed += int(stamps.size)
         self._estimate = estimate
         self._check_calibration()
