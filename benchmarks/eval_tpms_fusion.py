@@ -12,8 +12,8 @@ Every method is fed the way its node feeds it (:mod:`tpms_ros.tpms_fusion_replay
 0.1 s blocks, wheel radius on 10 ms wheel-speed means closed at the IMU stamps with the driver
 inputs held, the stiffness observer in 0.25 s chunks with held torques and steering. All three
 calibrate over [0, ``CALIBRATION_END_S``] (nominal pressure, a production system's "reset"
-button). The voter (core defaults) runs at 10 Hz; "time to warning" of one method is the same voter fed that
-method alone (its own h_i and the same hold-off).
+button). The voter (core defaults) runs at 10 Hz; "time to warning" of one method is the same
+voter fed that method alone (its own h_i and the same hold-off).
 
 Detection time is counted from the moment the true loss reaches the case's level (end of the
 step, or when the leak gets there; negative: warned before). A method is "applicable" where it

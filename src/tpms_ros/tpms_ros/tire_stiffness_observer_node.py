@@ -145,8 +145,8 @@ class StiffnessNodeParameters:
     use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
                                     'cornering gates', read_only=True)
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
-                                           'stale (torque and cornering gates skipped), s', low=1e-3,
-                                           high=10.0)
+                                           'stale (torque and cornering gates skipped), s',
+                                           low=1e-3, high=10.0)
     calibration_s: float = param(60.0, 'valid data per tire a calibration collects, s',
                                  low=1.0, high=3600.0)
     calibrate_on_start: bool = param(False, 'start a calibration at start when no usable '
