@@ -859,7 +859,6 @@ class SuspensionImm:
                          strict=True))
         self._mode_models = [self._discretize(s, d) for s, d in pairs]
         self._f = np.stack([m.f for m in self._mode_models])
-        self._f_rows = self._f.reshape(-1, self._f.shape[2])          # (M n, n): one GEMM
         # F = [[F_x, F_xw], [0, F_w]]: the input (track) states do not depend on the vehicle
         # and F_w is the same for every mode, so F P F^T is computed by blocks (exact, about
         # half the products).
@@ -867,6 +866,8 @@ class SuspensionImm:
         self._f_top = np.ascontiguousarray(self._f[:, :n, :])
         self._f_top_t = np.ascontiguousarray(self._f_top.transpose(0, 2, 1))
         self._f_input_t = np.ascontiguousarray(self._f[0, n:, n:].T)
+        self._f_input = np.ascontiguousarray(self._f[0, n:, n:])
+        self._f_top_rows = self._f_top.reshape(-1, self._f.shape[2])  # (M k, n): one GEMM
         if not (np.all(self._f[:, n:, :n] == 0.0)
                 and np.all(self._f[:, n:, n:] == self._f[0, n:, n:])):
             raise RuntimeError('input states must be shared and independent of the vehicle')
@@ -1001,19 +1002,23 @@ class SuspensionImm:
         covariances left in ``P`` are the steady-state posteriors. Log-likelihoods or None.
         """
         prior_ht, s_ss, posterior, hf_rows = steady
-        m, n = self.x.shape
+        m = self.n_modes
+        k = self.n_states
         w = self._mixing_weights()                                    # (M, M): w[j, i]
-        # F_j x_i (and H F_j x_i) for every pair in one product each; the predictions
-        # F_j x0_j and the spread columns e_ij follow by weighting with w.
-        propagated = (self._f_rows @ self.x.T).reshape(m, n, m)       # (M, n, M)
-        x = np.matmul(propagated, w[:, :, None])                      # (M, n, 1)
+        # F_j x_i for every pair, by blocks: the vehicle rows per mode in one product, the
+        # input rows (shared, vehicle-independent) once per i. The predictions F_j x0_j and
+        # the spread columns e_ij = F_j x_i - F_j x0_j follow by weighting with w.
+        top = (self._f_top_rows @ self.x.T).reshape(m, k, m)          # (M, k, M)
+        inputs = self._f_input @ self.x[:, k:].T                      # (n - k, M)
+        x_top = np.matmul(top, w[:, :, None])[:, :, 0]                # (M, k)
+        x_inputs = w @ inputs.T                                       # (M, n - k)
+        x = np.concatenate([x_top, x_inputs], axis=1)
         self.P = posterior
         if z is None:
-            self.x = x[:, :, 0]
+            self.x = x
             return None
-        measured = (hf_rows @ self.x.T).reshape(m, -1, m)             # (M, p, M)
+        measured = (hf_rows @ self.x.T).reshape(m, -1, m)             # (M, p, M): H F_j x_i
         predicted_z = np.matmul(measured, w[:, :, None])              # (M, p, 1)
-        spread = propagated - x                                       # e_ij
         spread_h = measured - predicted_z                             # H e_ij
         weighted_h = spread_h * w[:, None, :]
         s = s_ss + np.matmul(weighted_h, spread_h.transpose(0, 2, 1))
@@ -1026,10 +1031,14 @@ class SuspensionImm:
             self.covariance_repairs += 1
             self.reset_states()
             return None
-        s_inv_res = np.linalg.solve(s, residual)
-        # (P-ss H^T + sum_i w_ji e_ij (H e_ij)^T) S^-1 r without forming the gain.
-        self.x = (x + np.matmul(prior_ht, s_inv_res) + np.matmul(
-            spread, np.matmul(weighted_h.transpose(0, 2, 1), s_inv_res)))[:, :, 0]
+        s_inv_res = np.linalg.solve(s, residual)                      # (M, p, 1)
+        # (P-ss H^T + sum_i w_ji e_ij (H e_ij)^T) S^-1 r without forming the gain or e_ij:
+        # sum_i e_ij c_ji = F_j x_i c_ji summed - F_j x0_j sum_i c_ji.
+        c = np.matmul(weighted_h.transpose(0, 2, 1), s_inv_res)[:, :, 0]   # (M, M)
+        c_sum = c.sum(axis=1, keepdims=True)
+        spread_term = np.concatenate([np.matmul(top, c[:, :, None])[:, :, 0] - x_top * c_sum,
+                                      c @ inputs.T - x_inputs * c_sum], axis=1)
+        self.x = x + np.matmul(prior_ht, s_inv_res)[:, :, 0] + spread_term
         maha = (residual * s_inv_res).sum(axis=(1, 2))
         log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
         return -0.5 * (maha + log_det + z.size * _LOG_2PI)
