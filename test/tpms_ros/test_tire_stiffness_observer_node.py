@@ -19,7 +19,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
-from vehicle_monitor_msgs.msg import TireStiffness, TpmsIndication, WheelSpeeds
+from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
 import yaml
 
 from tpms_ros.road_scenario import ScenarioEvent, load_scenario
@@ -238,3 +238,32 @@ def test_bad_input_rejected_and_wheel_unknown(
     node._diagnostics.publish()
     assert spin_until(lambda: any(s.level == bytes([2]) and 'FL: invalid_sample' in s.message
                                   for s in harness.diagnostics), 5.0)
+
+
+def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool],
+        drive: RoadSimulationResult) -> None:
+    """Driver inputs with a steering angle meaning 2 m/s^2 at 60 km/h: every wheel's samples
+    are held back by the cornering gate (counted by the core), and the torques pass too."""
+    node = make_node(TireStiffnessObserverNode, node_name='stiffness_cornering')
+    harness = Harness(make_node, spin_until)
+    driver = harness.node.create_publisher(DriverInputs, 'vehicle/driver_inputs', DEEP)
+    assert spin_until(lambda: driver.get_subscription_count() > 0, 10.0)
+    stamps = _stamps(drive)[:3000]
+    p = node.parameters
+    speed = 60.0 / 3.6
+    steering = float(np.arctan(2.0 * p.wheelbase_m / speed ** 2))
+    for stamp in range(int(stamps[0]), int(stamps[-1]) + 1, 10_000_000):   # 100 Hz
+        msg = DriverInputs()
+        msg.header.stamp = Time(sec=stamp // 10**9, nanosec=stamp % 10**9)
+        msg.steering_angle = steering
+        msg.wheel_torque = [0.0, 0.0, 50.0, 50.0]
+        driver.publish(msg)
+    assert spin_until(lambda: len(node._driver) >= 250, 10.0)
+    harness.feed(node, stamps, drive.wheel_speed[:3000])
+    assert spin_until(lambda: node.processed >= 2750, 10.0)
+    counts = node.observer.counters
+    # Every sample after the first second's settling (tooth-correction warm-up).
+    assert counts['cornering'][0] + counts['settling'][0] >= node.processed - 1
+    assert counts['cornering'][0] >= 1500, counts['cornering']
+    assert counts['steering_invalid'][0] == 0 and counts['torque_invalid'][0] == 0
