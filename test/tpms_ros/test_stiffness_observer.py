@@ -330,8 +330,9 @@ def test_cornering_gate_holds_the_estimate():
     before = run(observer, omega[:20000])[-1]
     p = observer.params
     speed = float(np.median(omega[:20000])) * p.rolling_radius_m
-    # v^2 tan(delta) / L = 2 m/s^2, twice the default limit
-    steering = np.full(BLOCK, math.atan(2.0 * p.wheelbase_m / speed ** 2))
+    # v^2 tan(delta) / L = 2x the default limit
+    steering = np.full(BLOCK, math.atan(2.0 * p.max_lateral_accel_mps2 * p.wheelbase_m
+                                        / speed ** 2))
     for start in range(20000, 30000, BLOCK):
         during = observer.update(omega[start:start + BLOCK], steering_angle=steering)
     assert set(during.status) == {'cornering'}

@@ -243,8 +243,9 @@ def test_bad_input_rejected_and_wheel_unknown(
 def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
         make_node: Callable[..., Any], spin_until: Callable[..., bool],
         drive: RoadSimulationResult) -> None:
-    """Driver inputs with a steering angle meaning 2 m/s^2 at 60 km/h: every wheel's samples
-    are held back by the cornering gate (counted by the core), and the torques pass too."""
+    """Driver inputs with a steering angle meaning twice the lateral limit at 60 km/h: every
+    wheel's samples are held back by the cornering gate (counted by the core), and the torques
+    pass too."""
     node = make_node(TireStiffnessObserverNode, node_name='stiffness_cornering')
     harness = Harness(make_node, spin_until)
     driver = harness.node.create_publisher(DriverInputs, 'vehicle/driver_inputs', DEEP)
@@ -252,7 +253,7 @@ def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
     stamps = _stamps(drive)[:3000]
     p = node.parameters
     speed = 60.0 / 3.6
-    steering = float(np.arctan(2.0 * p.wheelbase_m / speed ** 2))
+    steering = float(np.arctan(2.0 * p.max_lateral_accel_mps2 * p.wheelbase_m / speed ** 2))
     for stamp in range(int(stamps[0]), int(stamps[-1]) + 1, 10_000_000):   # 100 Hz
         msg = DriverInputs()
         msg.header.stamp = Time(sec=stamp // 10**9, nanosec=stamp % 10**9)

@@ -137,7 +137,7 @@ class StiffnessNodeParameters:
                             'the wheel', low=1e-3, high=1.0)
     max_wheel_torque_nm: float = param(1000.0, '|wheel torque| above this pauses the wheel, '
                                        'N m', low=1.0, high=1e5)
-    max_lateral_accel_mps2: float = param(1.0, 'lateral acceleration (from steering and speed) '
+    max_lateral_accel_mps2: float = param(2.0, 'lateral acceleration (from steering and speed) '
                                           'above this pauses the estimate, m/s^2', low=0.01,
                                           high=50.0)
     wheelbase_m: float = param(2.7, 'wheelbase for the lateral acceleration, m', low=0.5,
