@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
-from vehicle_monitor_msgs.msg import ModeProbabilities, TrackIrregularity
+from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregularity
 import yaml
 
 from rail_monitor_ros.rail_scenario import shipped_scenario
@@ -210,6 +210,33 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
     assert 'stale' in monitor._track_state
     feeder.alignment(START_NS + 60 * DT_NS, [1e-3], [])
     assert spin_until(lambda: monitor.rejected['track_irregularity_size'] == 1)
+
+
+def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
+                                          spin_until: Callable[..., bool]) -> None:
+    """A confident creep factor estimate re-discretises the full-car bank at that factor; an
+    uncertain one is not used (said on diagnostics), an invalid one is counted."""
+    monitor, _, _, _ = _setup(make_node)
+    publisher = make_node('creep_feeder').create_publisher(CreepFactor, 'rail/creep_factor',
+                                                           DEEP)
+    assert spin_until(lambda: publisher.get_subscription_count() > 0)
+    f_before = monitor.imm._f.copy()
+
+    def send(c: float, std: float) -> None:
+        msg = CreepFactor()
+        msg.header.stamp = _stamp(START_NS)
+        msg.creep_factor, msg.std_dev = c, std
+        publisher.publish(msg)
+
+    send(0.5, 0.5)
+    assert spin_until(lambda: 'uncertain' in monitor._creep_state)
+    assert monitor.imm.creep_factor == 1.0
+    send(0.5, 0.02)
+    assert spin_until(lambda: monitor.imm.creep_factor == 0.5)
+    assert monitor._creep_state == 'following' and not np.allclose(monitor.imm._f, f_before)
+    send(math.nan, 0.02)
+    assert spin_until(lambda: monitor.rejected['creep_factor_invalid'] == 1)
+    assert monitor.imm.creep_factor == 0.5
 
 
 def test_parameters_validated(make_node: Callable[..., Any]) -> None:

@@ -56,6 +56,7 @@ import numpy as np
 import scipy.linalg
 
 from rail_monitor_ros.rail_model import (
+    MAX_CREEP_FACTOR,
     MAX_SUSPENSION_RATIO,
     REDUCED_INPUT_NAMES,
     SENSOR_OUTPUT_NAMES,
@@ -253,6 +254,8 @@ class SuspensionImmConfig:
             state count; 5 m is below the spectrum's corner wavelength 2 pi / Omega_c = 7.6 m.
         known_track_std: full car, known-input mode: std of the measured alignment under a
             wheelset, m (track recording accuracy).
+        creep_resolution: full car: :meth:`SuspensionImm.set_creep_factor` re-discretises
+            the bank when the wheel-rail creep factor moved by at least this much.
         speed_resolution: full car: :meth:`SuspensionImm.set_speed` re-discretises the bank
             when the speed moved by at least this much, m/s.
         wheelset_lateral_std: half car: stationary std of the wheelset lateral displacement,
@@ -320,6 +323,7 @@ class SuspensionImmConfig:
     delay_min_wavelength: float = 5.0
     known_track_std: float = 5e-4
     speed_resolution: float = 0.5
+    creep_resolution: float = 0.05
     wheelset_lateral_std: float = 3e-3
     wheelset_yaw_std: float = 2e-3
     input_correlation_time: float = 1.0
@@ -715,6 +719,7 @@ class SuspensionImm:
                  vehicle: RailVehicleParams | None = None) -> None:
         self.config = config if config is not None else SuspensionImmConfig()
         self.vehicle = vehicle if vehicle is not None else RailVehicleParams()
+        self.creep_factor = 1.0
         cfg = self.config
         self.modes = cfg.modes()
         self.n_modes = len(self.modes)
@@ -782,7 +787,8 @@ class SuspensionImm:
     # ----------------------------------------------------------------------- model bank
     def _model(self, spring: float, damper: float) -> StateSpace:
         if self.config.estimation_model == 'full_car':
-            full = full_car_state_space(self.vehicle, 1.0, (spring, 1.0), (damper, 1.0))
+            full = full_car_state_space(self.vehicle, self.creep_factor, (spring, 1.0),
+                                        (damper, 1.0))
             # The monitored (front) bogie's sensors only.
             return replace(full, c=full.c[:N_OUTPUTS], d=full.d[:N_OUTPUTS],
                            output_names=full.output_names[:N_OUTPUTS])
@@ -812,7 +818,7 @@ class SuspensionImm:
 
     def _discretize(self, spring: float, damper: float) -> ModeModel:
         key = (round(spring, _RATIO_DECIMALS), round(damper, _RATIO_DECIMALS))
-        shared_key = (self.config, self.vehicle, key)
+        shared_key = (self.config, self.vehicle, self.creep_factor, key)
         cached = self._discretized.get(key, _SHARED_DISCRETIZATIONS.get(shared_key))
         if cached is None:
             cfg = self.config
@@ -848,6 +854,23 @@ class SuspensionImm:
         if abs(speed - self.vehicle.speed) < self.config.speed_resolution:
             return
         self.vehicle = self.vehicle.with_speed(speed)
+        self._discretized.clear()
+        self._p0 = self._prior()
+        self._build_bank(self._damper_spring)
+
+    def set_creep_factor(self, creep_factor: float) -> None:
+        """The wheel-rail creep factor changed (full car: the wheelsets' creep forces, e.g.
+        from the creep estimator): re-discretise the bank, keeping states and probabilities.
+        Unmodelled, a creep change looks like a suspension change (measured: two false faults
+        on ``rail_creep_steps``). Ignored when it moved by less than ``creep_resolution``
+        since the last re-discretisation, and by the half car (no wheelsets)."""
+        if not (math.isfinite(creep_factor) and 0.0 < creep_factor <= MAX_CREEP_FACTOR):
+            raise ValueError(f'creep_factor must be in (0, {MAX_CREEP_FACTOR}], got '
+                             f'{creep_factor}')
+        if (not self._full_car
+                or abs(creep_factor - self.creep_factor) < self.config.creep_resolution):
+            return
+        self.creep_factor = creep_factor
         self._discretized.clear()
         self._p0 = self._prior()
         self._build_bank(self._damper_spring)

@@ -19,6 +19,10 @@ Time alignment:
 * Pairs are processed in stamp order; a pair not newer than the last one is rejected
   ('out_of_order' / 'repeated'). Missing samples shorter than ``max_gap`` are bridged by
   predict-only steps; a longer gap restarts the filter states (mode probabilities kept).
+* Creep factor (``rail/creep_factor``, the creep estimator's output; full car): the model
+  follows the latest estimate as it arrives (adhesion changes over seconds; re-discretised in
+  steps of the core's ``creep_resolution``, 0.05). Unmodelled, a creep change looks like a
+  suspension fault.
 * Track irregularity: sample-and-hold of the latest message not newer than the pair's stamp
   (plus ``pair_tolerance``); older than ``track_max_age``, it is stale and the process-noise
   model is used (diagnostics say so).
@@ -37,9 +41,13 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
-from vehicle_monitor_msgs.msg import ModeProbabilities, TrackIrregularity
+from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregularity
 
-from rail_monitor_ros.rail_model import RailVehicleParams, wheelset_inputs_from_track
+from rail_monitor_ros.rail_model import (
+    MAX_CREEP_FACTOR,
+    RailVehicleParams,
+    wheelset_inputs_from_track,
+)
 from rail_monitor_ros.suspension_imm import FaultDecision, SuspensionImm, SuspensionImmConfig
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -158,6 +166,10 @@ class SuspensionMonitorParameters:
                                 low=1e-3, high=10.0)
     max_gap: float = param(0.5, 'a longer gap between pairs restarts the filter states, s',
                            low=1e-3, high=3600.0)
+    use_creep_factor: bool = param(True, 'full car: follow rail/creep_factor (the creep '
+                                   'estimator) in the model', read_only=True)
+    creep_max_std: float = param(0.2, 'a creep factor estimate with a larger std is not used',
+                                 low=1e-6, high=10.0)
     use_track_irregularity: bool = param(True, 'use rail/track_irregularity as known inputs '
                                          'when fresh', read_only=True)
     track_max_age: float = param(0.02, 'older track irregularity is stale, s', low=0.0,
@@ -251,6 +263,7 @@ class SuspensionMonitor(Node):
         self._last_pair_ns: int | None = None
         self._track: tuple[int, np.ndarray, np.ndarray | None] | None = None
         self._track_state = 'not received'
+        self._creep_state = 'not received' if p.use_creep_factor else 'disabled'
         self._frozen = [_FrozenDetector() for _ in range(3)]
         self._input_fault = ''
         self._first_wall: float | None = None
@@ -259,6 +272,8 @@ class SuspensionMonitor(Node):
         sensor_subscription(self, Imu, 'rail/body/imu', self._on_body)
         if p.use_track_irregularity:
             sensor_subscription(self, TrackIrregularity, 'rail/track_irregularity', self._on_track)
+        if p.use_creep_factor:
+            sensor_subscription(self, CreepFactor, 'rail/creep_factor', self._on_creep_factor)
         self._publisher = self.create_publisher(ModeProbabilities, 'rail/suspension/modes',
                                                 OUTPUT_QOS)
         self.diagnostics = Diagnostics(self, 'rail_suspension_imm', p.diagnostics_period)
@@ -287,6 +302,18 @@ class SuspensionMonitor(Node):
         stamp = stamp_ns(msg.header.stamp)
         self._body.append((stamp, float(msg.linear_acceleration.y)))
         self._pair(stamp)
+
+    def _on_creep_factor(self, msg: CreepFactor) -> None:
+        c, std = float(msg.creep_factor), float(msg.std_dev)
+        if not (np.isfinite(c) and 0.0 < c <= MAX_CREEP_FACTOR and np.isfinite(std)):
+            self._reject('creep_factor_invalid')
+            return
+        if std > self.parameters.creep_max_std:
+            self._creep_state = (f'uncertain (std {std:.2f}): model keeps '
+                                 f'{self.imm.creep_factor:.2f}')
+            return
+        self.imm.set_creep_factor(c)
+        self._creep_state = 'following'
 
     def _on_track(self, msg: TrackIrregularity) -> None:
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
@@ -412,6 +439,8 @@ class SuspensionMonitor(Node):
             'processed_samples': self.processed,
             'known_input_samples': self.known_input_samples,
             'track_irregularity': self._track_state,
+            'creep_factor_input': self._creep_state,
+            'model_creep_factor': self.imm.creep_factor,
             'covariance_repairs': self.imm.covariance_repairs,
             'steady_state_failures': self.imm.steady_state_failures,
             'rediscretizations': self.imm.rediscretizations,
