@@ -254,8 +254,10 @@ class SuspensionImmConfig:
             state count; 5 m is below the spectrum's corner wavelength 2 pi / Omega_c = 7.6 m.
         known_track_std: full car, known-input mode: std of the measured alignment under a
             wheelset, m (track recording accuracy).
-        creep_resolution: full car: :meth:`SuspensionImm.set_creep_factor` re-discretises
-            the bank when the wheel-rail creep factor moved by at least this much.
+        creep_resolution: full car: :meth:`SuspensionImm.set_creep_factor` snaps the creep
+            factor to multiples of this and re-discretises the bank when the estimate is more
+            than 3/4 of a step from the model's (hysteresis: a noisy estimate does not toggle;
+            the grid lets the banks and their Riccati solutions be reused).
         speed_resolution: full car: :meth:`SuspensionImm.set_speed` re-discretises the bank
             when the speed moved by at least this much, m/s.
         wheelset_lateral_std: half car: stationary std of the wheelset lateral displacement,
@@ -323,7 +325,7 @@ class SuspensionImmConfig:
     delay_min_wavelength: float = 5.0
     known_track_std: float = 5e-4
     speed_resolution: float = 0.5
-    creep_resolution: float = 0.05
+    creep_resolution: float = 0.1
     wheelset_lateral_std: float = 3e-3
     wheelset_yaw_std: float = 2e-3
     input_correlation_time: float = 1.0
@@ -862,15 +864,17 @@ class SuspensionImm:
         """The wheel-rail creep factor changed (full car: the wheelsets' creep forces, e.g.
         from the creep estimator): re-discretise the bank, keeping states and probabilities.
         Unmodelled, a creep change looks like a suspension change (measured: two false faults
-        on ``rail_creep_steps``). Ignored when it moved by less than ``creep_resolution``
-        since the last re-discretisation, and by the half car (no wheelsets)."""
+        on ``rail_creep_steps``). The model's factor is snapped to multiples of
+        ``creep_resolution``; it moves only when the estimate is more than 3/4 of a step from
+        it. The half car (no wheelsets) ignores it."""
         if not (math.isfinite(creep_factor) and 0.0 < creep_factor <= MAX_CREEP_FACTOR):
             raise ValueError(f'creep_factor must be in (0, {MAX_CREEP_FACTOR}], got '
                              f'{creep_factor}')
-        if (not self._full_car
-                or abs(creep_factor - self.creep_factor) < self.config.creep_resolution):
+        step = self.config.creep_resolution
+        if not self._full_car or abs(creep_factor - self.creep_factor) <= 0.75 * step:
             return
-        self.creep_factor = creep_factor
+        self.creep_factor = round(max(step, round(creep_factor / step) * step),
+                                  _RATIO_DECIMALS)
         self._discretized.clear()
         self._p0 = self._prior()
         self._build_bank(self._damper_spring)

@@ -21,8 +21,8 @@ Time alignment:
   predict-only steps; a longer gap restarts the filter states (mode probabilities kept).
 * Creep factor (``rail/creep_factor``, the creep estimator's output; full car): the model
   follows the latest estimate as it arrives (adhesion changes over seconds; re-discretised in
-  steps of the core's ``creep_resolution``, 0.05). Unmodelled, a creep change looks like a
-  suspension fault.
+  steps of the core's ``creep_resolution``, 0.1, with hysteresis). Unmodelled, a creep change
+  looks like a suspension fault.
 * Track irregularity: sample-and-hold of the latest message not newer than the pair's stamp
   (plus ``pair_tolerance``); older than ``track_max_age``, it is stale and the process-noise
   model is used (diagnostics say so).
