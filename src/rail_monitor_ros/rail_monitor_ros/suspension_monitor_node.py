@@ -276,7 +276,8 @@ class SuspensionMonitor(Node):
             sensor_subscription(self, CreepFactor, 'rail/creep_factor', self._on_creep_factor)
         self._publisher = self.create_publisher(ModeProbabilities, 'rail/suspension/modes',
                                                 OUTPUT_QOS)
-        self.diagnostics = Diagnostics(self, 'rail_suspension_imm', p.diagnostics_period)
+        self.diagnostics = Diagnostics(self, 'rail_suspension_imm', p.diagnostics_period,
+                                       update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property
@@ -430,7 +431,6 @@ class SuspensionMonitor(Node):
         msg.fault_component = out.fault.component
         self._publisher.publish(msg)
         self.last_output = msg
-        self._update_diagnostics()
 
     # ------------------------------------------------------------------ diagnostics
     def _update_diagnostics(self) -> None:
