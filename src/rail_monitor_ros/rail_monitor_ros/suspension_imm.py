@@ -289,13 +289,12 @@ class SuspensionImmConfig:
         spd_check_interval: full eigenvalue check of the bank covariances every so many
             steps (the innovation covariances are checked every step).
         steady_state_gains: after ``warmup_time`` of exact IMM cycles, every mode-matched
-            filter runs on its steady-state Kalman gain (the discrete algebraic Riccati
-            equation of its model, solved once per model and cached): the covariance
-            propagation, nine tenths of a full-car cycle, goes away; mixing of the states,
-            likelihoods, probabilities and the decision are unchanged. What is dropped is the
-            mixing's spread-of-means term in the covariances (the measured effect on detection
-            is in docs/methods/suspension_monitor.md). False: the exact IMM every step (the
-            cycle of filterpy's IMMEstimator).
+            filter runs on its steady-state covariance (the discrete algebraic Riccati
+            equation of its model, solved once per model and cached) plus the mixing's spread
+            of means, kept exactly as a low-rank term (:meth:`SuspensionImm._steady_cycle`):
+            the covariance propagation, nine tenths of a full-car cycle, goes away; mixing of
+            the states, likelihoods, probabilities and the decision are unchanged. False: the
+            exact IMM every step (the cycle of filterpy's IMMEstimator).
         warmup_time: exact IMM cycles after every (re)start of the bank states and after
             every change of the bank to models not solved before (adaptive step, speed), s:
             the states start from the stationary prior, far from the steady-state covariance,
@@ -704,6 +703,14 @@ class ImmStep:
     fault: FaultStatus
 
 
+def _log_likelihood(residual: np.ndarray, s_inv_res: np.ndarray, chol: np.ndarray) -> np.ndarray:
+    """(M,) Gaussian log-likelihoods of the residuals (M, p), given S^-1 residual (M, p) and
+    the Cholesky factors (M, p, p) of their covariances S."""
+    maha = np.einsum('mi,mi->m', residual, s_inv_res)
+    log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
+    return -0.5 * (maha + log_det + residual.shape[1] * _LOG_2PI)
+
+
 class SuspensionImm:
     """The batched IMM bank with smoothing, the adaptive step and the fault decision.
 
@@ -856,9 +863,7 @@ class SuspensionImm:
         if abs(speed - self.vehicle.speed) < self.config.speed_resolution:
             return
         self.vehicle = self.vehicle.with_speed(speed)
-        self._discretized.clear()
-        self._p0 = self._prior()
-        self._build_bank(self._damper_spring)
+        self._rediscretize()
 
     def set_creep_factor(self, creep_factor: float) -> None:
         """The wheel-rail creep factor changed (full car: the wheelsets' creep forces, e.g.
@@ -875,6 +880,11 @@ class SuspensionImm:
             return
         self.creep_factor = round(max(step, round(creep_factor / step) * step),
                                   _RATIO_DECIMALS)
+        self._rediscretize()
+
+    def _rediscretize(self) -> None:
+        """The model's vehicle or creep factor changed: new discretisations, prior and bank
+        (states and probabilities kept)."""
         self._discretized.clear()
         self._p0 = self._prior()
         self._build_bank(self._damper_spring)
@@ -893,7 +903,6 @@ class SuspensionImm:
         n = self.n_states
         self._f_top = np.ascontiguousarray(self._f[:, :n, :])
         self._f_top_t = np.ascontiguousarray(self._f_top.transpose(0, 2, 1))
-        self._f_input_t = np.ascontiguousarray(self._f[0, n:, n:].T)
         self._f_input = np.ascontiguousarray(self._f[0, n:, n:])
         self._f_top_rows = self._f_top.reshape(-1, self._f.shape[2])  # (M k, n): one GEMM
         if not (np.all(self._f[:, n:, :n] == 0.0)
@@ -937,7 +946,6 @@ class SuspensionImm:
         self.x = np.zeros((self.n_modes, n_aug))
         self.P = np.broadcast_to(self._p0, (self.n_modes, n_aug, n_aug)).copy()
         self._steps = 0
-        self._steady = False
 
     def _steady_state_bank(self, known: int) -> tuple[np.ndarray, ...] | None:
         """Stacked steady-state (P- H^T, S, posterior, H F as rows) of every mode with
@@ -981,9 +989,9 @@ class SuspensionImm:
         top = self._f_top @ p0                                        # (F P)[:k], (M, k, n)
         p = np.empty_like(p0)
         p[:, :k, :k] = top @ self._f_top_t
-        p[:, :k, k:] = top[:, :, k:] @ self._f_input_t
+        p[:, :k, k:] = top[:, :, k:] @ self._f_input.T
         p[:, k:, :k] = p[:, :k, k:].transpose(0, 2, 1)
-        p[:, k:, k:] = self._f_input_t.T @ p0[:, k:, k:] @ self._f_input_t
+        p[:, k:, k:] = self._f_input @ p0[:, k:, k:] @ self._f_input.T
         self.P = p + self._q
 
     def _update(self, z: np.ndarray, known: int, r: np.ndarray) -> np.ndarray:
@@ -1011,9 +1019,7 @@ class SuspensionImm:
         # positive definiteness is checked every step through S and periodically in full.
         p = self.P - pht @ solved[:, :, :-1]
         self.P = 0.5 * (p + p.transpose(0, 2, 1))
-        maha = np.einsum('mi,mi->m', residual, s_inv_res)
-        log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-        return -0.5 * (maha + log_det + z.size * _LOG_2PI)
+        return _log_likelihood(residual, s_inv_res, chol)
 
     def _steady_cycle(self, z: np.ndarray | None, known: int,
                       steady: tuple[np.ndarray, ...]) -> np.ndarray | None:
@@ -1067,9 +1073,7 @@ class SuspensionImm:
         spread_term = np.concatenate([np.matmul(top, c[:, :, None])[:, :, 0] - x_top * c_sum,
                                       c @ inputs.T - x_inputs * c_sum], axis=1)
         self.x = x + np.matmul(prior_ht, s_inv_res)[:, :, 0] + spread_term
-        maha = (residual * s_inv_res).sum(axis=(1, 2))
-        log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-        return -0.5 * (maha + log_det + z.size * _LOG_2PI)
+        return _log_likelihood(residual[:, :, 0], s_inv_res[:, :, 0], chol)
 
     def _repair_covariances(self, force: bool = False) -> None:
         """Detect and repair a bank covariance that lost positive semi-definiteness.
@@ -1142,7 +1146,6 @@ class SuspensionImm:
                 self._bank_age >= warm or known in self._steady_bank
                 or all(known in m.steady for m in self._mode_models)):
             steady = self._steady_state_bank(known)
-        self._steady = steady is not None
         if steady is not None:
             log_lik = self._steady_cycle(z, known, steady)
         else:
@@ -1161,7 +1164,7 @@ class SuspensionImm:
             self.mu = self._cbar / self._cbar.sum()
         self._steps += 1
         self._bank_age += 1
-        if (not self._steady and self.config.spd_check_interval
+        if (steady is None and self.config.spd_check_interval
                 and self._steps % self.config.spd_check_interval == 0):
             self._repair_covariances()
         self._smooth_and_decide()
