@@ -132,15 +132,10 @@ class ReplayTraces:
 
 
 def _voters(voter_params: VoterParams) -> dict[str, TpmsVoter]:
-    h = voter_params.method_thresholds
     make = {m: (m,) for m in METHODS}
     make['fused'] = METHODS
     make['fused_no_stiffness'] = ('vibration', 'wheel_radius')
-    return {name: TpmsVoter(VoterParams(
-        h0=voter_params.h0, method_thresholds={m: h[m] for m in methods},
-        max_age_s=voter_params.max_age_s, set_on_s=voter_params.set_on_s,
-        set_off_s=voter_params.set_off_s, clear_ratio=voter_params.clear_ratio))
-        for name, methods in make.items()}
+    return {name: TpmsVoter(voter_params.only(methods)) for name, methods in make.items()}
 
 
 def replay_methods(result: RoadSimulationResult, calibration_end_s: float,

@@ -137,11 +137,7 @@ def voted_alone(method: str, t: np.ndarray, indication: TopicSeries,
                 params: VoterParams | None = None) -> np.ndarray:
     """(N, 4) warnings of the voter fed one method's recorded indications (at times t, s)
     with that method only: its own threshold, the voter's hold-off and hysteresis."""
-    base = params if params is not None else VoterParams()
-    voter = TpmsVoter(VoterParams(
-        h0=base.h0, method_thresholds={method: base.method_thresholds[method]},
-        max_age_s=base.max_age_s, set_on_s=base.set_on_s, set_off_s=base.set_off_s,
-        clear_ratio=base.clear_ratio))
+    voter = TpmsVoter((params if params is not None else VoterParams()).only([method]))
     flags = np.asarray(indication.fields['underinflated'], dtype=bool)
     confidence = np.asarray(indication.fields['confidence'], dtype=float)
     known = np.asarray(indication.fields['known'], dtype=bool)

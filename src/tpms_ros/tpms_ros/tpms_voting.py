@@ -25,7 +25,7 @@ No ROS import: ``tpms_voter`` converts ``TpmsIndication`` messages to :class:`Tp
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
@@ -118,6 +118,11 @@ class VoterParams:
         if not 0.0 < self.clear_ratio <= 1.0:
             raise ValueError(f'VoterParams.clear_ratio must be in (0, 1], got {self.clear_ratio}')
         object.__setattr__(self, 'method_thresholds', dict(self.method_thresholds))
+
+    def only(self, methods: Iterable[str]) -> VoterParams:
+        """The same parameters voting only ``methods`` (each with its own threshold): e.g. a
+        method alone, as the paper's per-method time to warning."""
+        return replace(self, method_thresholds={m: self.method_thresholds[m] for m in methods})
 
 
 @dataclass(frozen=True)
