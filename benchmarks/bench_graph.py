@@ -48,7 +48,14 @@ from vehicle_monitor_common.evaluation import Domain, Scenario, domains
 from vehicle_monitor_common.main_job import bag_duration_s, run_graph_on_bag, with_parameters
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
-from vehicle_monitor_common.runner import Graph, GraphSpec, NodeSpec, load_graph, node_class
+from vehicle_monitor_common.runner import (
+    EXECUTORS,
+    Graph,
+    GraphSpec,
+    NodeSpec,
+    load_graph,
+    node_class,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -219,19 +226,26 @@ def _node_process(node_spec: NodeSpec, use_sim_time: bool, executor: str,
         rclpy.try_shutdown(context=context)
 
 
+def _node_processes(spec: GraphSpec, player: str, expected: dict[str, int],
+                    ) -> tuple[list[NodeSpec], list[Any], Any, Any]:
+    """One (unstarted) process per node of ``spec``, the player last so the others are up
+    when it starts: (nodes in that order, processes, stop event, results queue)."""
+    spawn = multiprocessing.get_context('spawn')
+    stop = spawn.Event()
+    results = spawn.Queue()
+    ordered = sorted(spec.nodes, key=lambda n: n.name == player)
+    processes = [spawn.Process(target=_node_process, args=(
+        n, spec.use_sim_time, spec.executor, stop, results, expected), daemon=True)
+        for n in ordered]
+    return ordered, processes, stop, results
+
+
 def process_per_node(domain: Domain, scenario: Scenario) -> dict[str, Any]:
     """Run the domain's graph with every node in its own process; print speed and CPU."""
     spec = with_parameters(load_graph(domain.graph), {
         domain.player: {'bag': str(scenario.bag)}, domain.recorder: {'bag': ''}})
     expected = {t: info.count for t, info in bag_topics(scenario.bag).items()}
-    spawn = multiprocessing.get_context('spawn')
-    stop = spawn.Event()
-    results = spawn.Queue()
-    # Player last: the estimators and the recorder are up when it starts.
-    ordered = sorted(spec.nodes, key=lambda n: n.name == domain.player)
-    processes = [spawn.Process(target=_node_process, args=(
-        n, spec.use_sim_time, spec.executor, stop, results, expected), daemon=True)
-        for n in ordered]
+    ordered, processes, stop, results = _node_processes(spec, domain.player, expected)
     for process in processes:
         process.start()
     reports: list[dict[str, Any]] = []
@@ -334,16 +348,9 @@ def latency(seconds: float, per_process: bool) -> None:
     processes: list[Any] = []
     stop: Any = None
     if per_process:
-        spawn = multiprocessing.get_context('spawn')
-        stop = spawn.Event()
-        results = spawn.Queue()
-        ordered = sorted(spec.nodes, key=lambda n: n.name == road.player)
-        processes = [spawn.Process(target=_node_process, args=(
-            n, spec.use_sim_time, spec.executor, stop, results, {}), daemon=True)
-            for n in ordered]
+        _, processes, stop, _ = _node_processes(spec, road.player, {})
         graph = None
-        from rclpy.experimental import EventsExecutor
-        executor: Any = EventsExecutor(context=context)
+        executor: Any = EXECUTORS[spec.executor](context)
     else:
         graph = Graph(spec, context)
         executor = graph.executor
