@@ -43,6 +43,7 @@ from vehicle_monitor_common.evaluation import (
     hold_at,
     rising_edges,
     seconds,
+    selected_methods,
     start_ns,
 )
 from vehicle_monitor_common.resources import share_dir
@@ -370,10 +371,7 @@ def evaluate(series: Mapping[str, TopicSeries], scenario: str, figure_dir: Path,
         figure_dir: where the PNGs go (named after the papers' figures).
         methods: subset of ``tpms``, ``stiffness``, ``lateral_force`` (empty: all present).
     """
-    unknown = sorted(set(methods) - set(METHOD_KEYS))
-    if unknown:
-        raise ValueError(f'methods: unknown {unknown[0]!r} (known: {", ".join(METHOD_KEYS)})')
-    wanted = set(methods or METHOD_KEYS)
+    wanted = selected_methods(methods, METHOD_KEYS)
     t0 = start_ns(series)
     metrics: list[Metric] = []
     figures: list[str] = []

@@ -195,6 +195,19 @@ def seconds(series: TopicSeries, t0_ns: int = 0) -> np.ndarray:
     return (np.asarray(series.stamps_ns, dtype=np.int64) - t0_ns) * 1e-9
 
 
+def selected_methods(methods: Sequence[str], known: Iterable[str]) -> set[str]:
+    """The methods a domain's ``evaluate`` scores: ``methods``, or all ``known`` when empty.
+
+    Raises:
+        ValueError: a method the domain does not know.
+    """
+    known = list(known)
+    unknown = sorted(set(methods) - set(known))
+    if unknown:
+        raise ValueError(f'methods: unknown {unknown[0]!r} (known: {", ".join(known)})')
+    return set(methods or known)
+
+
 def start_ns(series: Mapping[str, TopicSeries]) -> int:
     """Earliest stamp over all series (the run's time origin), 0 if there is none."""
     firsts = [int(s.stamps_ns[0]) for s in series.values() if len(s)]
