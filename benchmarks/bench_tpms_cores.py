@@ -101,7 +101,6 @@ def bench_radius(seconds: float) -> dict[str, float]:
         sides = []
         for _ in range(2):
             kf = KalmanFilter(dim_x=2, dim_z=1)
-            kf.R *= p.slip_noise_std ** 2
             kf.Q = np.diag([p.inv_stiffness_rw, p.delta_rw]) ** 2 / fs
             sides.append(kf)
         mu = torque[:, :2] / (r_n * np.array(p.static_load_n[:2]))
@@ -110,6 +109,7 @@ def bench_radius(seconds: float) -> dict[str, float]:
                 kf = sides[side]
                 kf.predict()
                 kf.H = np.array([[mu[i, side], 1.0]])
+                kf.R[0, 0] = 2.0 * (p.wheel_speed_noise_mps / (r_n * omega[i, side + 2])) ** 2
                 kf.update(omega[i, side] / omega[i, side + 2] - 1.0)
             lat.predict()
             lat.H = np.array([[1, 0, 1, 0, 0],

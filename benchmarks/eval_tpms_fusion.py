@@ -71,11 +71,6 @@ STIFFNESS_CHUNK_S = 0.25
 DRIVER_MAX_AGE_S = 0.1
 TICK_S = 0.1              # voter evaluation period (the vibration node's output rate)
 GRAVITY = 9.80665
-# Measured on NOMINAL driving of this car (eval_tpms_false_alarms segments, after the steady-
-# cruise calibration: the pair offsets relative to nominal wander 0.2-0.7e-3 rms on the lateral
-# pairs, 0.55-1.7e-3 rms on the longitudinal ones; highest radius confidence 0.49 with 1e-3):
-# a vehicle calibration value (also in config/wheel_radius_analyzer.yaml), not a fault fit.
-RADIUS_NOISE_FLOOR = 1e-3
 
 
 @dataclass(frozen=True)
@@ -100,7 +95,7 @@ def method_params(scenario: Scenario) -> MethodParams:
         wheel_radius=WheelRadiusParams(
             nominal_radius_m=v.rw, track_front_m=2.0 * v.tf, track_rear_m=2.0 * v.tr,
             static_load_n=(front, front, rear, rear), driven_axle=v.driven_axle,
-            sample_rate_hz=rates.imu_hz, radius_noise_floor=RADIUS_NOISE_FLOOR,
+            sample_rate_hz=rates.imu_hz,
             wheel_inertia_kgm2=v.iw, cg_height_m=v.h, wheelbase_m=wheelbase),
         stiffness=StiffnessObserverParams(sample_rate_hz=rates.wheel_speed_hz,
                                           driven_axle=v.driven_axle, rolling_radius_m=v.rw,

@@ -447,6 +447,8 @@ def test_wheel_radius_aligns_calibrates_persists_and_reloads(
     assert again.calibration_state == 'loaded'
     np.testing.assert_allclose(again.analyzer.calibration.nominal_offsets,
                                node.analyzer.calibration.nominal_offsets)
+    np.testing.assert_allclose(again.analyzer.calibration.noise_scale,
+                               node.analyzer.calibration.noise_scale)
 
 
 def test_wheel_radius_nan_wheel_is_unknown_and_counted(
@@ -471,7 +473,8 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
     assert not any(ind.underinflated)
     assert spin_until(lambda: out.diag(
         '/wheel_radius_analyzer',
-        lambda s: _values(s)['core.bad_wheel_speed'] == '1') is not None, 5.0)
+        lambda s: _values(s)['core.bad_wheel_speed'] == '1'
+        and _values(s)['noise_scale.delta_34'] == '1') is not None, 5.0)
 
     cal_file.write_text('version: 1\nmethod: wheel_radius\nnominal_offsets: 3\n')
     broken = _radius_node(make_node, cal_file, name='radius_broken')

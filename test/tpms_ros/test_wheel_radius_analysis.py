@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from filterpy.kalman import KalmanFilter
 import numpy as np
 import pytest
+from scipy import signal
 
 from tpms_ros.wheel_radius_analysis import (
     PAIR_SENSITIVITY,
@@ -198,6 +199,17 @@ def test_localise_low_tires_patterns() -> None:
         assert loc.residual < 1e-3
     loc = localise_low_tires(np.zeros(4), std, p)
     assert not loc.flags.any()
+    # a drop's std is that of the tires found low estimated alone: the rear axle against the
+    # front through the slip pairs (std 1e-3), the tighter lateral pair (3e-4) tying RL to RR
+    w_long, w_lat = 1.0 / 1e-3, 1.0 / 3e-4
+    loc = localise_low_tires(-PAIR_SENSITIVITY @ np.array([0.0, 0.0, 4e-3, 4e-3]),
+                             np.array([1e-3, 1e-3, 3e-4, 3e-4]), p)
+    expected = np.sqrt((w_long ** 2 + w_lat ** 2)
+                       / (w_long ** 2 * (w_long ** 2 + 2.0 * w_lat ** 2)))
+    np.testing.assert_allclose(loc.sigma[2:], expected, rtol=1e-6)
+    assert loc.flags.tolist() == [False, False, True, True]
+    # the front tires (not low) carry the std of a drop of theirs alone
+    np.testing.assert_allclose(loc.sigma[:2], 1.0 / np.hypot(w_long, w_lat), rtol=1e-6)
     with pytest.raises(ValueError, match='pair_std'):
         localise_low_tires(np.zeros(4), np.zeros(4), p)
 
@@ -244,7 +256,8 @@ def test_calibration_state_round_trip_and_corrupt() -> None:
     analyzer.load_calibration_state(state)
     assert analyzer.calibration_state() == state
     bad_states = [
-        dict(state, version=3),
+        dict(state, version=4),
+        dict(state, noise_scale={'delta_13': 0.5, 'delta_24': 1, 'delta_34': 1, 'delta_12': 1}),
         dict(state, nominal_offsets={'delta_13': 0.5, 'delta_24': 0, 'delta_34': 0,
                                      'delta_12': 0}),
         dict(state, noise={'delta_13': 1e-5}),
@@ -339,3 +352,58 @@ def test_acceleration_gate_pauses_the_slip_model() -> None:
                                                  track_rear_m=TRACK, static_load_n=LOADS,
                                                  **PURE_SLIP))
     assert free.process(*drive.chunk(0, drive.stamps.size)).counts['accel_gated'] == 0
+
+
+def _coloured_drive(seed: int) -> Drive:
+    """The point-mass drive with coloured wheel-speed errors on top: AR(1), time constant
+    0.5 s, 0.05 rad/s stationary std per wheel (road- and load-induced speed ripple), whose
+    power near 0 Hz is ~100x that of white noise of the same std."""
+    drive = simulate_drive(360.0, WEAR, seed=seed)
+    rng = np.random.default_rng(seed + 1000)
+    a = np.exp(-1.0 / (0.5 * 100.0))
+    white = 0.05 * np.sqrt(1.0 - a * a) * rng.standard_normal(drive.omega.shape)
+    drive.omega += signal.lfilter([1.0], [1.0, -a], white, axis=0)
+    return drive
+
+
+def _radius_params() -> WheelRadiusParams:
+    return WheelRadiusParams(nominal_radius_m=R_N, track_front_m=TRACK, track_rear_m=TRACK,
+                             static_load_n=LOADS, **PURE_SLIP)
+
+
+def test_calibration_measures_coloured_noise(calibrated: WheelRadiusAnalyzer) -> None:
+    """White noise within the assumed R gives noise_scale 1. Coloured wheel-speed errors
+    give every pair a scale > 3, the same whether the calibration data came in one piece or
+    in odd chunks; with the scale the offsets' drift after calibration stays within 3.5
+    stated sigmas (no flag) while the unscaled filter std would put it many sigmas out."""
+    assert calibrated.calibration is not None
+    np.testing.assert_array_equal(calibrated.calibration.noise_scale, np.ones(4))
+    drive = _coloured_drive(seed=11)
+    one_shot = WheelRadiusAnalyzer(_radius_params())
+    one_shot.start_calibration()
+    one_shot.process(*drive.chunk(0, 12000))
+    cal = one_shot.finish_calibration()
+    chunked = WheelRadiusAnalyzer(_radius_params())
+    chunked.start_calibration()
+    for k in range(0, 12000, 37):
+        chunked.process(*drive.chunk(k, min(k + 37, 12000)))
+    np.testing.assert_allclose(chunked.finish_calibration().noise_scale, cal.noise_scale,
+                               rtol=1e-9)
+    assert np.all(cal.noise_scale > 3.0), cal.noise_scale
+    worst_z = worst_z_unscaled = 0.0
+    for k in range(12000, 36000, 100):
+        one_shot.process(*drive.chunk(k, k + 100))
+        change, std = one_shot._offset_change(cal)
+        worst_z = max(worst_z, float(np.max(np.abs(change) / std)))
+        worst_z_unscaled = max(worst_z_unscaled,
+                               float(np.max(np.abs(change) * cal.noise_scale / std)))
+        assert not one_shot.indication(float(drive.stamps[k + 99])).underinflated.any()
+    assert worst_z < 3.5
+    assert worst_z_unscaled > 10.0
+    # the scale is persisted; a version 2 file loads with scale 1
+    state = cal.to_dict()
+    one_shot.load_calibration_state(state)
+    assert one_shot.calibration_state() == state
+    old = {key: value for key, value in state.items() if key != 'noise_scale'}
+    one_shot.load_calibration_state(dict(old, version=2))
+    np.testing.assert_array_equal(one_shot.calibration.noise_scale, np.ones(4))

@@ -69,7 +69,7 @@ from scipy import optimize, signal
 
 from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
 
-CALIBRATION_VERSION = 2
+CALIBRATION_VERSION = 3
 PAIR_NAMES = ('delta_13', 'delta_24', 'delta_34', 'delta_12')
 GRAVITY = 9.80665
 # d(pair offset) / d(relative radius change eps_i of tire i), to first order:
@@ -128,7 +128,12 @@ class WheelRadiusParams:
         gyro_stuck_s: a gyro reading repeated exactly this long is a stopped gyro: the lateral
             filter pauses rather than drift, s.
         wheel_recover_s: a tire stays unknown this long after its last bad sample, s.
-        slip_noise_std: std of the measured slip per sample.
+        wheel_speed_noise_mps: noise of one wheel's speed r_n omega per sample (the mean
+            over a bin), m/s. The slip s = omega_d / omega_n - 1 then has the noise std
+            sqrt(2) x this / v_n, with v_n the non-driven wheel's speed: 1e-3 at 25 m/s by
+            default, 2.2e-3 at 40 km/h. A constant slip noise let the first noisy samples at
+            low speed after a pause throw a pair offset by 5e-3 (road simulator, rough
+            concrete at 30 km/h, where the slip noise is ~1.5e-2 per sample).
         inv_stiffness_rw: random walk of 1/k, per sqrt(s).
         delta_rw: random walk of the relative radius offsets (both filters), per sqrt(s);
             sets the tracking time of a pressure change (the paper: about 60 s).
@@ -146,11 +151,23 @@ class WheelRadiusParams:
             mean traction (see :class:`WheelRadiusCalibration`), because at constant traction
             1/k and delta are not separable: delta alone would carry mu * (1/k error).
         min_calibration_s: least seconds of valid updates per pair for a calibration, s.
-        radius_noise_floor: floor of the per-tire radius noise (relative radius): wear,
-            temperature and load shifts a calibration does not see.
-            Vehicle-specific: measure it on nominal driving with speed changes (on the
-            road simulator's car the offsets wander ~0.7e-3 rms, 2e-3 peak, around the truth
-            while a calibration on steady cruising sees almost none of it: 1e-3 there).
+        noise_block_s: block length of the calibration's noise check, s. The filters assume
+            white measurement noise of the stds above; on a real car the slip and wheel-yaw
+            errors are larger and coloured (road, load and driveline), and a filter that
+            trusts white noise states a radius offset std many times too small. The
+            calibration therefore measures each pair's innovation power at low frequency:
+            B times the mean square of the means over blocks of B samples of the innovations
+            divided by their assumed std (the spectral density near 0, which is what a slow
+            estimate averages, relative to the assumed white noise). Its square root (>= 1)
+            is the pair's ``noise_scale``: the filter's posterior std of the offset is
+            multiplied by it wherever the std is used (the noise part of a steady-state
+            posterior scales this way; the random-walk part does not, so the scaled std errs
+            on the safe side). Measured on the road simulator's car: 17-22 for the slip
+            pairs, 7-10 for the lateral pairs, about the same from a 60 s steady-cruise window
+            as from 5 min of mixed driving; blocks of 1-10 s agree within 20 %.
+        radius_noise_floor: floor of the per-pair and per-tire radius noise (relative
+            radius): wear, temperature and load shifts that neither the filters nor the
+            calibration's noise check see.
         informative_std: a pair whose posterior std exceeds this carries no information.
         z_flag: flag a tire whose radius drop exceeds this many noise sigmas.
         z_full: radius drop in sigmas at which the confidence reaches 1.
@@ -179,7 +196,7 @@ class WheelRadiusParams:
     wheelbase_m: float = 2.7
     gyro_stuck_s: float = 0.5
     wheel_recover_s: float = 1.0
-    slip_noise_std: float = 1e-3
+    wheel_speed_noise_mps: float = 0.0177
     inv_stiffness_rw: float = 1e-4
     delta_rw: float = 1e-5
     inv_stiffness0_std: float = 0.05
@@ -191,6 +208,7 @@ class WheelRadiusParams:
     gyro_offset0_std: float = 0.03
     calibration_settle_s: float = 20.0
     min_calibration_s: float = 20.0
+    noise_block_s: float = 2.0
     radius_noise_floor: float = 2.5e-4
     informative_std: float = 2e-3
     z_flag: float = 3.0
@@ -199,11 +217,13 @@ class WheelRadiusParams:
     def __post_init__(self) -> None:
         positive = ('nominal_radius_m', 'track_front_m', 'track_rear_m', 'sample_rate_hz',
                     'max_gap_s', 'max_wheel_speed', 'max_speed_mps', 'mu_max', 'slip_max',
-                    'ay_max_longitudinal', 'ay_max_lateral', 'gyro_stuck_s', 'slip_noise_std',
+                    'ay_max_longitudinal', 'ay_max_lateral', 'gyro_stuck_s',
+                    'wheel_speed_noise_mps',
                     'accel_max_longitudinal', 'accel_max_lateral', 'accel_filter_hz',
                     'wheelbase_m',
                     'inv_stiffness0_std', 'delta0_std', 'gyro_noise_std',
                     'wheel_yaw_noise_std', 'gyro_offset0_std', 'min_calibration_s',
+                    'noise_block_s',
                     'radius_noise_floor', 'informative_std', 'z_flag', 'z_full', 'yaw_jerk_std')
         for name in positive:
             value = getattr(self, name)
@@ -250,6 +270,8 @@ class WheelRadiusCalibration:
             nominal is compared with the current filter's u at the same a, so it holds
             whatever split the filter had (0: delta itself, as in version 1 files).
         companion: (4,) mean z of each pair over the window (1/k left, right, delta_o twice).
+        noise_scale: (4,) factor >= 1 on each pair's filter std for the measured coloured
+            noise (see ``WheelRadiusParams.noise_block_s``; 1 in version 1 and 2 files).
     """
 
     nominal_offsets: np.ndarray
@@ -257,6 +279,7 @@ class WheelRadiusCalibration:
     duration_s: np.ndarray
     reference: np.ndarray = field(default_factory=lambda: np.zeros(4))
     companion: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    noise_scale: np.ndarray = field(default_factory=lambda: np.ones(4))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON/YAML-serialisable state."""
@@ -268,23 +291,26 @@ class WheelRadiusCalibration:
             'duration_s': dict(zip(PAIR_NAMES, self.duration_s.tolist(), strict=True)),
             'reference': dict(zip(PAIR_NAMES, self.reference.tolist(), strict=True)),
             'companion': dict(zip(PAIR_NAMES, self.companion.tolist(), strict=True)),
+            'noise_scale': dict(zip(PAIR_NAMES, self.noise_scale.tolist(), strict=True)),
         }
 
     @classmethod
     def from_dict(cls, state: Mapping[str, Any]) -> WheelRadiusCalibration:
-        """Rebuild from :meth:`to_dict` output (or a version 1 file); ValueError if corrupt."""
+        """Rebuild from :meth:`to_dict` output (or an older file); ValueError if corrupt."""
         if not isinstance(state, Mapping):
             raise ValueError(f'calibration state must be a mapping, got {type(state).__name__}')
         version = state.get('version')
-        if version not in (1, CALIBRATION_VERSION) or state.get('method') != 'wheel_radius':
+        if version not in (1, 2, CALIBRATION_VERSION) or state.get('method') != 'wheel_radius':
             raise ValueError(f'calibration state: expected version 1..{CALIBRATION_VERSION} of '
                              f'method wheel_radius, got {state.get("version")!r}/'
                              f'{state.get("method")!r}')
         tables = [('nominal_offsets', PAIR_NAMES, 0.1), ('noise', PAIR_NAMES, 0.1),
                   ('duration_s', PAIR_NAMES, math.inf)]
-        if version == CALIBRATION_VERSION:
+        if version >= 2:
             # |mu| and 1 / c (c ~ speed / track) stay below 1; 1/k and a gyro offset below 10
             tables += [('reference', PAIR_NAMES, 1.0), ('companion', PAIR_NAMES, 10.0)]
+        if version >= 3:
+            tables.append(('noise_scale', PAIR_NAMES, 1e4))
         arrays = []
         for key, names, upper in tables:
             table = state.get(key)
@@ -297,6 +323,8 @@ class WheelRadiusCalibration:
             # offsets of more than 10 % radius are no tire; noise and duration must be > 0
             if key in ('noise', 'duration_s'):
                 ok = np.isfinite(arr) & (arr > 0.0) & (arr < upper)
+            elif key == 'noise_scale':
+                ok = np.isfinite(arr) & (arr >= 1.0) & (arr < upper)
             else:
                 ok = np.isfinite(arr) & (np.abs(arr) < upper)
             if not np.all(ok):
@@ -311,7 +339,8 @@ class LowTireLocalisation:
 
     Attributes:
         radius_drop: (4,) estimated relative radius drop rho_i >= 0 per tire.
-        sigma: (4,) its noise std.
+        sigma: (4,) its noise std: of the tires found low estimated together (the others at
+            zero), or of a drop of that tire alone for the others.
         z: (4,) rho / sigma.
         flags: (4,) bool low tires (z >= z_flag).
         confidence: (4,) clip(z / z_full, 0, 1).
@@ -457,9 +486,18 @@ def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
     b_aug = np.concatenate([target, np.zeros(N_TIRES)])
     drop, _ = optimize.nnls(a_aug, b_aug)
     residual = float(np.linalg.norm(design @ drop - target))
-    # per-tire std from the weighted normal matrix; pinv removes the unobservable common mode
-    cov = np.linalg.pinv(design.T @ design)
-    sigma = np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), params.radius_noise_floor)
+    # Per-tire std of the drop as it was estimated: least squares on the tires found low
+    # (the others held at zero). The std from all four columns would be that of a tire's
+    # drop relative to the mean of the four (the common mode removed), about half the std
+    # of e.g. the rear axle against the front one: a rear-axle drift of 2.5 pair sigmas read
+    # as 6 sigmas on the road simulator's nominal driving. A tire not found low gets the std
+    # a drop of that tire alone would have.
+    active = drop > 0.0
+    variance = 1.0 / np.maximum(np.sum(design * design, axis=0), 1e-300)
+    if active.any():
+        columns = design[:, active]
+        variance[active] = np.diag(np.linalg.pinv(columns.T @ columns))
+    sigma = np.maximum(np.sqrt(np.maximum(variance, 0.0)), params.radius_noise_floor)
     z = drop / sigma
     return LowTireLocalisation(
         radius_drop=drop, sigma=sigma, z=z, flags=z >= params.z_flag,
@@ -506,6 +544,10 @@ class WheelRadiusAnalyzer:
         # per pair, in the filter's terms: sums of a, z, z^2, delta z, delta, delta^2 (see
         # WheelRadiusCalibration.reference)
         self._cal_pair = np.zeros((6, 4))
+        # noise check per pair: the open block's innovation sum and count; over the closed
+        # blocks, the sum of (block sum)^2 / B and their number
+        self._noise_block = np.zeros((2, 4))
+        self._cal_noise = np.zeros((2, 4))
         self._cal_start: float | None = None
         self._accel_state: np.ndarray | None = None      # wheel-speed low-pass (sos, zi)
         self._last_smooth = np.zeros(N_TIRES)
@@ -522,6 +564,8 @@ class WheelRadiusAnalyzer:
         self._calibrating = True
         self._cal_sum[:] = 0.0
         self._cal_pair[:] = 0.0
+        self._noise_block[:] = 0.0
+        self._cal_noise[:] = 0.0
         self._cal_start = None
 
     def finish_calibration(self) -> WheelRadiusCalibration:
@@ -551,7 +595,8 @@ class WheelRadiusAnalyzer:
         if self.params.driven_axle == 'rear':
             std[:2] = std[:2] / (1.0 - d_sum[:2]) ** 2
         std = np.maximum(std, 1e-9)
-        self._calibration = WheelRadiusCalibration(mean, std, duration, reference, z_sum)
+        self._calibration = WheelRadiusCalibration(mean, std, duration, reference, z_sum,
+                                                   self._noise_scale())
         self._calibrating = False
         return self._calibration
 
@@ -658,6 +703,8 @@ class WheelRadiusAnalyzer:
         side_ok = wheel_ok[:, self._driven] & wheel_ok[:, self._nondriven] & (wn > 0.0)
         with np.errstate(divide='ignore', invalid='ignore'):
             slip = np.where(side_ok, wd / wn - 1.0, 0.0)
+            slip_var = np.where(side_ok, 2.0 * (p.wheel_speed_noise_mps / (r_n * wn)) ** 2,
+                                1.0)
         omega_dot = self._wheel_acceleration(omega, wheel_ok, dt)
         ax = r_n * omega_dot[:, self._nondriven].mean(axis=1)
         # mu = Fx / Fz at the contact: the drive torque less what spins the wheel up, over the
@@ -684,12 +731,12 @@ class WheelRadiusAnalyzer:
         self.counts['lat_gated'] += int((~lat_cond & (rear_ok | front_ok)).sum())
         y_gyro = np.where(gyro_finite, -gyro, 0.0)      # REP 103 -> SAE sign
 
-        trace, long_trace = self._run_filters(dt, gap, slip, mu, long_valid, y_gyro, yaw_rear,
-                                              yaw_front, c_rear, c_front, use_gyro, use_rear,
-                                              use_front)
+        trace, long_trace, innovation = self._run_filters(
+            dt, gap, slip, slip_var, mu, long_valid, y_gyro, yaw_rear, yaw_front, c_rear,
+            c_front, use_gyro, use_rear, use_front)
         if self._calibrating:
-            self._accumulate_calibration(stamps, trace, long_trace, mu, c_rear, c_front,
-                                         long_valid, use_rear, use_front)
+            self._accumulate_calibration(stamps, trace, long_trace, innovation, mu, c_rear,
+                                         c_front, long_valid, use_rear, use_front)
         trace[:, 4] = -trace[:, 4]                        # gyro offset back to REP 103
         return self._estimate(stamps, trace)
 
@@ -730,34 +777,40 @@ class WheelRadiusAnalyzer:
         self._last_gyro = float(gyro[-1])
         return stuck
 
-    def _run_filters(self, dt: np.ndarray, gap: np.ndarray, slip: np.ndarray, mu: np.ndarray,
-                     long_valid: np.ndarray, y_gyro: np.ndarray, yaw_rear: np.ndarray,
-                     yaw_front: np.ndarray, c_rear: np.ndarray, c_front: np.ndarray,
-                     use_gyro: np.ndarray, use_rear: np.ndarray, use_front: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:
+    def _run_filters(self, dt: np.ndarray, gap: np.ndarray, slip: np.ndarray,
+                     slip_var: np.ndarray, mu: np.ndarray, long_valid: np.ndarray,
+                     y_gyro: np.ndarray, yaw_rear: np.ndarray, yaw_front: np.ndarray,
+                     c_rear: np.ndarray, c_front: np.ndarray, use_gyro: np.ndarray,
+                     use_rear: np.ndarray, use_front: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The recursion: one predict and up to five scalar updates per sample.
 
         Returns:
-            (M, 5) trace as in :class:`RadiusEstimate` and (M, 4) longitudinal states in the
-            filter's own terms: delta left, delta right, 1/k left, 1/k right.
+            (M, 5) trace as in :class:`RadiusEstimate`; (M, 4) longitudinal states in the
+            filter's own terms: delta left, delta right, 1/k left, 1/k right; (M, 4)
+            innovations y - h x of the measurement behind each pair (slip left, slip right,
+            rear and front wheel yaw rate) over the assumed noise std, NaN where it was not
+            updated.
         """
         p = self.params
         m = dt.shape[0]
         trace = np.empty((m, 5))
         long_trace = np.empty((m, 4))
+        innovation = np.full((m, 4), np.nan)
         q_k = p.inv_stiffness_rw ** 2
         q_d = p.delta_rw ** 2
         q_o = p.gyro_offset_rw ** 2
         q_jerk = p.yaw_jerk_std ** 2
-        r_slip = p.slip_noise_std ** 2
         r_gyro = p.gyro_noise_std ** 2
         r_wheel = p.wheel_yaw_noise_std ** 2
+        inv_wheel_std = 1.0 / p.wheel_yaw_noise_std
         rw_diag = np.array([0.0, 0.0, q_o, q_d, q_d])
         yaw_prior = np.array([0.1 ** 2, 0.5 ** 2])
         long_x, long_p = self._long_x, self._long_p
         x, cov = self._lat_x, self._lat_p
         # python lists and floats: the 2-state filters are cheaper unrolled than as 2x2 arrays
         slip_l, mu_l, valid_l = slip.tolist(), mu.tolist(), long_valid.tolist()
+        slip_var_l = slip_var.tolist()
         dt_l, gap_l = dt.tolist(), gap.tolist()
         flags = np.stack([use_gyro, use_rear, use_front], axis=1).tolist()
         y_l = np.stack([y_gyro, yaw_rear, yaw_front], axis=1).tolist()
@@ -774,10 +827,12 @@ class WheelRadiusAnalyzer:
                     mu_i = mu_l[i][side]
                     ph1 = ps[0] * mu_i + ps[1]
                     ph2 = ps[1] * mu_i + ps[2]
+                    r_slip = slip_var_l[i][side]
                     s_inv = 1.0 / (mu_i * ph1 + ph2 + r_slip)
-                    innov = (slip_l[i][side] - mu_i * xs[0] - xs[1]) * s_inv
-                    xs[0] += ph1 * innov
-                    xs[1] += ph2 * innov
+                    innov = slip_l[i][side] - mu_i * xs[0] - xs[1]
+                    innovation[i, side] = innov / math.sqrt(r_slip)
+                    xs[0] += ph1 * innov * s_inv
+                    xs[1] += ph2 * innov * s_inv
                     ps[0] -= ph1 * ph1 * s_inv
                     ps[1] -= ph1 * ph2 * s_inv
                     ps[2] -= ph2 * ph2 * s_inv
@@ -810,13 +865,17 @@ class WheelRadiusAnalyzer:
                 c = c_rear_l[i]
                 ph = cov[:, 0] - c * cov[:, 3]
                 s = ph[0] - c * ph[3] + r_wheel
-                x += ph * ((y[1] - x[0] + c * x[3]) / s)
+                innov = y[1] - x[0] + c * x[3]
+                innovation[i, 2] = innov * inv_wheel_std
+                x += ph * (innov / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
             if use[2]:            # h = (1, 0, 0, 0, -c1)
                 c = c_front_l[i]
                 ph = cov[:, 0] - c * cov[:, 4]
                 s = ph[0] - c * ph[4] + r_wheel
-                x += ph * ((y[2] - x[0] + c * x[4]) / s)
+                innov = y[2] - x[0] + c * x[4]
+                innovation[i, 3] = innov * inv_wheel_std
+                x += ph * (innov / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
             trace[i, 0] = long_trace[i, 0] = long_x[0][1]
             trace[i, 1] = long_trace[i, 1] = long_x[1][1]
@@ -828,12 +887,13 @@ class WheelRadiusAnalyzer:
         if p.driven_axle == 'rear':
             # filter delta = 1 - r_rear / r_front; paper's delta_13 = 1 - r1 / r3 = -d / (1 - d)
             trace[:, :2] = -trace[:, :2] / (1.0 - trace[:, :2])
-        return trace, long_trace
+        return trace, long_trace, innovation
 
     def _accumulate_calibration(self, stamps: np.ndarray, trace: np.ndarray,
-                                long_trace: np.ndarray, mu: np.ndarray, c_rear: np.ndarray,
-                                c_front: np.ndarray, long_valid: np.ndarray,
-                                use_rear: np.ndarray, use_front: np.ndarray) -> None:
+                                long_trace: np.ndarray, innovation: np.ndarray, mu: np.ndarray,
+                                c_rear: np.ndarray, c_front: np.ndarray,
+                                long_valid: np.ndarray, use_rear: np.ndarray,
+                                use_front: np.ndarray) -> None:
         if self._cal_start is None:
             self._cal_start = float(stamps[0])
         settled = stamps >= self._cal_start + self.params.calibration_settle_s
@@ -850,10 +910,46 @@ class WheelRadiusAnalyzer:
         self._cal_pair += np.stack([coef.sum(axis=0), comp.sum(axis=0),
                                     (comp * comp).sum(axis=0), (delta * comp).sum(axis=0),
                                     delta.sum(axis=0), (delta * delta).sum(axis=0)])
+        self._accumulate_noise(np.where(settled[:, None], innovation, np.nan))
+
+    def _accumulate_noise(self, innovation: np.ndarray) -> None:
+        """Close the blocks of ``noise_block_s`` worth of normalised innovations per pair
+        (NaN: no update).
+
+        Blocks count updates, not time, and carry over chunks, so the result does not depend
+        on how the data was chunked.
+        """
+        block = max(1, round(self.params.noise_block_s * self.params.sample_rate_hz))
+        for pair in range(4):
+            values = innovation[:, pair]
+            values = values[np.isfinite(values)]
+            if not values.size:
+                continue
+            open_sum, open_count = self._noise_block[:, pair]
+            running = open_sum + np.cumsum(values)
+            counts = open_count + np.arange(1, values.size + 1)
+            ends = np.flatnonzero(counts % block == 0)
+            if ends.size:
+                sums = np.diff(np.concatenate([[0.0], running[ends]]))
+                self._cal_noise[:, pair] += (float(np.sum(sums * sums)) / block, ends.size)
+                open_sum = running[-1] - running[ends[-1]]
+            else:
+                open_sum = running[-1]
+            self._noise_block[:, pair] = (open_sum, counts[-1] % block)
+
+    def _noise_scale(self) -> np.ndarray:
+        """(4,) per-pair factor >= 1 on the filter std from the calibration's noise check:
+        the innovations are normalised by their assumed std, so white noise as assumed has
+        a low-frequency power of 1."""
+        power, blocks = self._cal_noise
+        density = np.divide(power, blocks, out=np.ones(4), where=blocks > 0)
+        return np.sqrt(np.maximum(density, 1.0))
 
     def _offsets_std(self) -> np.ndarray:
         lp = self._long_p
         std = np.sqrt([lp[0][2], lp[1][2], self._lat_p[3, 3], self._lat_p[4, 4]])
+        if self._calibration is not None:
+            std *= self._calibration.noise_scale
         if self.params.driven_axle == 'rear':
             std[:2] /= (1.0 - np.array([self._long_x[0][1], self._long_x[1][1]])) ** 2
         return std
@@ -908,7 +1004,7 @@ class WheelRadiusAnalyzer:
                         lat_p[3, 3] + 2.0 * ref[2] * lat_p[2, 3] + ref[2] ** 2 * lat_p[2, 2],
                         lat_p[4, 4] + 2.0 * ref[3] * lat_p[2, 4] + ref[3] ** 2 * lat_p[2, 2]])
         u_now = delta + ref * comp
-        std = np.sqrt(np.maximum(var, 0.0))
+        std = np.sqrt(np.maximum(var, 0.0)) * cal.noise_scale
         d_cal = cal.nominal_offsets.copy()
         if self.params.driven_axle == 'rear':
             # filter terms back from the paper's delta_13 = -d / (1 - d) (an involution)

@@ -37,7 +37,7 @@ from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets, WheelSpee
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
 from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
-from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusParams
+from tpms_ros.wheel_radius_analysis import PAIR_NAMES, WheelRadiusAnalyzer, WheelRadiusParams
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -115,8 +115,9 @@ class WheelRadiusAnalyzerParameters:
                                 'gyro: the lateral filter pauses, s', low=0.01, high=60.0)
     wheel_recover_s: float = param(_D.wheel_recover_s, 'a tire stays unknown this long after '
                                    'its last bad wheel speed, s', low=0.0, high=600.0)
-    slip_noise_std: float = param(_D.slip_noise_std, 'slip measurement noise', low=1e-7,
-                                  high=1.0)
+    wheel_speed_noise_mps: float = param(_D.wheel_speed_noise_mps, 'noise of one wheel\'s '
+                                         'speed per sample (slip noise sqrt(2) x this / '
+                                         'speed), m/s', low=1e-7, high=10.0)
     inv_stiffness_rw: float = param(_D.inv_stiffness_rw, 'random walk of 1/k, per sqrt(s)',
                                     low=0.0, high=1.0)
     delta_rw: float = param(_D.delta_rw, 'random walk of the radius offsets, per sqrt(s)',
@@ -139,6 +140,8 @@ class WheelRadiusAnalyzerParameters:
                                         'window not used, s', low=0.0, high=3600.0)
     min_calibration_s: float = param(_D.min_calibration_s, 'least seconds of valid updates '
                                      'per pair for a calibration, s', low=0.1, high=3600.0)
+    noise_block_s: float = param(_D.noise_block_s, 'block length of the calibration\'s '
+                                 'coloured-noise check, s', low=0.01, high=600.0)
     radius_noise_floor: float = param(_D.radius_noise_floor, 'floor of the per-tire relative '
                                       'radius noise', low=1e-7, high=0.1)
     informative_std: float = param(_D.informative_std, 'a pair whose posterior std exceeds '
@@ -440,6 +443,7 @@ class WheelRadiusAnalyzerNode(Node):
         self._rate_counts = dict.fromkeys(self._rate_counts, 0)
         self._rate_since_ns = now
         cal = self._calibration
+        core_cal = self._analyzer.calibration
         counts = self._analyzer.counts
         values: dict[str, Any] = {f'input_rate_hz.{t}': r for t, r in rates.items()}
         values.update({f'received.{t}': n for t, n in self._received.items()})
@@ -461,6 +465,10 @@ class WheelRadiusAnalyzerNode(Node):
             'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
             'last_stamp_s': self._last_stamp_s,
         })
+        if core_cal is not None:
+            # the calibration's coloured-noise factor on each pair's std (1: white as assumed)
+            values.update({f'noise_scale.{name}': float(v) for name, v in
+                           zip(PAIR_NAMES, core_cal.noise_scale, strict=True)})
         # every problem is listed; the worst sets the level
         problems: list[tuple[int, str]] = []
         received = any(self._received.values())
