@@ -29,6 +29,7 @@ import numpy as np
 
 from tpms_ros.road_simulator import RoadSimulationResult, simulate_file
 from tpms_ros.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
+from vehicle_monitor_common.figures import pyplot, save_figure
 
 SCENARIOS = Path(__file__).resolve().parents[1] / 'src' / 'tpms_ros' / 'scenarios'
 UMENO = [f'umeno_step_{speed}kmh_{surface}' for speed in (60, 90)
@@ -92,9 +93,7 @@ def rms_error(track: Track, mask: np.ndarray) -> np.ndarray:
 
 def plot_umeno(name: str, tracks: dict[str, Track], path: Path) -> None:
     """PNG like Figs. 11-12: estimated vs true pressure, one panel per tire, per mode."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, sharey=True)
     for w, ax in enumerate(axes.ravel()):
@@ -113,16 +112,12 @@ def plot_umeno(name: str, tracks: dict[str, Track], path: Path) -> None:
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(f'{name}: estimated vs true pressure (calibrated over the first '
                  f'{CALIBRATION_S:g} s)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_crosstalk(tracks: dict[str, Track], path: Path) -> None:
     """PNG like Fig. 13: the unchanged tires (FL, RR) while FR and RL drop, every scenario."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for ax, w in zip(axes, (0, 3), strict=True):
@@ -135,9 +130,7 @@ def plot_crosstalk(tracks: dict[str, Track], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel('kPa')
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def level_means(track: Track, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -162,9 +155,7 @@ def plot_estimated_vs_true(levels: dict[str, dict[str, tuple[np.ndarray, np.ndar
         levels: scenario -> mode label -> (estimate (L, 4), truth (L, 4)) from level_means.
         path: PNG file to write.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     panels = [('FR (non-driven)', 'rear compensated', 1),
               ('RL (driven), no compensation', 'no compensation', 2),
@@ -186,9 +177,7 @@ def plot_estimated_vs_true(levels: dict[str, dict[str, tuple[np.ndarray, np.ndar
     axes[0].set_ylabel('estimated pressure (steady state), kPa')
     axes[0].legend(fontsize=8)
     fig.suptitle('Estimated vs true pressure per level (dotted: +-10 kPa target)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def evaluate_umeno(out: Path, names: list[str]) -> None:

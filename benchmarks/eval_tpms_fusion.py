@@ -50,6 +50,7 @@ from tpms_ros.wheel_radius_analysis import (
     bin_wheel_speeds,
     sample_and_hold,
 )
+from vehicle_monitor_common.figures import pyplot, save_figure
 
 SCENARIOS = Path(__file__).resolve().parents[1] / 'src' / 'tpms_ros' / 'scenarios'
 BASE_SCENARIO = SCENARIOS / 'puncture_15pct_fl.yaml'
@@ -475,9 +476,7 @@ def summarise(records: Sequence[dict]) -> dict:
 
 def plot_fig9(record: dict, path: Path) -> Path:
     """Paper Fig. 9 style: each method's warning (0/1) and confidence, and the fused warning."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     trace = record['trace']
     t = np.asarray(trace['t'])
@@ -505,10 +504,7 @@ def plot_fig9(record: dict, path: Path) -> Path:
         axis.legend(loc='upper left', fontsize=7)
     axes[-1].set_xlabel('time (s)   [grey: calibration; dashed: loss starts; dotted: reached]')
     figure.suptitle(f'Warning signals, {record["name"]}')
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, dpi=110)
 
 
 def main() -> None:

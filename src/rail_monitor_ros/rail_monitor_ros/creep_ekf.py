@@ -85,6 +85,7 @@ from rail_monitor_ros.rail_model import (
     discretize_zoh_sensitivity,
     half_car_state_space,
 )
+from vehicle_monitor_common.figures import pyplot, save_figure
 
 if TYPE_CHECKING:
     from rail_monitor_ros.rail_simulator import RailSimulationResult
@@ -1033,9 +1034,7 @@ def plot_creep(runs: Mapping[str, CreepRun], path: str | Path, title: str = '') 
     Returns:
         The path written.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     if not runs:
         raise ValueError('runs must not be empty')
@@ -1059,7 +1058,4 @@ def plot_creep(runs: Mapping[str, CreepRun], path: str | Path, title: str = '') 
     axes[-1, 0].set_xlabel('time, s')
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -43,7 +43,8 @@ from vehicle_monitor_common.evaluation import (
     stack_column,
     start_ns,
 )
-from vehicle_monitor_common.resources import share_dir
+from vehicle_monitor_common.figures import pyplot, save_figure
+from vehicle_monitor_common.resources import share_dir, workspace_bags
 from vehicle_monitor_common.series import TopicSeries
 
 MODES = '/rail/suspension/modes'
@@ -217,9 +218,7 @@ def creep_metrics(series: Mapping[str, TopicSeries], t0: int) -> list[Metric]:
 
 def plot_mode_probabilities(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
     """Mori Fig. 5 style: smoothed mode probabilities over time, with the true ratios."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     s = series[MODES]
     t = seconds(s, t0)
@@ -253,17 +252,12 @@ def plot_mode_probabilities(series: Mapping[str, TopicSeries], path: Path, t0: i
         ax.legend(fontsize=8, ncol=2)
     axes[-1, 0].set_xlabel('time (s)')
     fig.suptitle('IMM secondary-suspension monitor: mode probabilities (cf. Mori Fig. 5)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_creep(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
     """Chonan Fig. 7 style: estimated creep factor vs the true one, with the tolerance band."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(10, 4))
     truth = series.get(TRUTH_CREEP)
@@ -281,10 +275,7 @@ def plot_creep(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Pa
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title('Creep factor by augmented EKF (cf. Chonan Fig. 7)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -328,17 +319,9 @@ def _is_rail_scenario(path: Path) -> bool:
     return True
 
 
-def _bag_dir() -> Path:
-    """The shipped bags: beside the packages in this workspace (``<root>/bags``)."""
-    for parent in Path(__file__).resolve().parents:
-        if (parent / 'bags').is_dir():
-            return parent / 'bags'
-    return Path('bags')
-
-
 def domain() -> Domain:
     """The rail domain for the main job and the evaluation CLI."""
-    bags = _bag_dir()
+    bags = workspace_bags()
     return Domain(
         name='rail',
         graph=share_dir('rail_monitor_ros', 'config') / 'rail_graph.yaml',

@@ -34,6 +34,7 @@ from rail_monitor_ros.rail_scenario import (
     load_rail_scenario,
 )
 from rail_monitor_ros.track_irregularity import TRACK_SPECTRA, generate_track_profile
+from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.series import TopicSeries, stamps_from_seconds
 
 
@@ -403,9 +404,7 @@ def plot_acceleration_psd(results: Mapping[str, RailSimulationResult], path: str
     Returns:
         The path written.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     if not results:
         raise ValueError('results must not be empty')
@@ -429,8 +428,4 @@ def plot_acceleration_psd(results: Mapping[str, RailSimulationResult], path: str
     ax_psd.set_ylabel('PSD, (m/s$^2$)$^2$/Hz')
     ax_psd.legend(loc='upper right')
     ax_psd.grid(True, which='both', alpha=0.3)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=120)

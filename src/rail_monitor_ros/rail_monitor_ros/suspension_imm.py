@@ -67,6 +67,7 @@ from rail_monitor_ros.rail_model import (
     reduced_bogie_body_model,
 )
 from rail_monitor_ros.track_irregularity import TRACK_SPECTRA
+from vehicle_monitor_common.figures import pyplot, save_figure
 
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
 # Known inputs of the monitored bogie's two wheelsets (wheelset_inputs_from_track).
@@ -1460,9 +1461,7 @@ def plot_mode_probabilities(result: ImmRunResult, path: str | Path, title: str =
     Returns:
         The path written.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (ax_p, ax_s, ax_d) = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     t = result.time
@@ -1498,8 +1497,4 @@ def plot_mode_probabilities(result: ImmRunResult, path: str | Path, title: str =
     ax_d.set_xlabel('time, s  (shaded: fault declared)')
     mode_label = 'known inputs' if result.known_input else 'inputs as process noise'
     fig.suptitle(title or f'IMM suspension monitor ({mode_label})')
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)

@@ -46,7 +46,8 @@ from vehicle_monitor_common.evaluation import (
     selected_methods,
     start_ns,
 )
-from vehicle_monitor_common.resources import share_dir
+from vehicle_monitor_common.figures import pyplot, save_figure
+from vehicle_monitor_common.resources import share_dir, workspace_bags
 from vehicle_monitor_common.series import TopicSeries
 
 TPMS_METHODS = ('stiffness', 'vibration', 'wheel_radius')
@@ -257,42 +258,44 @@ def lateral_force_metric(series: Mapping[str, TopicSeries], t0: int) -> Metric |
 # Figures
 
 
-def plot_pressure(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
-    """Umeno Fig. 11 style: estimated vs true pressure per tire over time."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True, sharey=True)
-    s = series[STIFFNESS]
-    t = seconds(s, t0)
-    estimate = np.asarray(s.fields['pressure_kpa'], dtype=float)
-    usable = (np.asarray(s.fields['valid'], dtype=bool)
-              & np.asarray(s.fields['calibrated'], dtype=bool)[:, None])
-    truth = series.get(TRUTH_PRESSURE)
+def _plot_per_tire(path: Path, title: str, ylabel: str, t: np.ndarray, estimate: np.ndarray,
+                   truth: tuple[np.ndarray, np.ndarray] | None, *, panel: str = '{}',
+                   sharey: bool = False, truth_lw: float | None = None) -> Path:
+    """Estimate (dashed: truth) of one quantity, one panel per tire, FL FR over RL RR."""
+    plt = pyplot()
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True, sharey=sharey)
     for j, ax in enumerate(axes.flat):
-        ax.plot(t, np.where(usable[:, j], estimate[:, j], np.nan), label='estimate', lw=1)
+        ax.plot(t, estimate[:, j], label='estimate', lw=1)
         if truth is not None:
-            ax.plot(seconds(truth, t0), truth.fields['pressure_kpa'][:, j], 'k--', label='truth')
-        ax.set_title(TIRE_NAMES[j])
+            ax.plot(truth[0], truth[1][:, j], 'k--', lw=truth_lw, label='truth')
+        ax.set_title(panel.format(TIRE_NAMES[j]))
         ax.grid(True, alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel('time (s)')
     for ax in axes[:, 0]:
-        ax.set_ylabel('pressure (kPa)')
+        ax.set_ylabel(ylabel)
     axes[0, 0].legend()
-    fig.suptitle('Tire stiffness observer: pressure from torsional stiffness (cf. Umeno Fig. 11)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_pressure(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
+    """Umeno Fig. 11 style: estimated vs true pressure per tire over time."""
+    s = series[STIFFNESS]
+    estimate = np.asarray(s.fields['pressure_kpa'], dtype=float)
+    usable = (np.asarray(s.fields['valid'], dtype=bool)
+              & np.asarray(s.fields['calibrated'], dtype=bool)[:, None])
+    truth = series.get(TRUTH_PRESSURE)
+    return _plot_per_tire(
+        path, 'Tire stiffness observer: pressure from torsional stiffness (cf. Umeno Fig. 11)',
+        'pressure (kPa)', seconds(s, t0), np.where(usable, estimate, np.nan),
+        None if truth is None else (seconds(truth, t0), truth.fields['pressure_kpa']),
+        sharey=True)
 
 
 def plot_warnings(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
     """Persson Fig. 9 style: each method's flags, the fused warning and the true loss."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = [(f'/tpms/indication/{m}', 'underinflated', 'confidence', m) for m in TPMS_METHODS
             if f'/tpms/indication/{m}' in series]
@@ -324,37 +327,18 @@ def plot_warnings(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) ->
     axes[-1, 0].set_xlabel('time (s)')
     fig.suptitle('TPMS confidence (lines) and flags (shaded) per method, fused warning '
                  '(cf. Persson Fig. 9)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_lateral_forces(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Path:
     """Kim & Huh Figs. 5-6 style: estimated vs true lateral force per tire."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
     s = series[FORCES]
     truth = series.get(TRUTH_FORCES)
-    for j, ax in enumerate(axes.flat):
-        ax.plot(seconds(s, t0), s.fields['fy'][:, j], label='estimate', lw=1)
-        if truth is not None:
-            ax.plot(seconds(truth, t0), truth.fields['fy'][:, j], 'k--', lw=1, label='truth')
-        ax.set_title(f'{TIRE_NAMES[j]} Fy')
-        ax.grid(True, alpha=0.3)
-    for ax in axes[1]:
-        ax.set_xlabel('time (s)')
-    for ax in axes[:, 0]:
-        ax.set_ylabel('lateral force (N)')
-    axes[0, 0].legend()
-    fig.suptitle('Tire lateral forces by SKFMEC (cf. Kim & Huh Figs. 5-6)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _plot_per_tire(
+        path, 'Tire lateral forces by SKFMEC (cf. Kim & Huh Figs. 5-6)', 'lateral force (N)',
+        seconds(s, t0), np.asarray(s.fields['fy'], dtype=float),
+        None if truth is None else (seconds(truth, t0), truth.fields['fy']),
+        panel='{} Fy', truth_lw=1.0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -412,17 +396,9 @@ def _run_parameters(run_dir: Path) -> dict[str, dict[str, str]]:
                          'wheel_radius_analyzer')}
 
 
-def _bag_dir() -> Path:
-    """The shipped bags: beside the packages in this workspace (``<root>/bags``)."""
-    for parent in Path(__file__).resolve().parents:
-        if (parent / 'bags').is_dir():
-            return parent / 'bags'
-    return Path('bags')
-
-
 def domain() -> Domain:
     """The road domain for the main job and the evaluation CLI."""
-    bags = _bag_dir()
+    bags = workspace_bags()
     return Domain(
         name='road',
         graph=share_dir('tpms_ros', 'config') / 'road_graph.yaml',

@@ -75,6 +75,8 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from vehicle_monitor_common.figures import pyplot, save_figure
+
 G = 9.81
 STATE_NAMES = ('vx', 'vy', 'r', 'phi', 'p', 'fyf', 'fyr')
 MEASUREMENT_NAMES = ('ax', 'ay', 'r', 'p', 'vx_wheel')
@@ -914,9 +916,7 @@ def plot_lateral_forces(path: str, t: np.ndarray, fy_true: np.ndarray,
         estimates: label -> track (e.g. {'SKFMEC': ..., 'plain EKF': ...}).
         title: figure title.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fy_true = np.asarray(fy_true, dtype=float)
     fig, axes = plt.subplots(3, 2, figsize=(11, 9), sharex=True)
@@ -941,9 +941,7 @@ def plot_lateral_forces(path: str, t: np.ndarray, fy_true: np.ndarray,
         ax.legend(fontsize=7)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_relation_check(path: str, t: np.ndarray, fy: np.ndarray, fz: np.ndarray,
@@ -967,9 +965,7 @@ def plot_relation_check(path: str, t: np.ndarray, fy: np.ndarray, fz: np.ndarray
         model_zeta, calibrated_zeta: reference lines, N/rad.
         split_exponent: exponent of the load-sensitive split shown.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fy, fz = np.asarray(fy, dtype=float), np.asarray(fz, dtype=float)
     mask = (np.abs(ay) >= 1.0) & (np.abs(ay) <= 0.5 * G) & (np.abs(roll) > 1e-4)
@@ -999,6 +995,4 @@ def plot_relation_check(path: str, t: np.ndarray, fy: np.ndarray, fz: np.ndarray
     ax2.set_ylabel('Fy2 / Fyf')
     ax2.set_title('Relation 2: front right wheel, |ay| < 0.5 g')
     ax2.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)

@@ -49,6 +49,7 @@ from tpms_ros.vehicle_dynamics import (
     VehicleParams,
     simulate_handling,
 )
+from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.series import TopicSeries, stamps_from_seconds
 
 GRAVITY = 9.80665
@@ -535,9 +536,7 @@ def plot_wheel_speed_psd(results: Mapping[str, RoadSimulationResult], path: str 
     Returns:
         The written path.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = ('FL', 'FR', 'RL', 'RR')
     figure, axis = plt.subplots(figsize=(7.0, 4.5))
@@ -553,8 +552,4 @@ def plot_wheel_speed_psd(results: Mapping[str, RoadSimulationResult], path: str 
     axis.set_title(title or 'Wheel speed power spectrum')
     axis.grid(True, which='both', alpha=0.3)
     axis.legend()
-    figure.tight_layout()
-    path = Path(path)
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, dpi=120)

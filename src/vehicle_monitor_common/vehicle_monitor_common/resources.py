@@ -43,3 +43,12 @@ def shipped_file(package: str, subdir: str, name: str, suffix: str = '.yaml') ->
     available = ', '.join(sorted(p.stem for p in directory.glob(f'*{suffix}')))
     raise FileNotFoundError(f'no file {name!r}, nor one of that name in {package}/{subdir} '
                             f'(available: {available})')
+
+
+def workspace_bags() -> Path:
+    """The shipped scenario bags: ``<workspace>/bags`` beside the packages, whether they run
+    from the source tree or from the colcon install space inside it; else ``./bags``."""
+    for parent in Path(__file__).resolve().parents:
+        if (parent / 'bags').is_dir():
+            return parent / 'bags'
+    return Path('bags')
