@@ -55,6 +55,13 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
+from rail_monitor_ros.imm_kernel import (
+    CBAR_FLOOR,
+    LOG_2PI,
+    posterior_probabilities,
+    smooth_probabilities,
+    steady_imm_cycle,
+)
 from rail_monitor_ros.rail_model import (
     MAX_CREEP_FACTOR,
     MAX_SUSPENSION_RATIO,
@@ -75,7 +82,8 @@ N_BOGIE_INPUTS = len(REDUCED_INPUT_NAMES)
 ESTIMATION_MODELS = ('full_car', 'half_car')
 MODE_KINDS = ('normal', 'spring', 'damper')
 FAULT_COMPONENTS = ('', 'spring', 'damper', 'spring+damper')
-_LOG_2PI = math.log(2.0 * math.pi)
+# The steady-state kernel's measurement argument for a sample without one.
+_NO_MEASUREMENT = np.empty(0)
 
 @dataclass(frozen=True)
 class SteadyStateGain:
@@ -613,6 +621,8 @@ class FaultStatus:
 
 
 NO_FAULT = FaultStatus(False, '', 1.0, 1.0, 0.0)
+# The (spring, damper) ratios of the healthy suspension.
+NORMAL_HYPOTHESIS = (1.0, 1.0)
 
 
 def fault_component(spring_ratio: float, damper_ratio: float) -> str:
@@ -641,8 +651,7 @@ class FaultDecision:
 
     def reset(self) -> None:
         """Back to normal with nothing pending."""
-        self._declared: tuple[float, float] = (1.0, 1.0)
-        self._declared_probability = 0.0
+        self._declared: tuple[float, float] = NORMAL_HYPOTHESIS
         self._pending: tuple[float, float] | None = None
         self._held = 0
 
@@ -660,13 +669,13 @@ class FaultDecision:
                 self._declared = key
         else:
             self._pending, self._held = None, 0
-        index = [i for i, k in enumerate(keys) if k == self._declared]
-        self._declared_probability = float(probabilities[index[0]]) if index else 0.0
-        component = fault_component(*self._declared)
-        if not component:
+        if self._declared == NORMAL_HYPOTHESIS:
             return NO_FAULT
-        return FaultStatus(True, component, self._declared[0], self._declared[1],
-                           self._declared_probability)
+        # The adaptive step may have moved the bank off the declared hypothesis: probability 0.
+        probability = (float(probabilities[keys.index(self._declared)])
+                       if self._declared in keys else 0.0)
+        return FaultStatus(True, fault_component(*self._declared), self._declared[0],
+                           self._declared[1], probability)
 
 
 @dataclass(frozen=True)
@@ -684,8 +693,8 @@ class ImmStep:
         most_likely: index of the largest smoothed probability.
         spring_ratio: smoothed-probability-weighted spring ratio.
         damper_ratio: smoothed-probability-weighted damper ratio.
-        state: (n,) combined state estimate (``SuspensionImm.state_names``).
-        covariance: (n, n) combined covariance.
+        state: (n,) combined state estimate (``SuspensionImm.state_names``; its covariance:
+            :meth:`SuspensionImm.combined`).
         fault: the decision.
     """
 
@@ -700,7 +709,6 @@ class ImmStep:
     spring_ratio: float
     damper_ratio: float
     state: np.ndarray
-    covariance: np.ndarray
     fault: FaultStatus
 
 
@@ -709,7 +717,7 @@ def _log_likelihood(residual: np.ndarray, s_inv_res: np.ndarray, chol: np.ndarra
     the Cholesky factors (M, p, p) of their covariances S."""
     maha = np.einsum('mi,mi->m', residual, s_inv_res)
     log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-    return -0.5 * (maha + log_det + residual.shape[1] * _LOG_2PI)
+    return -0.5 * (maha + log_det + residual.shape[1] * LOG_2PI)
 
 
 class SuspensionImm:
@@ -894,6 +902,7 @@ class SuspensionImm:
         """Stack the mode models; damper modes at spring ratio ``damper_spring``."""
         self._damper_spring = damper_spring
         self.mode_spring_ratio = np.where(self._is_damper, damper_spring, self._base_spring)
+        self._mode_ratios = np.stack([self.mode_spring_ratio, self.mode_damper_ratio])
         pairs = list(zip(self.mode_spring_ratio.tolist(), self.mode_damper_ratio.tolist(),
                          strict=True))
         self._mode_models = [self._discretize(s, d) for s, d in pairs]
@@ -905,7 +914,7 @@ class SuspensionImm:
         self._f_top = np.ascontiguousarray(self._f[:, :n, :])
         self._f_top_t = np.ascontiguousarray(self._f_top.transpose(0, 2, 1))
         self._f_input = np.ascontiguousarray(self._f[0, n:, n:])
-        self._f_top_rows = self._f_top.reshape(-1, self._f.shape[2])  # (M k, n): one GEMM
+        self._f_input_t = np.ascontiguousarray(self._f_input.T)
         if not (np.all(self._f[:, n:, :n] == 0.0)
                 and np.all(self._f[:, n:, n:] == self._f[0, n:, n:])):
             raise RuntimeError('input states must be shared and independent of the vehicle')
@@ -1022,59 +1031,35 @@ class SuspensionImm:
         self.P = 0.5 * (p + p.transpose(0, 2, 1))
         return _log_likelihood(residual, s_inv_res, chol)
 
-    def _steady_cycle(self, z: np.ndarray | None, known: int,
-                      steady: tuple[np.ndarray, ...]) -> np.ndarray | None:
-        """The IMM cycle on the steady-state covariances plus the mixing's spread of means.
+    def _steady_cycle(self, z: np.ndarray | None, steady: tuple[np.ndarray, ...]) -> None:
+        """The IMM cycle on the steady-state covariances plus the mixing's spread of means
+        (:func:`rail_monitor_ros.imm_kernel.steady_imm_cycle`): sets ``x``, ``mu``,
+        ``_cbar``; the mode covariances left in ``P`` are the steady-state posteriors.
 
         Exact IMM: P-_j = F_j (sum_i w_ji P_i) F_j^T + Q_j + F_j Spread_j F_j^T with
         Spread_j = sum_i w_ji (x_i - x0_j)(x_i - x0_j)^T. Here the first two terms are the
         mode's steady-state prior P-ss_j, and the spread is kept exactly but never formed: it
-        is low-rank (at most M columns e_ij = F_j (x_i - x0_j)), so S_j = S_ss,j
-        + sum_i w_ji (H e_ij)(H e_ij)^T and P-_j H^T = P-ss_j H^T + sum_i w_ji e_ij (H e_ij)^T
-        cost O(M^2 n^2) instead of the O(M n^3) covariance propagation. The spread is what
-        lets the mismatched modes follow a change (measured: with known inputs, which make
-        P-ss small, dropping it delayed the damper detection from 0.12 s to 1.5 s). The mode
-        covariances left in ``P`` are the steady-state posteriors. Log-likelihoods or None.
+        is low-rank (at most M columns), so it costs O(M^2 n) per mode instead of the O(n^3)
+        covariance propagation. The spread is what lets the mismatched modes follow a change
+        (measured: with known inputs, which make P-ss small, dropping it delayed the damper
+        detection from 0.12 s to 1.5 s).
         """
         prior_ht, s_ss, posterior, hf_rows = steady
-        m = self.n_modes
-        k = self.n_states
-        w = self._mixing_weights()                                    # (M, M): w[j, i]
-        # F_j x_i for every pair, by blocks: the vehicle rows per mode in one product, the
-        # input rows (shared, vehicle-independent) once per i. The predictions F_j x0_j and
-        # the spread columns e_ij = F_j x_i - F_j x0_j follow by weighting with w.
-        top = (self._f_top_rows @ self.x.T).reshape(m, k, m)          # (M, k, M)
-        inputs = self._f_input @ self.x[:, k:].T                      # (n - k, M)
-        x_top = np.matmul(top, w[:, :, None])[:, :, 0]                # (M, k)
-        x_inputs = w @ inputs.T                                       # (M, n - k)
-        x = np.concatenate([x_top, x_inputs], axis=1)
+        x = np.empty_like(self.x)
+        mu = np.empty(self.n_modes)
+        self._cbar = np.empty(self.n_modes)
+        valid = steady_imm_cycle(self.x, self.mu, self.transition, self._f_top, self._f_input_t,
+                                 hf_rows, prior_ht, s_ss, _NO_MEASUREMENT if z is None else z,
+                                 self.config.probability_floor, x, mu, self._cbar)
         self.P = posterior
-        if z is None:
-            self.x = x
-            return None
-        measured = (hf_rows @ self.x.T).reshape(m, -1, m)             # (M, p, M): H F_j x_i
-        predicted_z = np.matmul(measured, w[:, :, None])              # (M, p, 1)
-        spread_h = measured - predicted_z                             # H e_ij
-        weighted_h = spread_h * w[:, None, :]
-        s = s_ss + np.matmul(weighted_h, spread_h.transpose(0, 2, 1))
-        residual = z[None, :, None] - predicted_z
-        try:
-            chol = np.linalg.cholesky(s)
-        except np.linalg.LinAlgError:
-            # Only non-finite states can do this (S_ss is positive definite, the spread
-            # semi-definite): restart the states, exact cycles first.
+        if valid:
+            self.x, self.mu = x, mu
+        else:
+            # Only non-finite states make S lose definiteness: restart the states (exact
+            # cycles first), keep the predicted probabilities.
             self.covariance_repairs += 1
             self.reset_states()
-            return None
-        s_inv_res = np.linalg.solve(s, residual)                      # (M, p, 1)
-        # (P-ss H^T + sum_i w_ji e_ij (H e_ij)^T) S^-1 r without forming the gain or e_ij:
-        # sum_i e_ij c_ji = F_j x_i c_ji summed - F_j x0_j sum_i c_ji.
-        c = np.matmul(weighted_h.transpose(0, 2, 1), s_inv_res)[:, :, 0]   # (M, M)
-        c_sum = c.sum(axis=1, keepdims=True)
-        spread_term = np.concatenate([np.matmul(top, c[:, :, None])[:, :, 0] - x_top * c_sum,
-                                      c @ inputs.T - x_inputs * c_sum], axis=1)
-        self.x = x + np.matmul(prior_ht, s_inv_res)[:, :, 0] + spread_term
-        return _log_likelihood(residual[:, :, 0], s_inv_res[:, :, 0], chol)
+            self.mu = self._cbar / self._cbar.sum()
 
     def _repair_covariances(self, force: bool = False) -> None:
         """Detect and repair a bank covariance that lost positive semi-definiteness.
@@ -1100,7 +1085,8 @@ class SuspensionImm:
         self.covariance_repairs += int(max(1, broken.sum()))
 
     def _adapt(self) -> None:
-        """Damper modes take the estimated spring ratio (see :meth:`_weighted`)."""
+        """Damper modes take the estimated spring ratio (the voting modes' weighted ratio,
+        :func:`rail_monitor_ros.imm_kernel.smooth_probabilities`)."""
         quantum = self.config.adaptation_resolution
         snapped = round(round(self.spring_ratio / quantum) * quantum, _RATIO_DECIMALS)
         if snapped != self._damper_spring:
@@ -1148,21 +1134,17 @@ class SuspensionImm:
                 or all(known in m.steady for m in self._mode_models)):
             steady = self._steady_state_bank(known)
         if steady is not None:
-            log_lik = self._steady_cycle(z, known, steady)
+            self._steady_cycle(z, steady)
         else:
             self._mix_and_predict()
-            log_lik = None if z is None else self._update(z, known, self._r[known])
-        if log_lik is not None:
-            log_post = log_lik + np.log(np.maximum(self._cbar, 1e-300))
-            mu = np.exp(log_post - log_post.max())
-            mu /= mu.sum()
-            floor = self.config.probability_floor
-            if floor > 0.0:
-                mu = np.maximum(mu, floor)
-                mu /= mu.sum()
-            self.mu = mu
-        else:
-            self.mu = self._cbar / self._cbar.sum()
+            if z is None:
+                self.mu = self._cbar / self._cbar.sum()
+            else:
+                log_lik = self._update(z, known, self._r[known])
+                mu = np.empty(self.n_modes)
+                posterior_probabilities(log_lik + np.log(np.maximum(self._cbar, CBAR_FLOOR)),
+                                        self.config.probability_floor, mu)
+                self.mu = mu
         self._steps += 1
         self._bank_age += 1
         if (steady is None and self.config.spd_check_interval
@@ -1173,19 +1155,14 @@ class SuspensionImm:
             self._adapt()
 
     def _smooth_and_decide(self) -> None:
-        window = self._smoothing
-        size = window.shape[0]
-        slot = self._smoothing_count % size
-        # Running sum of the window, re-summed once per wrap so rounding cannot drift.
-        self._smoothing_sum += self.mu - window[slot]
-        window[slot] = self.mu
+        self.smoothed = np.empty(self.n_modes)
+        ratios = np.empty(2)
+        smooth_probabilities(self.mu, self._smoothing, self._smoothing_sum,
+                             self._smoothing_count, self.smoothed, self._mode_ratios,
+                             self.config.estimate_min_probability, ratios)
         self._smoothing_count += 1
-        if slot == size - 1:
-            self._smoothing_sum = window.sum(axis=0)
-        self.smoothed = self._smoothing_sum / min(self._smoothing_count, size)
         self._mode_spring_used = self.mode_spring_ratio
-        self.spring_ratio = self._weighted(self.smoothed, self.mode_spring_ratio)
-        self.damper_ratio = self._weighted(self.smoothed, self.mode_damper_ratio)
+        self.spring_ratio, self.damper_ratio = ratios.tolist()
         hyp = np.bincount(self._hypothesis_index, weights=self.smoothed,
                           minlength=len(self.hypotheses))
         self.fault = self.decision.update(self.hypotheses, hyp)
@@ -1206,25 +1183,13 @@ class SuspensionImm:
         """
         z, u, reason = self._check_input(measurement, known_input)
         self.advance(z, u)
-        state, cov = self.combined()
         return ImmStep(
             accepted=z is not None, reason=reason, known_input=z is not None and u is not None,
             probability=self.mu.copy(), smoothed_probability=self.smoothed.copy(),
             mode_spring_ratio=self._mode_spring_used.copy(),
             mode_damper_ratio=self.mode_damper_ratio.copy(),
             most_likely=int(np.argmax(self.smoothed)), spring_ratio=self.spring_ratio,
-            damper_ratio=self.damper_ratio, state=state, covariance=cov, fault=self.fault)
-
-    def _weighted(self, probability: np.ndarray, ratios: np.ndarray) -> float:
-        """Probability-weighted ratio over the modes holding at least ``estimate_min_probability``.
-
-        The Markov prior keeps a little mass on every mode; weighing all modes would pull the
-        estimate toward the middle of the grid (and, fed back by the adaptive step, walk the
-        damper modes away from the truth), so only modes with real evidence vote.
-        """
-        weights = probability * (probability >= self.config.estimate_min_probability
-                                 * probability.max())
-        return float(weights @ ratios / weights.sum())
+            damper_ratio=self.damper_ratio, state=self.combined_state(), fault=self.fault)
 
     def combined_state(self) -> np.ndarray:
         """Combined estimate of the model's states (the input states left out)."""
