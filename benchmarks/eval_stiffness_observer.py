@@ -4,8 +4,9 @@ Runs the seeded scenarios offline through :class:`TireStiffnessObserver` (no ROS
 the estimated pressure of all four tires with the simulator's truth:
 
 * Umeno test (FR non-driven and RL driven stepped 200 -> 120 kPa in 20 kPa steps, 60 and
-  90 km/h, smooth asphalt and rough concrete, rear-drive car): each scenario once without
-  drive-wheel compensation (``driven_axle: none``) and once with it (``rear``). Steady-state
+  90 km/h, smooth asphalt and rough concrete, rear-drive car): each scenario without
+  drive-wheel compensation (``driven_axle: none``), with the paper's difference form and
+  with the partner form (``rear``). Steady-state
   RMS error per tire per case (last ``STEADY_S`` of each 40 s level, after calibration); PNG per
   scenario like the paper's Figs. 11-12 and a cross-talk PNG like Fig. 13 (the unchanged FL and
   RR estimates).
@@ -22,7 +23,7 @@ Run: PYTHONPATH=src/tpms_ros:src/vehicle_monitor_common \
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,13 @@ CALIBRATION_S = 30.0
 CHUNK = 250          # samples per update (0.25 s at 1 kHz), as the node feeds the core
 LEVEL_S = 40.0       # Umeno scenarios: each pressure level is held 40 s
 STEADY_S = 15.0      # steady-state window at the end of each level
+PARTNER = 'rear, partner'
+COMPENSATIONS = {
+    'none': StiffnessObserverParams(driven_axle='none'),
+    'rear, difference': StiffnessObserverParams(driven_axle='rear',
+                                                drive_compensation='difference'),
+    PARTNER: StiffnessObserverParams(driven_axle='rear', drive_compensation='partner'),
+}
 
 
 @dataclass(frozen=True)
@@ -149,7 +157,8 @@ def plot_estimated_vs_true(levels: dict[str, dict[str, tuple[np.ndarray, np.ndar
                            path: Path) -> None:
     """PNG like Figs. 11-12: steady-state estimate vs true pressure per level and scenario.
 
-    Panels: FR (non-driven, Fig. 11), RL without and with compensation (Fig. 12 a, b).
+    Panels: FR (non-driven, Fig. 11), RL without compensation (Fig. 12 a), with the paper's
+    difference compensation (Fig. 12 b) and with the partner compensation.
 
     Args:
         levels: scenario -> mode label -> (estimate (L, 4), truth (L, 4)) from level_means.
@@ -157,10 +166,12 @@ def plot_estimated_vs_true(levels: dict[str, dict[str, tuple[np.ndarray, np.ndar
     """
     plt = pyplot()
 
-    panels = [('FR (non-driven)', 'rear compensated', 1),
-              ('RL (driven), no compensation', 'no compensation', 2),
-              ('RL (driven), compensated', 'rear compensated', 2)]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.5), sharex=True, sharey=True)
+    panels = [('FR (non-driven)', PARTNER, 1),
+              ('RL (driven), no compensation', 'none', 2),
+              ("RL (driven), paper's difference", 'rear, difference', 2),
+              ('RL (driven), partner compensation', PARTNER, 2)]
+    fig, axes = plt.subplots(2, 2, figsize=(10, 9), sharex=True, sharey=True)
+    axes = axes.ravel()
     for ax, (title, mode, wheel) in zip(axes, panels, strict=True):
         for name, modes in levels.items():
             est, truth = modes[mode]
@@ -184,21 +195,19 @@ def evaluate_umeno(out: Path, names: list[str]) -> None:
     """Umeno scenarios: RMS table and figures."""
     print(f'Steady-state RMS error of the pressure estimate, kPa (last {STEADY_S:g} s of each '
           f'{LEVEL_S:g} s level; FR non-driven and RL driven deflated, FL/RR unchanged)')
-    print(f'{"scenario":<34}{"compensation":<14}' + ''.join(f'{w:>8}' for w in WHEELS))
+    print(f'{"scenario":<34}{"compensation":<18}' + ''.join(f'{w:>8}' for w in WHEELS))
     crosstalk: dict[str, Track] = {}
     levels: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
     for name in names:
         result = simulate_file(SCENARIOS / f'{name}.yaml')
         tracks = {}
-        for label, params in (('no compensation', StiffnessObserverParams(driven_axle='none')),
-                              ('rear compensated', StiffnessObserverParams(driven_axle='rear'))):
+        for label, params in COMPENSATIONS.items():
             track = run_core(result, params)
-            axle = params.driven_axle
             tracks[label] = track
             levels.setdefault(name, {})[label] = level_means(track, result.scenario.duration_s)
             error = rms_error(track, steady_mask(track, result.scenario.duration_s))
-            print(f'{name:<34}{axle:<14}' + ''.join(f'{e:8.1f}' for e in error))
-        crosstalk[name.replace('umeno_step_', '')] = tracks['rear compensated']
+            print(f'{name:<34}{label:<18}' + ''.join(f'{e:8.1f}' for e in error))
+        crosstalk[name.replace('umeno_step_', '')] = tracks[PARTNER]
         plot_umeno(name, tracks, out / f'{name}.png')
     plot_crosstalk(crosstalk, out / 'umeno_crosstalk.png')
     plot_estimated_vs_true(levels, out / 'umeno_estimated_vs_true.png')
@@ -210,14 +219,14 @@ def evaluate_diffusion(out: Path, names: list[str]) -> None:
     Each run is scored against the default warning threshold (0.85 x nominal, on which a 15 %
     loss sits exactly) and against 0.9 x nominal (warn 20 kPa below placard).
     """
-    print('\nFour-tire diffusion (starts at 60 s, 30 kPa/min), rear compensated')
+    print(f'\nFour-tire diffusion (starts at 60 s, 30 kPa/min), {PARTNER}')
     print(f'{"scenario":<18}{"threshold":>10}{"tire":>6}{"truth end":>10}{"est end":>9}'
           f'{"flagged end":>13}{"first flag s":>14}')
     for name in names:
         result = simulate_file(SCENARIOS / f'{name}.yaml')
         for ratio in (0.85, 0.9):
-            track = run_core(result, StiffnessObserverParams(driven_axle='rear',
-                                                             warning_pressure_ratio=ratio))
+            track = run_core(result, replace(COMPENSATIONS[PARTNER],
+                                             warning_pressure_ratio=ratio))
             end = track.t > track.t[-1] - 20.0
             for w in range(4):
                 flagged = np.flatnonzero(track.underinflated[:, w])
@@ -226,7 +235,7 @@ def evaluate_diffusion(out: Path, names: list[str]) -> None:
                       f'{np.nanmean(track.pressure[end, w]):9.1f}'
                       f'{track.underinflated[end, w].mean():13.0%}{first:>14}')
             if ratio == 0.85:
-                plot_umeno(name, {'rear compensated': track}, out / f'{name}.png')
+                plot_umeno(name, {PARTNER: track}, out / f'{name}.png')
 
 
 def main() -> None:

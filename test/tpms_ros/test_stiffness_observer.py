@@ -143,6 +143,12 @@ def test_params_validation_names_parameter():
         StiffnessObserverParams(band_hz=(60.0, 25.0))
     with pytest.raises(ValueError, match='driven_axle'):
         StiffnessObserverParams(driven_axle='middle')  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='drive_compensation'):
+        StiffnessObserverParams(drive_compensation='sum')  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='partner_lag_step_s'):
+        StiffnessObserverParams(partner_lag_step_s=1e-4)
+    with pytest.raises(ValueError, match='partner_lag_s'):
+        StiffnessObserverParams(partner_lag_s=-0.01)
     with pytest.raises(ValueError, match='omega'):
         TireStiffnessObserver().update(np.zeros((10, 3)))
 
@@ -182,7 +188,8 @@ def test_batch_and_rls_agree_on_stationary_data():
     np.testing.assert_allclose(batch.stiffness, k_true, rtol=0.03)
 
 
-def test_chunked_equals_one_shot_with_bad_samples():
+@pytest.mark.parametrize('compensation', ['partner', 'difference'])
+def test_chunked_equals_one_shot_with_bad_samples(compensation):
     """Random chunk sizes, NaN and gaps included: same result as one chunk to 1e-9."""
     rng = np.random.default_rng(5)
     omega = synthesize(MODEL.k * np.array([1.0, 0.9, 1.0, 0.85]), 40.0, seed=13)
@@ -190,7 +197,8 @@ def test_chunked_equals_one_shot_with_bad_samples():
     omega[15000, 3] = -1.0
     stamps = np.arange(omega.shape[0]) / FS
     stamps[20000:] += 0.05   # a 50 ms gap
-    params = StiffnessObserverParams(calibration_s=10.0, driven_axle='rear')
+    params = StiffnessObserverParams(calibration_s=10.0, driven_axle='rear',
+                                     drive_compensation=compensation)
     one = TireStiffnessObserver(params)
     one.start_calibration()
     whole = one.update(omega, stamps=stamps)
@@ -208,15 +216,17 @@ def test_chunked_equals_one_shot_with_bad_samples():
     assert one.counters == many.counters
 
 
-def _driven_pressure_error(axle: Literal['none', 'rear']) -> np.ndarray:
+def _driven_pressure_error(axle: Literal['none', 'rear'],
+                           compensation: Literal['partner', 'difference'] = 'partner',
+                           ) -> np.ndarray:
     """Pressure RMS error (kPa) after calibration, RL 15 % softer, driveline changing meanwhile."""
     cal = synthesize(np.full(4, MODEL.k), 60.0, seed=21, driveline=(15.0, 300.0))
     k_test = MODEL.k * np.array([1.0, 1.0, 0.85, 1.0])
     # The driveline resonance wanders with conditions (paper §3.1), so calibration alone
     # cannot absorb it.
     test = synthesize(k_test, 60.0, seed=22, driveline=(19.0, 300.0))
-    observer = TireStiffnessObserver(StiffnessObserverParams(driven_axle=axle,
-                                                             calibration_s=40.0))
+    observer = TireStiffnessObserver(StiffnessObserverParams(
+        driven_axle=axle, drive_compensation=compensation, calibration_s=40.0))
     observer.start_calibration()
     run(observer, cal)
     assert observer.estimate().calibrated
@@ -226,17 +236,28 @@ def _driven_pressure_error(axle: Literal['none', 'rear']) -> np.ndarray:
     return np.sqrt(np.mean((pressure - p_true) ** 2, axis=0))
 
 
-def test_drive_wheel_compensation_on_unchanged_driven_wheel():
-    """An in-phase driveline torque fakes a drop on the unchanged driven wheel; eq. 14 removes it.
+def test_partner_compensation_removes_the_driveline_from_both_driven_wheels():
+    """The in-phase driveline torque on the rims fakes pressure changes on both driven wheels;
+    with the partner's lagged speed as nuisance regressors both read as if undriven."""
+    without = _driven_pressure_error('none')
+    with_comp = _driven_pressure_error('rear', 'partner')
+    # measured RMS (kPa, FL FR RL RR): without [3.2, 1.2, 15.6, 20.7], with [3.2, 1.2, 6.5, 5.7]
+    # The front wheels' estimates are the same blocks, reported up to partner_lag_s later.
+    np.testing.assert_allclose(with_comp[:2], without[:2], atol=0.1)
+    assert np.all(with_comp[2:] < 8.0)
+    assert np.all(without[2:] > 2.0 * with_comp[2:])
+
+
+def test_difference_compensation_on_unchanged_driven_wheel():
+    """The paper's eq. 14 removes the driveline from the unchanged driven wheel.
 
     Known limit (asserted so a change shows): the softened driven wheel keeps a bias with or
-    without compensation, because the driveline-driven torsion enters the regressor th at
-    ~19 Hz, where the paper's ``dK th`` term has a different effective gain than at the
-    tire resonance.
+    without it, because the driveline-driven torsion enters the regressor th at ~19 Hz, where
+    the paper's ``dK th`` term has a different effective gain than at the tire resonance.
     """
     without = _driven_pressure_error('none')
-    with_comp = _driven_pressure_error('rear')
-    # measured RMS (kPa, FL FR RL RR): without [3.4, 1.3, 14.8, 19.6], with [3.4, 1.3, 24.5, 3.0]
+    with_comp = _driven_pressure_error('rear', 'difference')
+    # measured RMS (kPa, FL FR RL RR): without [3.2, 1.2, 15.6, 20.7], with [3.2, 1.2, 25.0, 3.2]
     np.testing.assert_array_equal(without[:2], with_comp[:2])   # front untouched
     assert with_comp[3] < 5.0 and without[3] > 3.0 * with_comp[3]
     assert without[2] > 10.0 and with_comp[2] > 10.0
@@ -512,20 +533,22 @@ def test_umeno_step_non_driven_meets_target_and_tooth_correction_earns_its_place
 
 
 def test_umeno_step_driven_wheel_compensation_earns_its_place(umeno_step):
-    """RL (driven) 200 -> 140 kPa: compensated error within bounds, uncompensated visibly worse.
+    """RL (driven) 200 -> 140 kPa: with the partner compensation both driven wheels are within
+    10 kPa; uncompensated RL is visibly worse.
 
-    Known limit (asserted so a change shows): the in-phase driveline torque reaches the two
-    rims through tires of different stiffness once RL is soft, so eq. 14 does not cancel it
-    completely: the unchanged RR reads ~10 kPa low with compensation (cross-talk).
-    Without compensation RR is also off (8 kPa): the wandering driveline resonances move
-    its raw coefficient away from the calibration.
+    Known limit of the paper's difference form (asserted so a change shows): the driveline
+    torque acts on the rims, so once RL is soft it reaches the two rims through different
+    dynamics and also twists the regressors; ``wL - wR`` then leaves the unchanged RR reading
+    ~12 kPa low (cross-talk).
     """
-    comp = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='rear'))
+    partner = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='rear'))
+    difference = _steady_rms(umeno_step, StiffnessObserverParams(
+        driven_axle='rear', drive_compensation='difference'))
     none = _steady_rms(umeno_step, StiffnessObserverParams(driven_axle='none'))
-    # measured RMS (kPa, RL RR): compensated 8.8 11.9, uncompensated 26.3 8.3
-    assert comp[2] < 12.0, comp
-    assert none[2] > 2.0 * comp[2], none
-    assert comp[3] < 15.0, comp
+    # measured RMS (kPa, RL RR): partner 3.8 8.5, difference 8.1 11.7, uncompensated 26.2 7.7
+    assert np.all(partner[2:] < 10.0), partner
+    assert none[2] > 3.0 * partner[2], none
+    assert difference[3] > 10.0, difference
 
 
 @pytest.mark.parametrize('drop_kpa', [30.0, 50.0])

@@ -3,7 +3,7 @@
 Per wheel the chain is (paper Fig. 4, SPEC §2)::
 
     omega_1 --tooth correction--> band-pass --> reduced-order observer --> [th, th_dot, w]
-            --LS/RLS--> dK, dD   (driven axle: wL - wR)
+            --LS/RLS--> dK, dD   (driven axle: the partner's lagged speed as nuisance)
 
 * **Encoder tooth-error correction** (:class:`ToothErrorCorrector`). The ABS speed is
   ``pitch / period`` per tooth, so the ring's tooth-spacing error is a fixed per-tooth factor,
@@ -38,15 +38,22 @@ Per wheel the chain is (paper Fig. 4, SPEC §2)::
   rho = 0.98 -> 12.5 s, 0.95 -> 5 s, 0.99 -> 25 s) and an averaging equivalent to
   ``(1 + rho) / (1 - rho)`` blocks. Batch LS (eq. 10) uses the last ``batch_window_blocks``
   valid blocks instead.
-* **Drive-wheel compensation** (eq. 12-14). On a driven axle the in-phase driveline torque
-  appears in both observers' ``w``; regressing ``wL - wR`` on ``[thL, thR, th_dotL, th_dotR]``
-  with coefficients ``[dKL, -dKR, dDL, -dDR]`` cancels it. Limit: the cancellation is exact
-  only while both tires respond alike to that torque. Once one tire is soft, the common torque
-  reaches the two rims through different dynamics (a rim torque passes the belt
-  anti-resonance ``sqrt(K / J2)``, ~26-30 Hz, next to the ~25 Hz fore-aft mode) and the strong
-  driveline excitation also shifts the raw coefficient of the rim-row model misfit below. On
-  the road simulator this leaves ~6-13 kPa on the soft driven wheel and up to ~10 kPa of
-  cross-talk on its unchanged partner (uncompensated: 12-21 kPa on the driven wheel).
+* **Drive-wheel compensation.** On a driven axle a driveline torque, common to both
+  wheels, reaches the rims. The paper (eq. 12-14) regresses ``wL - wR`` on
+  ``[thL, thR, th_dotL, th_dotR]`` with coefficients ``[dKL, -dKR, dDL, -dDR]``
+  (``drive_compensation: difference``): exact for a common torque on the *belts*. On the rims
+  it is not: the torque also twists both observers' ``th`` alike, and once one tire is soft it
+  reaches the two rims through different dynamics (the rim path passes the belt
+  anti-resonance ``sqrt(K / J2)``, ~26-30 Hz, next to the ~25 Hz fore-aft mode). On the road
+  simulator that left 6-13 kPa on the soft driven wheel and ~10-12 kPa of cross-talk on its
+  unchanged partner. The default (``partner``) instead gives each driven wheel its own LS with
+  the partner wheel's band-passed speed at lags within +-``partner_lag_s`` as extra
+  regressors. The road torques of the two wheels are independent, so what the lags can
+  explain is the shared driveline part; by the Frisch-Waugh theorem the ``[th, th_dot]``
+  coefficients are those of the wheel with that part projected out, as on an undriven
+  wheel, and the same consistency map applies. Limit: the partner's speed carries no
+  driveline information at the partner's own belt anti-resonance, so once it is soft the
+  unchanged wheel keeps a small residual there (5-10 kPa low on the simulator).
 * **Model-consistency correction.** The paper estimates only the belt-row disturbance (the
   rim row also carries ``-dK th``, but with one measurement the two are not separable), and the
   band-pass colours ``T_d`` so that it correlates with ``zeta``. Both bias the raw LS
@@ -134,6 +141,18 @@ class StiffnessObserverParams:
         batch_window_blocks: window of the batch LS, in valid blocks.
         min_block_fraction: fraction of valid samples a block needs to count for a wheel.
         driven_axle: axle(s) that get drive-wheel compensation: 'front', 'rear', 'none', 'all'.
+        drive_compensation: how a compensated axle's common driveline torque is kept out of
+            its estimates (see the module notes). 'partner' (default): each driven wheel's
+            ``w`` is regressed on its own ``[th, th_dot]`` together with the partner wheel's
+            band-passed speed at lags within +-``partner_lag_s``; the lags absorb what the
+            two wheels share (the driveline torque: the road torques are independent) and
+            the ``[th, th_dot]`` coefficients are the partial regression, as on an undriven
+            wheel. 'difference': the paper's eq. 12-14, one LS per axle of ``wL - wR`` on
+            ``[thL, thR, th_dotL, th_dotR]``.
+        partner_lag_s: half-width of the partner lag window ('partner'); two-sided, so the
+            estimates wait this long for the partner's later samples.
+        partner_lag_step_s: spacing of the partner lags: the band-passed speed carries
+            nothing much faster, and closer lags are nearly collinear.
         consistency_correction: map the raw LS coefficient to K through the model (see module).
         calibration_s: valid-data time per tire needed to finish a calibration.
         nominal_pressure_kpa: placard pressure of each tire (the p0 of the relation).
@@ -185,6 +204,9 @@ class StiffnessObserverParams:
     batch_window_blocks: int = 100
     min_block_fraction: float = 0.9
     driven_axle: Literal['front', 'rear', 'none', 'all'] = 'none'
+    drive_compensation: Literal['partner', 'difference'] = 'partner'
+    partner_lag_s: float = 0.048
+    partner_lag_step_s: float = 0.004
     consistency_correction: bool = True
     calibration_s: float = 60.0
     nominal_pressure_kpa: tuple[float, float, float, float] = (200.0, 200.0, 200.0, 200.0)
@@ -253,6 +275,17 @@ class StiffnessObserverParams:
         if self.driven_axle not in ('front', 'rear', 'none', 'all'):
             raise ValueError("StiffnessObserverParams.driven_axle must be 'front', 'rear', "
                              f"'none' or 'all', got {self.driven_axle!r}")
+        if self.drive_compensation not in ('partner', 'difference'):
+            raise ValueError("StiffnessObserverParams.drive_compensation must be 'partner' or "
+                             f"'difference', got {self.drive_compensation!r}")
+        if not (math.isfinite(self.partner_lag_s) and self.partner_lag_s >= 0.0):
+            raise ValueError('StiffnessObserverParams.partner_lag_s must be finite and >= 0, '
+                             f'got {self.partner_lag_s!r}')
+        if not (math.isfinite(self.partner_lag_step_s)
+                and self.partner_lag_step_s * self.sample_rate_hz >= 1.0 - 1e-9):
+            raise ValueError('StiffnessObserverParams.partner_lag_step_s must be at least one '
+                             f'sample ({1.0 / self.sample_rate_hz} s), got '
+                             f'{self.partner_lag_step_s!r}')
         if len(self.nominal_pressure_kpa) != N_WHEELS or not all(
                 math.isfinite(p) and p > 0 for p in self.nominal_pressure_kpa):
             raise ValueError('StiffnessObserverParams.nominal_pressure_kpa must be 4 finite '
@@ -272,6 +305,16 @@ class StiffnessObserverParams:
     def block_samples(self) -> int:
         """Samples per least-squares block (one update)."""
         return int(round(self.block_s * self.sample_rate_hz))
+
+    @property
+    def partner_lags(self) -> np.ndarray:
+        """Partner lags in samples, symmetric about 0 (positive: the partner's earlier
+        samples); empty unless 'partner' compensation is on for some axle."""
+        if not self.driven_axles or self.drive_compensation != 'partner':
+            return np.zeros(0, dtype=int)
+        step = int(round(self.partner_lag_step_s * self.sample_rate_hz))
+        half = int(math.floor(self.partner_lag_s / self.partner_lag_step_s + 1e-9))
+        return step * np.arange(-half, half + 1)
 
     @property
     def time_constant_s(self) -> float:
@@ -706,6 +749,48 @@ class _BlockLeastSquares:
         return _solve_normal(self.window_gram.sum(axis=0), self.window_rhs.sum(axis=0))
 
 
+@dataclass(frozen=True)
+class _LsFamily:
+    """Independent LS problems of one layout, solved together (vectorised).
+
+    Problem p estimates the wheels ``wheels[p]``; wheel j of a problem takes the solution
+    entries ``coef_index[j]`` (its raw [dK, dD]) times ``coef_sign[j]``.
+
+    Kinds: 'wheel' (one wheel, regressors ``[th, th_dot]``), 'difference' (a driven axle, the
+    paper's eq. 12-14) and 'partner' (a driven wheel, with its partner's lagged speed as
+    nuisance regressors); see :class:`StiffnessObserverParams`.
+    """
+
+    kind: Literal['wheel', 'difference', 'partner']
+    wheels: np.ndarray         # (P, q)
+    coef_index: np.ndarray     # (q, 2)
+    coef_sign: np.ndarray      # (q,)
+    n_params: int
+
+    def to_wheels(self, coef: np.ndarray, out: np.ndarray) -> None:
+        """Write each wheel's raw [dK, dD] from solutions (..., P, n) into out (..., 4, 2)."""
+        for j in range(self.wheels.shape[1]):
+            out[..., self.wheels[:, j], :] = self.coef_sign[j] * coef[..., self.coef_index[j]]
+
+
+def _ls_families(axles: Sequence[tuple[int, int]], compensation: str,
+                 n_lags: int) -> tuple[_LsFamily, ...]:
+    """The LS problems of the four wheels: every wheel in exactly one problem."""
+    driven = [w for axle in axles for w in axle]
+    plain = [[w] for w in range(N_WHEELS) if w not in driven]
+    families = []
+    if plain:
+        families.append(_LsFamily('wheel', np.array(plain), np.array([[0, 1]]),
+                                  np.array([1.0]), 2))
+    if driven and compensation == 'difference':
+        families.append(_LsFamily('difference', np.array(axles), np.array([[0, 2], [1, 3]]),
+                                  np.array([1.0, -1.0]), 4))
+    elif driven:
+        families.append(_LsFamily('partner', np.array([[w] for w in driven]),
+                                  np.array([[0, 1]]), np.array([1.0]), 2 + n_lags))
+    return tuple(families)
+
+
 # --------------------------------------------------------------------------------------------
 # Streaming estimator
 
@@ -730,10 +815,8 @@ def _row_median(values: np.ndarray) -> np.ndarray:
 class _Calibration:
     """Accumulators of a running calibration (raw, uncorrected LS sums)."""
 
-    wheel_gram: np.ndarray    # (4, 2, 2) pooled per-wheel normal matrices
-    wheel_rhs: np.ndarray     # (4, 2)
-    axle_gram: np.ndarray     # (A, 4, 4) pooled per-axle normal matrices (compensated axles)
-    axle_rhs: np.ndarray      # (A, 4)
+    gram: list[np.ndarray]    # per LS family: (P, n, n) pooled normal matrices
+    rhs: list[np.ndarray]     # per LS family: (P, n)
     block_k: list[list[float]]
     blocks: np.ndarray        # (4,) valid blocks collected
     needed_blocks: int
@@ -770,6 +853,12 @@ class TireStiffnessObserver:
             self._groups.append((wheels, design, cmap))
         self._model_k = np.array([t.k for t in self.tires])
         self._axles = [AXLES[name] for name in p.driven_axles]
+        self._partner = np.arange(N_WHEELS)
+        for left, right in self._axles:
+            self._partner[[left, right]] = right, left
+        self._lags = p.partner_lags
+        self._lag_reach = int(self._lags.max()) if self._lags.size else 0
+        self._families = _ls_families(self._axles, p.drive_compensation, self._lags.size)
         self._counters: dict[str, np.ndarray] = {}
         self._calibration: _Calibration | None = None
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
@@ -797,12 +886,15 @@ class TireStiffnessObserver:
         self._reset_cause = np.full(N_WHEELS, _CODE['settling'])
         self._last_stamp = -math.inf
         self._timing_pending = False
-        # Partial block carried between chunks: per-sample arrays of the unfinished block.
+        # Partial block carried between chunks: per-sample arrays of the unfinished block
+        # (and, with partner lags, the samples the last block's lags reach into).
         self._partial: list[np.ndarray] = []
+        # The band-passed speeds just before the carried samples, for the partner lags.
+        self._band_history = np.zeros((self._lag_reach, N_WHEELS))
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
-        self._wheel_ls = _BlockLeastSquares(N_WHEELS, 2, p)
-        self._axle_ls = _BlockLeastSquares(len(self._axles), 4, p)
+        self._ls = [_BlockLeastSquares(f.wheels.shape[0], f.n_params, p)
+                    for f in self._families]
         self._last_block_code = np.full(N_WHEELS, -1)
         self._stamp = math.nan
         # The estimate only changes when a block completes or the calibration changes; caching
@@ -846,10 +938,10 @@ class TireStiffnessObserver:
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f'duration_s must be finite and > 0, got {duration}')
         needed = max(2, int(math.ceil(duration / self.params.block_s)))
-        n_axles = len(self._axles)
-        self._calibration = _Calibration(np.zeros((N_WHEELS, 2, 2)), np.zeros((N_WHEELS, 2)),
-                                         np.zeros((n_axles, 4, 4)), np.zeros((n_axles, 4)),
-                                         [[] for _ in range(N_WHEELS)],
+        self._calibration = _Calibration(
+            [np.zeros((f.wheels.shape[0], f.n_params, f.n_params)) for f in self._families],
+            [np.zeros((f.wheels.shape[0], f.n_params)) for f in self._families],
+            [[] for _ in range(N_WHEELS)],
                                          np.zeros(N_WHEELS, dtype=int), needed)
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
         self._cached = None
@@ -916,57 +1008,44 @@ class TireStiffnessObserver:
         self._cached = None
 
     def _collect_calibration(self, block_raw: np.ndarray, good: np.ndarray,
-                             wheel_sums: tuple[np.ndarray, np.ndarray],
-                             axle_sums: tuple[np.ndarray, np.ndarray]) -> None:
+                             sums: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
         """Add completed blocks to a running calibration; finish the tires that have enough.
 
         Args:
-            block_raw: (B, 4, 2) raw per-block coefficients per wheel (compensated on driven
-                axles).
+            block_raw: (B, 4, 2) raw per-block coefficients per wheel.
             good: (B, 4) blocks that count per wheel.
-            wheel_sums: per-wheel block (gram (B, 4, 2, 2), rhs (B, 4, 2)).
-            axle_sums: per-axle block (gram (B, A, 4, 4), rhs (B, A, 4)).
+            sums: per LS family, the block normal equations (gram (B, P, n, n), rhs (B, P, n)).
         """
         cal = self._calibration
         if cal is None:
             return
         block_k = self._stiffness_from_raw(block_raw[..., 0])
         usable = good & np.isfinite(block_k)
-        problems: list[tuple[tuple[int, ...], int | None]] = [
-            ((w,), None) for w in range(N_WHEELS)
-            if not any(w in axle for axle in self._axles)]
-        problems += [(axle, a) for a, axle in enumerate(self._axles)]
-        for wheels, axle_index in problems:
-            first = wheels[0]
-            if self._wheel_calibrated[first]:
-                continue
-            take = usable[:, list(wheels)].all(axis=1)
-            take &= np.cumsum(take) <= cal.needed_blocks - cal.blocks[first]
-            if axle_index is None:
-                cal.wheel_gram[first] += wheel_sums[0][take, first].sum(axis=0)
-                cal.wheel_rhs[first] += wheel_sums[1][take, first].sum(axis=0)
-            else:
-                cal.axle_gram[axle_index] += axle_sums[0][take, axle_index].sum(axis=0)
-                cal.axle_rhs[axle_index] += axle_sums[1][take, axle_index].sum(axis=0)
-            for w in wheels:
-                cal.block_k[w].extend(block_k[take, w].tolist())
-                cal.blocks[w] += int(take.sum())
-            if cal.blocks[first] < cal.needed_blocks:
-                continue
-            pooled = np.full((N_WHEELS, 2), np.nan)
-            if axle_index is None:
-                pooled[first] = _solve_normal(cal.wheel_gram[first], cal.wheel_rhs[first])
-            else:
-                axle = _solve_normal(cal.axle_gram[axle_index], cal.axle_rhs[axle_index])
-                pooled[wheels[0]] = axle[[0, 2]]
-                pooled[wheels[1]] = -axle[[1, 3]]
-            k_pooled = self._stiffness_from_raw(pooled[:, 0])
-            for w in wheels:
-                ks = np.asarray(cal.block_k[w])
-                self._k_nominal[w] = float(k_pooled[w])
-                # Median absolute deviation: robust to the odd poorly excited block.
-                self._k_block_std[w] = 1.4826 * float(np.median(np.abs(ks - np.median(ks))))
-                self._wheel_calibrated[w] = bool(np.isfinite(k_pooled[w]))
+        for f, family in enumerate(self._families):
+            for problem, wheels in enumerate(family.wheels):
+                first = wheels[0]
+                if self._wheel_calibrated[first]:
+                    continue
+                take = usable[:, wheels].all(axis=1)
+                take &= np.cumsum(take) <= cal.needed_blocks - cal.blocks[first]
+                cal.gram[f][problem] += sums[f][0][take, problem].sum(axis=0)
+                cal.rhs[f][problem] += sums[f][1][take, problem].sum(axis=0)
+                for w in wheels:
+                    cal.block_k[w].extend(block_k[take, w].tolist())
+                    cal.blocks[w] += int(take.sum())
+                if cal.blocks[first] < cal.needed_blocks:
+                    continue
+                pooled = np.full((N_WHEELS, 2), np.nan)
+                solution = _solve_normal(cal.gram[f][problem:problem + 1],
+                                         cal.rhs[f][problem:problem + 1])
+                replace(family, wheels=wheels[None, :]).to_wheels(solution, pooled)
+                k_pooled = self._stiffness_from_raw(pooled[:, 0])
+                for w in wheels:
+                    ks = np.asarray(cal.block_k[w])
+                    self._k_nominal[w] = float(k_pooled[w])
+                    # Median absolute deviation: robust to the odd poorly excited block.
+                    self._k_block_std[w] = 1.4826 * float(np.median(np.abs(ks - np.median(ks))))
+                    self._wheel_calibrated[w] = bool(np.isfinite(k_pooled[w]))
         if np.all(self._wheel_calibrated):
             self._calibration = None
 
@@ -1009,14 +1088,15 @@ class TireStiffnessObserver:
             good: (n, 4) valid sensor samples (the tooth pattern learns from these only).
 
         Returns:
-            (outputs (n, 4, 3) = [th, th_dot, w], low-passed speed (n, 4)).
+            (outputs (n, 4, 4) = [th, th_dot, w, band-passed speed], low-passed speed (n, 4)).
         """
         low, self._lowpass_zi = sig.sosfilt(self._lowpass_sos, omega, axis=0,
                                             zi=self._lowpass_zi)
         if self.params.tooth_correction:
             omega = self._tooth.process(omega, low, good)
         band, self._band_zi = sig.sosfilt(self._band_sos, omega, axis=0, zi=self._band_zi)
-        out = np.empty(omega.shape + (3,))
+        out = np.empty(omega.shape + (4,))
+        out[:, :, 3] = band
         for (wheels, design, _), zi in zip(self._groups, self._obs_zi, strict=True):
             x = band[:, wheels]
             for k in range(3):
@@ -1163,7 +1243,7 @@ class TireStiffnessObserver:
         self._hold = filled[-1].copy()
 
         # --- filters, split at reset rows ----------------------------------------------------
-        outputs = np.empty((n, N_WHEELS, 3))
+        outputs = np.empty((n, N_WHEELS, 4))
         lowpass = np.empty((n, N_WHEELS))
         reset_rows = np.flatnonzero(reset.any(axis=1))
         bounds = np.union1d(reset_rows, [0, n])
@@ -1235,80 +1315,99 @@ class TireStiffnessObserver:
         self._accumulate(outputs, code)
 
     def _accumulate(self, outputs: np.ndarray, code: np.ndarray) -> None:
-        """Cut the chunk into LS blocks (carrying the partial one) and update the LS."""
+        """Cut the chunk into LS blocks (carrying the partial one, and the samples the partner
+        lags of the last block reach into) and update the LS problems.
+
+        Args:
+            outputs: (n, 4, 4) per sample and wheel [th, th_dot, w, band-passed speed].
+            code: (n, 4) reason codes (OK: the sample counts).
+        """
         block_len = self.params.block_samples
+        reach = self._lag_reach
         if self._partial:
             outputs = np.concatenate((self._partial[0], outputs))
             code = np.concatenate((self._partial[1], code))
-        n_blocks = outputs.shape[0] // block_len
+        n_blocks = max(outputs.shape[0] - reach, 0) // block_len
         cut = n_blocks * block_len
-        self._partial = [outputs[cut:], code[cut:]] if cut < outputs.shape[0] else []
+        band = np.concatenate((self._band_history, outputs[:, :, 3]))
+        self._partial = [outputs[cut:], code[cut:]]
+        self._band_history = band[cut:cut + reach]
         if n_blocks == 0:
             return
         self._cached = None
-        out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, 3)
+        out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, 4)
         blk_code = code[:cut].reshape(n_blocks, block_len, N_WHEELS)
         mask = (blk_code == OK).astype(float)
-        zeta = out[..., :2]
-        w = out[..., 2]
-        wheel_gram, wheel_rhs, count = self._wheel_ls.block_sums(zeta, w, mask)
-        good = self._wheel_ls.good_blocks(count)
-        self._wheel_ls.update(wheel_gram, wheel_rhs, good)
-        axle_gram = np.zeros((n_blocks, 0, 4, 4))
-        axle_rhs = np.zeros((n_blocks, 0, 4))
-        if self._axles:
-            left = np.array([a[0] for a in self._axles])
-            right = np.array([a[1] for a in self._axles])
-            axle_reg = np.concatenate((zeta[:, :, left, :1], zeta[:, :, right, :1],
-                                       zeta[:, :, left, 1:], zeta[:, :, right, 1:]), axis=-1)
-            axle_target = w[:, :, left] - w[:, :, right]
-            axle_mask = mask[:, :, left] * mask[:, :, right]
-            axle_gram, axle_rhs, axle_count = self._axle_ls.block_sums(axle_reg, axle_target,
-                                                                       axle_mask)
-            axle_good = self._axle_ls.good_blocks(axle_count)
-            self._axle_ls.update(axle_gram, axle_rhs, axle_good)
-            good[:, left] = axle_good
-            good[:, right] = axle_good
+        good = np.zeros((n_blocks, N_WHEELS), dtype=bool)
+        block_raw = np.full((n_blocks, N_WHEELS, 2), np.nan)
+        sums = []
+        for family, ls in zip(self._families, self._ls, strict=True):
+            regressors, target, problem_mask = self._regressors(family, out, mask, band)
+            gram, rhs, count = ls.block_sums(regressors, target, problem_mask)
+            problem_good = ls.good_blocks(count)
+            ls.update(gram, rhs, problem_good)
+            good[:, family.wheels] = problem_good[:, :, None]
+            sums.append((gram, rhs))
+            if self._calibration is not None:
+                family.to_wheels(_solve_normal(gram, rhs), block_raw)
         if self._calibration is not None:
-            block_raw = _solve_normal(wheel_gram, wheel_rhs)
-            if self._axles:
-                axle_raw = _solve_normal(axle_gram, axle_rhs)
-                block_raw[:, left] = axle_raw[:, :, [0, 2]]
-                block_raw[:, right] = -axle_raw[:, :, [1, 3]]
-            self._collect_calibration(block_raw, good, (wheel_gram, wheel_rhs),
-                                      (axle_gram, axle_rhs))
+            self._collect_calibration(block_raw, good, sums)
         # Status follows each wheel's last block: 'ok' when it counted, else its most
         # specific reason.
         last = blk_code[-1]
         worst = np.where(last == OK, _NO_REASON, last).min(axis=0)
         self._last_block_code = np.where(good[-1] | (worst == _NO_REASON), OK, worst)
 
+    def _regressors(self, family: _LsFamily, out: np.ndarray, mask: np.ndarray,
+                    band: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A family's (regressors (B, L, P, n), target (B, L, P), mask (B, L, P)).
+
+        Args:
+            family: the LS problems.
+            out: (B, L, 4, 4) block samples [th, th_dot, w, band-passed speed].
+            mask: (B, L, 4) 1 where a sample counts.
+            band: (reach + B L + ..., 4) band-passed speeds from ``reach`` samples before the
+                first block on (the partner lags' source).
+        """
+        first = family.wheels[:, 0]
+        zeta, w = out[..., :2], out[..., 2]
+        if family.kind == 'difference':
+            left, right = family.wheels[:, 0], family.wheels[:, 1]
+            regressors = np.concatenate((zeta[:, :, left, :1], zeta[:, :, right, :1],
+                                         zeta[:, :, left, 1:], zeta[:, :, right, 1:]), axis=-1)
+            return regressors, w[:, :, left] - w[:, :, right], mask[:, :, left] * mask[:, :, right]
+        regressors = zeta[:, :, first]
+        if family.kind == 'partner':
+            n_blocks, block_len = out.shape[:2]
+            step = int(self._lags[1] - self._lags[0]) if self._lags.size > 1 else 1
+            # Row i of the blocks is band row reach + i; its lag l sample is band row
+            # reach + i - l, for l from -reach to reach.
+            windows = np.lib.stride_tricks.sliding_window_view(
+                band[:n_blocks * block_len + 2 * self._lag_reach, self._partner[first]],
+                2 * self._lag_reach + 1, axis=0)[:, :, ::step]
+            lagged = windows.reshape(n_blocks, block_len, first.size, self._lags.size)
+            regressors = np.concatenate((regressors, lagged), axis=-1)
+        return regressors, w[:, :, first], mask[:, :, first]
+
     # ---------------------------------------------------------------- output
 
     def raw_coefficients(self) -> np.ndarray:
         """(4, 2) raw LS coefficients [dK, dD] per wheel (driven axles: compensated)."""
-        use_batch = self.params.ls_mode == 'batch'
-        coef = self._wheel_ls.batch() if use_batch else self._wheel_ls.rls()
-        if self._axles:
-            axle = self._axle_ls.batch() if use_batch else self._axle_ls.rls()
-            for a, (left, right) in enumerate(self._axles):
-                coef[left] = axle[a, [0, 2]]
-                coef[right] = -axle[a, [1, 3]]
+        coef = np.full((N_WHEELS, 2), np.nan)
+        for family, ls in zip(self._families, self._ls, strict=True):
+            family.to_wheels(ls.batch() if self.params.ls_mode == 'batch' else ls.rls(), coef)
         return coef
 
     def _converged(self) -> np.ndarray:
         p = self.params
+        fill = np.zeros(N_WHEELS)
+        for family, ls in zip(self._families, self._ls, strict=True):
+            fill[family.wheels] = (ls.window_fill if p.ls_mode == 'batch'
+                                   else ls.n_eff)[:, None]
         if p.ls_mode == 'batch':
-            fill = self._wheel_ls.window_fill.copy()
             need = float(p.batch_window_blocks)
         else:
-            fill = self._wheel_ls.n_eff.copy()
             need = (1.0 - math.exp(-1.0)) / (1.0 - p.forgetting_factor)
-        if self._axles:
-            axle_fill = (self._axle_ls.window_fill if p.ls_mode == 'batch'
-                         else self._axle_ls.n_eff)
-            for a, (left, right) in enumerate(self._axles):
-                fill[[left, right]] = axle_fill[a]
         return fill >= need - 1e-9
 
     def estimate(self) -> StiffnessEstimate:

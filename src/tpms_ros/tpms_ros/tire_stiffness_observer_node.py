@@ -117,6 +117,14 @@ class StiffnessNodeParameters:
     batch_window_blocks: int = param(100, 'batch LS window, blocks', low=2, high=100000)
     driven_axle: str = param('none', 'axle(s) with drive-wheel compensation',
                              choices=('front', 'rear', 'none', 'all'))
+    drive_compensation: str = param('partner', "driven-axle compensation: 'partner' (the "
+                                    "partner wheel's lagged speed as nuisance regressors) or "
+                                    "'difference' (the paper's wL - wR regression)",
+                                    choices=('partner', 'difference'))
+    partner_lag_s: float = param(0.048, 'partner compensation: half-width of the two-sided '
+                                 'lag window (output delay), s', low=0.0, high=1.0)
+    partner_lag_step_s: float = param(0.004, 'partner compensation: lag spacing, s '
+                                      '(>= one sample)', low=1e-5, high=0.1)
     nominal_pressure_kpa: tuple[float, ...] = param(
         (200.0, 200.0, 200.0, 200.0), 'placard pressure of each tire FL, FR, RL, RR, kPa '
         '(gauge); the pressure at calibration')
@@ -188,6 +196,8 @@ class StiffnessNodeParameters:
             ls_mode=self.ls_mode,  # type: ignore[arg-type]
             batch_window_blocks=self.batch_window_blocks,
             driven_axle=self.driven_axle,  # type: ignore[arg-type]
+            drive_compensation=self.drive_compensation,  # type: ignore[arg-type]
+            partner_lag_s=self.partner_lag_s, partner_lag_step_s=self.partner_lag_step_s,
             calibration_s=self.calibration_s,
             nominal_pressure_kpa=tuple(float(v) for v in self.nominal_pressure_kpa),  # type: ignore[arg-type]
             pressure_relation=PressureRelation(self.pressure_slope),
@@ -458,6 +468,7 @@ class TireStiffnessObserverNode(Node):
             'sample_rate_hz': p.sample_rate_hz,
             'input_rate_hz': self._input_rate_hz,
             'driven_axle': p.driven_axle,
+            'drive_compensation': p.drive_compensation,
             'speed_band_kmh': [p.speed_min_kmh, p.speed_max_kmh],
         }
         for reason, count in self.rejected.items():
