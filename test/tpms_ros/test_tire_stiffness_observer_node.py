@@ -110,6 +110,8 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     ({'band_low_hz': 70.0}, 'band_hz'),
     ({'observer_pole_factor': 20.0}, 'Nyquist'),
     ({'driven_axle': 'middle'}, 'driven_axle'),
+    ({'drive_compensation': 'sum'}, 'drive_compensation'),
+    ({'partner_lag_step_s': 1e-4}, 'partner_lag_step_s'),
     ({'k': -5.0}, 'parameter k'),
     ({'nominal_pressure_kpa': [200.0, 200.0]}, 'nominal_pressure_kpa'),
 ])
@@ -131,6 +133,8 @@ def test_invalid_parameters_refused_at_runtime(make_node: Callable[..., Any]) ->
     (result,) = node.set_parameters([Parameter('forgetting_factor', value=0.95)])
     assert result.successful
     assert node.observer.params.forgetting_factor == 0.95  # rebuilt with the new value
+    (result,) = node.set_parameters([Parameter('drive_compensation', value='difference')])
+    assert result.successful and node.observer.params.drive_compensation == 'difference'
 
 
 def test_tracks_truth_calibrates_and_persists(
