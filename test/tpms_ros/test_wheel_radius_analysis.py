@@ -214,6 +214,25 @@ def test_localise_low_tires_patterns() -> None:
         localise_low_tires(np.zeros(4), np.zeros(4), p)
 
 
+def test_a_drop_within_noise_does_not_hide_a_loss_beside_it() -> None:
+    """RR 2.5e-3 low and RL a noise-level 1e-4: RL leaves the fit (z < z_keep), so RR keeps
+    the sigma of a drop of its own (slip and lateral pair together) instead of that of the
+    rear axle's unknown common level (the slip pairs alone)."""
+    std = np.array([7.5e-4, 8e-4, 2.7e-4, 3.2e-4])     # the simulator's car, scaled stds
+    change = -PAIR_SENSITIVITY @ np.array([0.0, 0.0, 1e-4, 2.5e-3])
+    loc = localise_low_tires(change, std, WheelRadiusParams())
+    w = 1.0 / std
+    alone = 1.0 / np.hypot(w[1], w[2])                   # RR through delta_24 and delta_34
+    np.testing.assert_allclose(loc.sigma[3], alone, rtol=1e-6)
+    assert loc.radius_drop[2] == 0.0 and loc.z[3] > 6.4 and loc.flags.tolist() == [
+        False, False, False, True]
+    kept = localise_low_tires(change, std, WheelRadiusParams(z_keep=0.0))
+    # without it the axle's common level is unknown: z 4.4 instead of 9.8
+    assert kept.radius_drop[2] > 0.0 and kept.z[3] < 6.4
+    with pytest.raises(ValueError, match='z_keep'):
+        WheelRadiusParams(z_keep=3.0)
+
+
 def test_bad_inputs_rejected_state_protected() -> None:
     """NaN/negative wheel speeds, out-of-order stamps, NaN torque and a stopped gyro are
     counted; the estimates stay finite and accurate; a bad wheel is unknown, never low."""

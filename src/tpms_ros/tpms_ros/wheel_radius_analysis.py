@@ -169,6 +169,9 @@ class WheelRadiusParams:
             radius): wear, temperature and load shifts that neither the filters nor the
             calibration's noise check see.
         informative_std: a pair whose posterior std exceeds this carries no information.
+        z_keep: a tire whose estimated drop is below this many sigmas is taken out of the
+            localisation fit (noise, not a loss) before the others' sigmas are computed
+            (0: never).
         z_flag: flag a tire whose radius drop exceeds this many noise sigmas.
         z_full: radius drop in sigmas at which the confidence reaches 1.
     """
@@ -211,6 +214,7 @@ class WheelRadiusParams:
     noise_block_s: float = 2.0
     radius_noise_floor: float = 2.5e-4
     informative_std: float = 2e-3
+    z_keep: float = 1.0
     z_flag: float = 3.0
     z_full: float = 8.0
 
@@ -245,8 +249,9 @@ class WheelRadiusParams:
                              f'{self.driven_axle!r}')
         if not self.min_speed_mps < self.max_speed_mps:
             raise ValueError('WheelRadiusParams.min_speed_mps must be < max_speed_mps')
-        if not self.z_flag < self.z_full:
-            raise ValueError('WheelRadiusParams.z_flag must be < z_full')
+        if not 0.0 <= self.z_keep < self.z_flag < self.z_full:
+            raise ValueError('WheelRadiusParams: 0 <= z_keep < z_flag < z_full must hold, got '
+                             f'{self.z_keep}, {self.z_flag}, {self.z_full}')
         if not self.accel_filter_hz < 0.5 * self.sample_rate_hz:
             raise ValueError(f'WheelRadiusParams.accel_filter_hz must be below half the sample '
                              f'rate, got {self.accel_filter_hz}')
@@ -482,22 +487,43 @@ def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
     design = -PAIR_SENSITIVITY * weight[:, None]
     target = change * weight
     ridge = 1e-6 * float(np.max(weight))
-    a_aug = np.vstack([design, ridge * np.eye(N_TIRES)])
-    b_aug = np.concatenate([target, np.zeros(N_TIRES)])
-    drop, _ = optimize.nnls(a_aug, b_aug)
-    residual = float(np.linalg.norm(design @ drop - target))
+
+    def fit(columns: np.ndarray) -> np.ndarray:
+        drop = np.zeros(N_TIRES)
+        a_aug = np.vstack([design[:, columns], ridge * np.eye(int(columns.sum()))])
+        b_aug = np.concatenate([target, np.zeros(int(columns.sum()))])
+        drop[columns] = optimize.nnls(a_aug, b_aug)[0]
+        return drop
+
     # Per-tire std of the drop as it was estimated: least squares on the tires found low
     # (the others held at zero). The std from all four columns would be that of a tire's
     # drop relative to the mean of the four (the common mode removed), about half the std
     # of e.g. the rear axle against the front one: a rear-axle drift of 2.5 pair sigmas read
     # as 6 sigmas on the road simulator's nominal driving. A tire not found low gets the std
     # a drop of that tire alone would have.
-    active = drop > 0.0
-    variance = 1.0 / np.maximum(np.sum(design * design, axis=0), 1e-300)
-    if active.any():
-        columns = design[:, active]
-        variance[active] = np.diag(np.linalg.pinv(columns.T @ columns))
-    sigma = np.maximum(np.sqrt(np.maximum(variance, 0.0)), params.radius_noise_floor)
+    def drop_sigma(active: np.ndarray) -> np.ndarray:
+        variance = 1.0 / np.maximum(np.sum(design * design, axis=0), 1e-300)
+        if active.any():
+            columns = design[:, active]
+            variance[active] = np.diag(np.linalg.pinv(columns.T @ columns))
+        return np.maximum(np.sqrt(np.maximum(variance, 0.0)), params.radius_noise_floor)
+
+    drop = fit(np.ones(N_TIRES, dtype=bool))
+    sigma = drop_sigma(drop > 0.0)
+    # A drop within ``z_keep`` sigmas of zero is noise, not a low tire: left in the fit it
+    # would make its axle's (or side's) common level look unknown and inflate the sigma of
+    # a real loss beside it (measured: a 0.1-sigma drop on RL turned RR's 25 % loss from 7
+    # sigmas into 3). Such tires are taken out and the rest refitted, weakest first.
+    while True:
+        active = drop > 0.0
+        weak = active & (drop < params.z_keep * sigma)
+        if not weak.any() or weak.sum() == active.sum():
+            break
+        weakest = np.flatnonzero(weak)[np.argmin((drop / sigma)[weak])]
+        active[weakest] = False
+        drop = fit(active)
+        sigma = drop_sigma(drop > 0.0)
+    residual = float(np.linalg.norm(design @ drop - target))
     z = drop / sigma
     return LowTireLocalisation(
         radius_drop=drop, sigma=sigma, z=z, flags=z >= params.z_flag,

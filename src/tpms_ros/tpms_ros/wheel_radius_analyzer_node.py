@@ -146,6 +146,8 @@ class WheelRadiusAnalyzerParameters:
                                       'radius noise', low=1e-7, high=0.1)
     informative_std: float = param(_D.informative_std, 'a pair whose posterior std exceeds '
                                    'this carries no information', low=1e-6, high=1.0)
+    z_keep: float = param(_D.z_keep, 'a tire whose radius drop is below this many sigmas is '
+                          'taken out of the localisation fit (noise)', low=0.0, high=100.0)
     z_flag: float = param(_D.z_flag, 'flag a tire whose radius drop exceeds this many sigmas',
                           low=0.1, high=100.0)
     z_full: float = param(_D.z_full, 'radius drop in sigmas at which the confidence reaches 1',
@@ -172,7 +174,7 @@ class WheelRadiusAnalyzerParameters:
                                         high=60.0, read_only=True)
 
     def __post_init__(self) -> None:
-        self.core()      # the core's cross-field rules (loads, speed band, z_flag < z_full)
+        self.core()      # the core's cross-field rules (loads, speed band, z thresholds)
         if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
             raise ValueError(
                 f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
