@@ -1035,10 +1035,10 @@ class TireStiffnessObserver:
                     cal.blocks[w] += int(take.sum())
                 if cal.blocks[first] < cal.needed_blocks:
                     continue
+                solution = np.full((family.wheels.shape[0], family.n_params), np.nan)
+                solution[problem] = _solve_normal(cal.gram[f][problem], cal.rhs[f][problem])
                 pooled = np.full((N_WHEELS, 2), np.nan)
-                solution = _solve_normal(cal.gram[f][problem:problem + 1],
-                                         cal.rhs[f][problem:problem + 1])
-                replace(family, wheels=wheels[None, :]).to_wheels(solution, pooled)
+                family.to_wheels(solution, pooled)    # only this problem's wheels are read
                 k_pooled = self._stiffness_from_raw(pooled[:, 0])
                 for w in wheels:
                     ks = np.asarray(cal.block_k[w])
