@@ -856,9 +856,11 @@ class TireStiffnessObserver:
         self._partner = np.arange(N_WHEELS)
         for left, right in self._axles:
             self._partner[[left, right]] = right, left
-        self._lags = p.partner_lags
-        self._lag_reach = int(self._lags.max()) if self._lags.size else 0
-        self._families = _ls_families(self._axles, p.drive_compensation, self._lags.size)
+        lags = p.partner_lags
+        # The partner lags as a window: every ``_lag_step``-th sample within +-``_lag_reach``.
+        self._lag_reach = int(lags.max()) if lags.size else 0
+        self._lag_step = int(lags[1] - lags[0]) if lags.size > 1 else 1
+        self._families = _ls_families(self._axles, p.drive_compensation, lags.size)
         self._counters: dict[str, np.ndarray] = {}
         self._calibration: _Calibration | None = None
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
@@ -941,8 +943,7 @@ class TireStiffnessObserver:
         self._calibration = _Calibration(
             [np.zeros((f.wheels.shape[0], f.n_params, f.n_params)) for f in self._families],
             [np.zeros((f.wheels.shape[0], f.n_params)) for f in self._families],
-            [[] for _ in range(N_WHEELS)],
-                                         np.zeros(N_WHEELS, dtype=int), needed)
+            [[] for _ in range(N_WHEELS)], np.zeros(N_WHEELS, dtype=int), needed)
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
         self._cached = None
 
@@ -1379,13 +1380,12 @@ class TireStiffnessObserver:
         regressors = zeta[:, :, first]
         if family.kind == 'partner':
             n_blocks, block_len = out.shape[:2]
-            step = int(self._lags[1] - self._lags[0]) if self._lags.size > 1 else 1
             # Row i of the blocks is band row reach + i; its lag l sample is band row
             # reach + i - l, for l from -reach to reach.
             windows = np.lib.stride_tricks.sliding_window_view(
                 band[:n_blocks * block_len + 2 * self._lag_reach, self._partner[first]],
-                2 * self._lag_reach + 1, axis=0)[:, :, ::step]
-            lagged = windows.reshape(n_blocks, block_len, first.size, self._lags.size)
+                2 * self._lag_reach + 1, axis=0)[:, :, ::self._lag_step]
+            lagged = windows.reshape(n_blocks, block_len, first.size, family.n_params - 2)
             regressors = np.concatenate((regressors, lagged), axis=-1)
         return regressors, w[:, :, first], mask[:, :, first]
 
