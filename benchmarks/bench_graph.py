@@ -7,7 +7,12 @@ Prints (figures, not timed tests; SPEC §8 targets in brackets):
    CPU time (the machine is shared: CPU time is what the graph itself costs), messages
    published vs received by the recorder [>= 10x, no message dropped]; and the CPU time per
    node, measured around every callback (subscriptions, timers, services), the player's thread
-   and the rest (executor, deserialisation, middleware).
+   and the rest (executor, deserialisation, middleware). Next to it, the ceiling: the same
+   topology (each estimator's subscriptions and publishers with their types and QoS, the same
+   executor and use_sim_time, the real player and recorder) with every estimator replaced by a
+   no-op node that publishes as many (default) outputs as the real one did, stamped with its
+   input, so the pacing and the message count are the real replay's: what rclpy and the
+   middleware reach on this machine when estimator work costs nothing.
 2. The same graph with one process per node (each on its own executor, DDS between processes)
    vs composed: real-time factor and the CPU of each process.
 3. End-to-end latency at real rate: from a wheel-speed sample to the first ``/tpms/warning``
@@ -17,8 +22,9 @@ Prints (figures, not timed tests; SPEC §8 targets in brackets):
 4. Each estimator's offline throughput vs the plainest per-sample implementation of the same
    maths, collected from the estimator benchmarks (benchmarks/bench_*.py, run as they are).
 
-Run under tools/env.sh: ``python benchmarks/bench_graph.py [--quick] [--skip-latency]
-[--skip-processes] [--skip-offline]``; ``--quick`` leaves out the 240 s puncture scenario.
+Run under tools/env.sh: ``python benchmarks/bench_graph.py [--quick] [--skip-ceiling]
+[--skip-latency] [--skip-processes] [--skip-offline]``; ``--quick`` leaves out the 240 s
+puncture scenario.
 """
 
 from __future__ import annotations
@@ -41,11 +47,18 @@ from typing import Any
 import numpy as np
 import rclpy
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.task import Future
+import yaml
 
 from vehicle_monitor_common.bag_io import bag_topics
 from vehicle_monitor_common.evaluation import Domain, Scenario, domains
-from vehicle_monitor_common.main_job import bag_duration_s, run_graph_on_bag, with_parameters
+from vehicle_monitor_common.main_job import (
+    bag_duration_s,
+    run_graph_on_bag,
+    use_private_domain,
+    with_parameters,
+)
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
 from vehicle_monitor_common.runner import (
@@ -129,19 +142,26 @@ class ThreadCpuSampler:
 
 
 def composed_replay(domain: Domain, scenario: Scenario, work: Path) -> dict[str, Any]:
-    """Replay one scenario through the composed graph; print speed and CPU per node."""
+    """Replay one scenario through the composed graph; print speed and CPU per node.
+
+    Returns the figures, the recording (``'recorded'``) and the estimators' topology
+    (``'topology'``, read from the live graph) for the ceiling run.
+    """
     clock = CallbackClock()
     player_cpu = ThreadCpuSampler()
+    topology: list[NodeTopology] = []
 
     def on_graph(graph: Graph) -> None:
+        topology.extend(NodeTopology.of(node, graph.spec.use_sim_time) for node in graph.nodes
+                        if not isinstance(node, ScenarioPlayer | GraphRecorder))
         clock.instrument(graph)
         player = graph.of_type(ScenarioPlayer)[0]
         player_cpu.start(player._thread.native_id)  # noqa: SLF001 (benchmark probe)
 
     try:
-        _, stats = run_graph_on_bag(domain, scenario.bag, work / scenario.name,
-                                    label=scenario.name, log=lambda line: None,
-                                    on_graph=on_graph)
+        recorded, stats = run_graph_on_bag(domain, scenario.bag, work / scenario.name,
+                                           label=scenario.name, log=lambda line: None,
+                                           on_graph=on_graph)
     finally:
         player_cpu.stop()
     total_cpu = stats.cpu_s
@@ -160,6 +180,157 @@ def composed_replay(domain: Domain, scenario: Scenario, work: Path) -> dict[str,
           f'{100 * player_cpu.cpu_s / total_cpu:5.1f} %')
     print(f'      {"executor, middleware, rest":<28} {rest:7.2f} s CPU  '
           f'{100 * rest / total_cpu:5.1f} %   (replay: {total_cpu:.1f} s CPU)')
+    return {'rtf': stats.real_time_factor, 'cpu_rtf': stats.cpu_real_time_factor,
+            'dropped': stats.dropped, 'recorded': recorded, 'topology': topology}
+
+
+@dataclasses.dataclass(frozen=True)
+class Endpoint:
+    """A subscription or publisher as the node created it (resolved topic, effective QoS)."""
+
+    topic: str
+    msg_type: Any
+    qos: QoSProfile
+    raw: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeTopology:
+    """What a node puts on the graph: its name, subscriptions and publishers."""
+
+    name: str
+    namespace: str
+    subscriptions: tuple[Endpoint, ...]
+    publishers: tuple[Endpoint, ...]
+
+    @classmethod
+    def of(cls, node: Node, use_sim_time: bool) -> NodeTopology:
+        """Read a live node. Left out: what every rclpy node creates itself
+        (``/parameter_events``; ``/rosout`` is not listed) and, with use_sim_time, the time
+        source's ``/clock`` subscription, which the null node's own use_sim_time recreates."""
+        return cls(
+            node.get_name(), node.get_namespace(),
+            tuple(Endpoint(s.topic_name, s.msg_type, s.qos_profile, bool(s.raw))
+                  for s in node.subscriptions
+                  if not (use_sim_time and s.topic_name == '/clock')),
+            tuple(Endpoint(p.topic_name, p.msg_type, p.qos_profile) for p in node.publishers
+                  if p.topic_name != '/parameter_events'))
+
+
+@dataclasses.dataclass(frozen=True)
+class NullPlan:
+    """A null node's topology and how many outputs it publishes per input.
+
+    ``outputs[i]`` messages go out on publisher ``i`` over ``trigger_count`` messages of the
+    ``trigger`` input (the busiest one), spread evenly (Bresenham): the real node's output
+    count, at its mean rate in data time.
+    """
+
+    topology: NodeTopology
+    trigger: str
+    trigger_count: int
+    outputs: tuple[int, ...]
+
+
+# Null node plans by node name: the graph file names the class, not its arguments.
+_NULL_PLANS: dict[str, NullPlan] = {}
+
+
+class NullNode(Node):
+    """A no-op stand-in for an estimator: its subscriptions and publishers, none of its work.
+
+    Every input is received (and deserialised, as by the real node) and dropped. Per message of
+    the trigger input, the outputs due by then are published: a message built once (default
+    values), its ``header.stamp`` set to the latest input stamp, as every output of this
+    product is stamped with the input it answers; the player's pacing on the sync topics
+    therefore advances as with the real node.
+    """
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        plan = _NULL_PLANS[node_name]
+        self._plan = plan
+        self._received = 0
+        self._sent = [0] * len(plan.outputs)
+        self._stamp: Any = None
+        self._outputs = [(self.create_publisher(p.msg_type, p.topic, p.qos), p.msg_type())
+                         for p in plan.topology.publishers]
+        for endpoint in plan.topology.subscriptions:
+            callback = self._on_trigger if endpoint.topic == plan.trigger else self._on_input
+            self.create_subscription(endpoint.msg_type, endpoint.topic, callback, endpoint.qos,
+                                     raw=endpoint.raw)
+
+    def _on_input(self, msg: Any) -> None:
+        header = getattr(msg, 'header', None)
+        if header is not None:
+            self._stamp = header.stamp
+
+    def _on_trigger(self, msg: Any) -> None:
+        self._on_input(msg)
+        self._received += 1
+        plan = self._plan
+        for index, (publisher, output) in enumerate(self._outputs):
+            due = self._received * plan.outputs[index] // plan.trigger_count
+            while self._sent[index] < due:
+                if self._stamp is not None and hasattr(output, 'header'):
+                    output.header.stamp = self._stamp
+                publisher.publish(output)
+                self._sent[index] += 1
+
+
+def null_plans(topology: list[NodeTopology], counts: dict[str, int]) -> list[NullPlan]:
+    """Plans reproducing a real run's message counts (``counts`` by topic, as recorded).
+
+    A topic several nodes publish (``/diagnostics``) is shared evenly between them.
+    """
+    publishers: dict[str, int] = defaultdict(int)
+    for node in topology:
+        for endpoint in node.publishers:
+            publishers[endpoint.topic] += 1
+    plans = []
+    for node in topology:
+        trigger = max(node.subscriptions, key=lambda s: counts.get(s.topic, 0)).topic
+        outputs = tuple(counts.get(p.topic, 0) // publishers[p.topic] for p in node.publishers)
+        plans.append(NullPlan(node, trigger, max(counts.get(trigger, 0), 1), outputs))
+    return plans
+
+
+def ceiling_replay(domain: Domain, scenario: Scenario, work: Path, real: dict[str, Any],
+                   ) -> dict[str, Any]:
+    """Replay the scenario through the real graph's topology with no-op estimators.
+
+    The same graph file with each estimator's plugin replaced by :class:`NullNode` (player,
+    recorder, executor, use_sim_time unchanged), run through the same ``run_graph_on_bag``
+    as the real graph, its output counts taken from the real run's recording (``real``, from
+    :func:`composed_replay`).
+    """
+    counts = {topic: info.count for topic, info in bag_topics(real['recorded']).items()}
+    plans = null_plans(real['topology'], counts)
+    _NULL_PLANS.clear()
+    _NULL_PLANS.update({plan.topology.name: plan for plan in plans})
+    spec = load_graph(domain.graph)
+    keep = {domain.player, domain.recorder}
+    nodes = []
+    for node in spec.nodes:
+        name = node.name or node.plugin.split('/')[-1]
+        if name in keep:
+            nodes.append(dataclasses.asdict(node))
+        else:
+            # Parameters (the run's calibration files) stay: the null node ignores them.
+            nodes.append({'plugin': f'{__name__}:NullNode', 'name': name,
+                          'namespace': node.namespace, 'parameters': dict(node.parameters)})
+    graph_file = work / f'{scenario.name}_null_graph.yaml'
+    graph_file.write_text(yaml.safe_dump({'executor': spec.executor,
+                                          'use_sim_time': spec.use_sim_time, 'nodes': nodes}))
+    _, stats = run_graph_on_bag(dataclasses.replace(domain, graph=graph_file), scenario.bag,
+                                work / f'{scenario.name}_null', label=scenario.name,
+                                log=lambda line: None)
+    print(f'  ceiling, {domain.name} graph topology with no-op nodes on {scenario.name}: '
+          f'{stats.bag_duration_s:.0f} s of bag in {stats.wall_s:.1f} s = '
+          f'{stats.real_time_factor:.1f}x real time wall, {stats.cpu_real_time_factor:.1f}x '
+          f'per CPU second; {stats.published} published, {stats.dropped} dropped; the real '
+          f'graph reaches {100 * real["rtf"] / stats.real_time_factor:.0f} % of it (wall), '
+          f'{100 * real["cpu_rtf"] / stats.cpu_real_time_factor:.0f} % (CPU)')
     return {'rtf': stats.real_time_factor, 'cpu_rtf': stats.cpu_real_time_factor,
             'dropped': stats.dropped}
 
@@ -435,18 +606,26 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--quick', action='store_true',
                         help='leave out the long (240 s) puncture scenario')
+    parser.add_argument('--skip-ceiling', action='store_true',
+                        help='leave out the no-op topology replay of section 1')
     parser.add_argument('--skip-latency', action='store_true')
     parser.add_argument('--skip-processes', action='store_true')
     parser.add_argument('--skip-offline', action='store_true')
     parser.add_argument('--latency-seconds', type=float, default=30.0)
     args = parser.parse_args()
+    # A DDS domain of our own (the child processes inherit it): another graph on this machine
+    # in the default domain would hear the replay and pace it (the player waits for every
+    # reliable reader's acknowledgement), and feed the recorder.
+    use_private_domain()
     registered = domains()
     selected = [(d, s) for d in registered for s in d.scenarios
                 if not (args.quick and bag_duration_s(s.bag) > 60.0)]
     with tempfile.TemporaryDirectory(prefix='bench_graph_') as work:
         print('1. replay as fast as possible, composed in one process (EventsExecutor)')
         for domain, scenario in selected:
-            composed_replay(domain, scenario, Path(work))
+            real = composed_replay(domain, scenario, Path(work))
+            if not args.skip_ceiling:
+                ceiling_replay(domain, scenario, Path(work), real)
     if not args.skip_processes:
         print('2. one process per node (same graph, same executor per process)')
         for domain in registered:
