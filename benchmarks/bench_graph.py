@@ -16,7 +16,8 @@ Prints (figures, not timed tests; SPEC §8 targets in brackets):
 2. The same graph with one process per node (each on its own executor, DDS between processes)
    vs composed: real-time factor and the CPU of each process.
 3. End-to-end latency at real rate: from a wheel-speed sample to the first ``/tpms/warning``
-   stamped with it, p50/p99 [p99 < 5 ms], composed in one process and one process per node.
+   stamped with it, p50/p99 [p99 < 5 ms], the player (the vehicle's sensors) in a process of
+   its own and the estimators composed in one process or one process each.
    The sample's publish time is its bag time plus the player's schedule offset (the smallest
    receive-minus-stamp delay of any wheel-speed sample).
 4. Each estimator's offline throughput vs the plainest per-sample implementation of the same
@@ -503,9 +504,11 @@ class LatencyProbe(Node):
 def latency(seconds: float, per_process: bool) -> None:
     """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99.
 
-    Composed: every node and the probe on one executor (a sample's callbacks, and any chunk
-    work due with it, run one after the other). Per process: each node in its own process,
-    the probe in this one.
+    The player runs in a process of its own, as the sensor drivers of a vehicle do (in the
+    estimators' process its publishing thread would compete with their executor for the
+    GIL). Composed: every estimator and the probe on one executor (a sample's callbacks, and
+    any chunk work due with it, run one after the other). Per process: each estimator in its
+    own process, the probe in this one.
     """
     road = next(d for d in domains() if d.name == 'road')
     spec = load_graph(road.graph)
@@ -514,16 +517,19 @@ def latency(seconds: float, per_process: bool) -> None:
         road.player: {'bag': str(road.scenarios[0].bag), 'as_fast_as_possible': False,
                       'rate': 1.0, 'topics': ['/vehicle/wheel_speeds', '/vehicle/imu',
                                               '/vehicle/driver_inputs']}})
+    player = GraphSpec(tuple(n for n in spec.nodes if n.name == road.player), spec.executor,
+                       spec.use_sim_time)
+    estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != road.player),
+                           spec.executor, spec.use_sim_time)
     context = rclpy.Context()
     rclpy.init(context=context)
-    processes: list[Any] = []
-    stop: Any = None
+    graph: Graph | None = None
     if per_process:
         _, processes, stop, _ = _node_processes(spec, road.player, {})
-        graph = None
         executor: Any = EXECUTORS[spec.executor](context)
     else:
-        graph = Graph(spec, context)
+        _, processes, stop, _ = _node_processes(player, road.player, {})
+        graph = Graph(estimators, context)
         executor = graph.executor
     probe = LatencyProbe(context=context)
     executor.add_node(probe)
@@ -538,8 +544,7 @@ def latency(seconds: float, per_process: bool) -> None:
         while time.monotonic() < stop_at:
             executor.spin_until_future_complete(never, timeout_sec=0.5)
     finally:
-        if stop is not None:
-            stop.set()
+        stop.set()
         for process in processes:
             process.join(timeout=10.0)
         executor.remove_node(probe)
@@ -553,7 +558,7 @@ def latency(seconds: float, per_process: bool) -> None:
     stamps = np.array(sorted(probe.samples), dtype=np.int64)
     received = np.array([probe.samples[s] for s in stamps])
     offset = float(np.min(received - stamps * 1e-9))  # the player's schedule: stamp -> wall
-    layout = 'one process per node' if per_process else 'composed in one process'
+    layout = ('one process per estimator' if per_process else 'estimators composed in one process')
     print(f'  road graph at real rate for {seconds:.0f} s, {layout}; a wheel-speed sample reaches '
           f'the probe after p50 {1e3 * np.median(received - stamps * 1e-9 - offset):.2f} ms')
     for topic in LatencyProbe.OUTPUTS:
