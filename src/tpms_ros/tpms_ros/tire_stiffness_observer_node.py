@@ -76,9 +76,11 @@ from vehicle_monitor_common.node_helpers import (
 WHEELS = ('FL', 'FR', 'RL', 'RR')
 # Core reasons that mean the sensor data are bad (ERROR), not that the method is paused.
 SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
-# Relative input-rate deviation reported as a mismatch (the core's default timing tolerance).
-RATE_TOLERANCE = 0.25
-
+# Defaults of the core and of its nominal tire: the node's defaults are these, not copies.
+_D = StiffnessObserverParams()
+_TIRE = TorsionalTire()
+# Relative input-rate deviation reported as a mismatch (the core's timing tolerance).
+RATE_TOLERANCE = _D.timing_tolerance
 
 
 def _spans(first_ns: int, last_ns: int, count: int, rate_hz: float,
@@ -89,73 +91,84 @@ def _spans(first_ns: int, last_ns: int, count: int, rate_hz: float,
         return rate_hz >= sample_rate_hz * 0.999
     return (last_ns - first_ns) * count >= 1e9 / rate_hz * (count - 1) * 0.999
 
+
 @dataclass(frozen=True)
 class StiffnessNodeParameters:
     """Parameters of the ``tire_stiffness_observer`` node (defaults: paper and SPEC §2)."""
 
-    sample_rate_hz: float = param(1000.0, 'wheel-speed sample rate the filters are built for, '
-                                  'Hz (a change rebuilds the estimator, keeping its '
-                                  'calibration)', low=50.0, high=20000.0)
-    j1: float = param(0.8, 'model rim-side inertia J1, kg m^2', low=1e-3, high=100.0)
-    j2: float = param(0.6, 'model belt-side inertia J2, kg m^2', low=1e-3, high=100.0)
-    k: float = param(21656.0, 'model torsional stiffness K at nominal pressure, N m/rad '
+    sample_rate_hz: float = param(
+        _D.sample_rate_hz, 'wheel-speed sample rate the filters are built for, Hz (a change '
+        'rebuilds the estimator, keeping its calibration)', low=50.0, high=20000.0)
+    j1: float = param(_TIRE.j1, 'model rim-side inertia J1, kg m^2', low=1e-3, high=100.0)
+    j2: float = param(_TIRE.j2, 'model belt-side inertia J2, kg m^2', low=1e-3, high=100.0)
+    k: float = param(_TIRE.k, 'model torsional stiffness K at nominal pressure, N m/rad '
                      '(a change invalidates the calibration)', low=1.0, high=1e7)
-    d: float = param(8.0, 'model torsional damping D, N m s/rad', low=0.0, high=1e4)
-    observer_pole_factor: float = param(3.0, 'observer pole radius as a multiple of the model '
-                                        'resonance', low=1.0, high=50.0)
-    band_low_hz: float = param(25.0, 'pre-filter pass band lower edge, Hz', low=0.1,
+    d: float = param(_TIRE.d, 'model torsional damping D, N m s/rad', low=0.0, high=1e4)
+    observer_pole_factor: float = param(
+        _D.observer_pole_factor, 'observer pole radius as a multiple of the model resonance',
+        low=1.0, high=50.0)
+    band_low_hz: float = param(_D.band_hz[0], 'pre-filter pass band lower edge, Hz', low=0.1,
                                high=10000.0)
-    band_high_hz: float = param(60.0, 'pre-filter pass band upper edge, Hz', low=0.1,
+    band_high_hz: float = param(_D.band_hz[1], 'pre-filter pass band upper edge, Hz', low=0.1,
                                 high=10000.0)
-    band_order: int = param(2, 'Butterworth order of each band edge', low=1, high=8)
-    forgetting_factor: float = param(0.98, 'RLS forgetting factor rho per LS block (memory '
-                                     'block_s / (1 - rho))', low=0.5, high=0.9999)
-    block_s: float = param(0.25, 'least-squares block length (one RLS update), s', low=0.01,
+    band_order: int = param(_D.band_order, 'Butterworth order of each band edge', low=1, high=8)
+    forgetting_factor: float = param(
+        _D.forgetting_factor, 'RLS forgetting factor rho per LS block (memory '
+        'block_s / (1 - rho))', low=0.5, high=0.9999)
+    block_s: float = param(_D.block_s, 'least-squares block length (one RLS update), s', low=0.01,
                            high=10.0)
-    ls_mode: str = param('rls', 'least squares: recursive with forgetting or batch over a '
+    ls_mode: str = param(_D.ls_mode, 'least squares: recursive with forgetting or batch over a '
                          'window', choices=('rls', 'batch'))
-    batch_window_blocks: int = param(100, 'batch LS window, blocks', low=2, high=100000)
-    driven_axle: str = param('none', 'axle(s) with drive-wheel compensation',
+    batch_window_blocks: int = param(
+        _D.batch_window_blocks, 'batch LS window, blocks', low=2, high=100000)
+    driven_axle: str = param(_D.driven_axle, 'axle(s) with drive-wheel compensation',
                              choices=('front', 'rear', 'none', 'all'))
-    drive_compensation: str = param('partner', "driven-axle compensation: 'partner' (the "
-                                    "partner wheel's lagged speed as nuisance regressors) or "
-                                    "'difference' (the paper's wL - wR regression)",
-                                    choices=('partner', 'difference'))
-    partner_lag_s: float = param(0.048, 'partner compensation: half-width of the two-sided '
-                                 'lag window (output delay), s', low=0.0, high=1.0)
-    partner_lag_step_s: float = param(0.004, 'partner compensation: lag spacing, s '
-                                      '(>= one sample)', low=1e-5, high=0.1)
+    drive_compensation: str = param(
+        _D.drive_compensation, "driven-axle compensation: 'partner' (the partner wheel's lagged "
+        "speed as nuisance regressors) or 'difference' (the paper's wL - wR regression)",
+        choices=('partner', 'difference'))
+    partner_lag_s: float = param(
+        _D.partner_lag_s, 'partner compensation: half-width of the two-sided lag window (output '
+        'delay), s', low=0.0, high=1.0)
+    partner_lag_step_s: float = param(
+        _D.partner_lag_step_s, 'partner compensation: lag spacing, s (>= one sample)',
+        low=1e-5, high=0.1)
     nominal_pressure_kpa: tuple[float, ...] = param(
-        (200.0, 200.0, 200.0, 200.0), 'placard pressure of each tire FL, FR, RL, RR, kPa '
+        _D.nominal_pressure_kpa, 'placard pressure of each tire FL, FR, RL, RR, kPa '
         '(gauge); the pressure at calibration')
-    pressure_slope: float = param(0.234375 / 0.4, 'K <-> pressure relation: relative stiffness '
-                                  'change per relative pressure change (K/K0 = 1 - slope '
-                                  '(1 - p/p0))', low=0.01, high=10.0)
-    warning_pressure_ratio: float = param(0.9, 'a tire is flagged below this fraction of its '
-                                          'nominal pressure', low=0.01, high=0.999)
-    rolling_radius_m: float = param(0.3, 'nominal rolling radius for the speed gates, m',
-                                    low=0.05, high=2.0)
-    speed_min_kmh: float = param(30.0, 'lower edge of the speed band where the method is '
-                                 'valid, km/h', low=0.0, high=500.0)
-    speed_max_kmh: float = param(160.0, 'upper edge of the valid speed band, km/h', low=0.0,
-                                 high=500.0)
-    max_accel_mps2: float = param(2.5, '|acceleration| above this (hard braking/traction) '
-                                  'pauses the estimate, m/s^2', low=0.01, high=50.0)
-    max_slip: float = param(0.05, '|wheel speed / median wheel speed - 1| above this pauses '
-                            'the wheel', low=1e-3, high=1.0)
-    max_wheel_torque_nm: float = param(1000.0, '|wheel torque| above this pauses the wheel, '
-                                       'N m', low=1.0, high=1e5)
-    max_lateral_accel_mps2: float = param(2.0, 'lateral acceleration (from steering and speed) '
-                                          'above this pauses the estimate, m/s^2', low=0.01,
-                                          high=50.0)
-    wheelbase_m: float = param(2.7, 'wheelbase for the lateral acceleration, m', low=0.5,
-                               high=20.0)
+    pressure_slope: float = param(
+        _D.pressure_relation.slope, 'K <-> pressure relation: relative stiffness change per '
+        'relative pressure change (K/K0 = 1 - slope (1 - p/p0))', low=0.01, high=10.0)
+    warning_pressure_ratio: float = param(
+        _D.warning_pressure_ratio, 'a tire is flagged below this fraction of its nominal pressure',
+        low=0.01, high=0.999)
+    rolling_radius_m: float = param(
+        _D.rolling_radius_m, 'nominal rolling radius for the speed gates, m', low=0.05, high=2.0)
+    speed_min_kmh: float = param(
+        _D.speed_band_kmh[0], 'lower edge of the speed band where the method is valid, km/h',
+        low=0.0, high=500.0)
+    speed_max_kmh: float = param(
+        _D.speed_band_kmh[1], 'upper edge of the valid speed band, km/h', low=0.0, high=500.0)
+    max_accel_mps2: float = param(
+        _D.max_accel_mps2, '|acceleration| above this (hard braking/traction) pauses the '
+        'estimate, m/s^2', low=0.01, high=50.0)
+    max_slip: float = param(
+        _D.max_slip, '|wheel speed / median wheel speed - 1| above this pauses the wheel',
+        low=1e-3, high=1.0)
+    max_wheel_torque_nm: float = param(
+        _D.max_wheel_torque_nm, '|wheel torque| above this pauses the wheel, N m',
+        low=1.0, high=1e5)
+    max_lateral_accel_mps2: float = param(
+        _D.max_lateral_accel_mps2, 'lateral acceleration (from steering and speed) above this '
+        'pauses the estimate, m/s^2', low=0.01, high=50.0)
+    wheelbase_m: float = param(
+        _D.wheelbase_m, 'wheelbase for the lateral acceleration, m', low=0.5, high=20.0)
     use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
                                     'cornering gates', read_only=True)
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
                                            'stale (torque and cornering gates skipped), s',
                                            low=1e-3, high=10.0)
-    calibration_s: float = param(60.0, 'valid data per tire a calibration collects, s',
+    calibration_s: float = param(_D.calibration_s, 'valid data per tire a calibration collects, s',
                                  low=1.0, high=3600.0)
     calibrate_on_start: bool = param(False, 'start a calibration at start when no usable '
                                      'calibration file was loaded', read_only=True)
