@@ -86,6 +86,7 @@ from rail_monitor_ros.rail_model import (
     half_car_state_space,
 )
 from vehicle_monitor_common.figures import pyplot, save_figure
+from vehicle_monitor_common.validation import require_positive
 
 if TYPE_CHECKING:
     from rail_monitor_ros.rail_simulator import RailSimulationResult
@@ -270,14 +271,8 @@ class CreepEkfParams:
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
                     'bound_hold_s', 'change_drift', 'change_threshold', 'change_log_std',
                     'low_adhesion_threshold')
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name} must be finite and > 0, got {value!r}')
-        if not (self.low_adhesion_hysteresis >= 0.0
-                and math.isfinite(self.low_adhesion_hysteresis)):
-            raise ValueError('low_adhesion_hysteresis must be finite and >= 0, '
-                             f'got {self.low_adhesion_hysteresis}')
+        require_positive(self, positive)
+        require_positive(self, ('low_adhesion_hysteresis',), allow_zero=True)
         if not self.min_creep_factor < self.max_creep_factor <= MAX_CREEP_FACTOR:
             raise ValueError(f'need min_creep_factor < max_creep_factor <= {MAX_CREEP_FACTOR}, '
                              f'got {self.min_creep_factor}, {self.max_creep_factor}')

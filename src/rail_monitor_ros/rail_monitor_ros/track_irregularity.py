@@ -20,6 +20,8 @@ import math
 
 import numpy as np
 
+from vehicle_monitor_common.validation import require_positive
+
 
 @dataclass(frozen=True)
 class TrackSpectrum:
@@ -38,10 +40,7 @@ class TrackSpectrum:
     omega_r: float
 
     def __post_init__(self) -> None:
-        for attr in ('roughness', 'omega_c', 'omega_r'):
-            value = getattr(self, attr)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'TrackSpectrum.{attr} must be finite and > 0, got {value}')
+        require_positive(self, ('roughness', 'omega_c', 'omega_r'))
 
     def psd(self, omega: np.ndarray) -> np.ndarray:
         """S_a(Omega), m^2/(rad/m), at spatial angular frequencies Omega (rad/m)."""

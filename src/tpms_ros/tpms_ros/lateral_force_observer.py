@@ -76,6 +76,7 @@ import numpy as np
 from scipy import signal
 
 from vehicle_monitor_common.figures import pyplot, save_figure
+from vehicle_monitor_common.validation import require_positive
 
 G = 9.81
 STATE_NAMES = ('vx', 'vy', 'r', 'phi', 'p', 'fyf', 'fyr')
@@ -123,11 +124,7 @@ class ObserverVehicleParams:
     def __post_init__(self) -> None:
         positive = ('m', 'ms', 'iz', 'ix', 'iw', 'lf', 'lr', 'h', 'rw', 'tf', 'tr',
                     'kphi_f', 'kphi_r')
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'ObserverVehicleParams.{name} must be finite and > 0, '
-                                 f'got {value}')
+        require_positive(self, positive)
         for name in ('hf', 'hr', 'e', 'cphi_f', 'cphi_r'):
             value = getattr(self, name)
             if not math.isfinite(value):
@@ -226,11 +223,8 @@ class ObserverTuning:
                 math.isfinite(z) and z > 0.0 for z in self.zeta)):
             raise ValueError(f'ObserverTuning.zeta must be two finite numbers > 0, '
                              f'got {self.zeta}')
-        for name in ('wheel_accel_tau', 'validity_ay', 'max_accel', 'max_rate',
-                     'max_wheel_speed', 'max_steer', 'max_torque', 'max_dt'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'ObserverTuning.{name} must be finite and > 0, got {value}')
+        require_positive(self, ('wheel_accel_tau', 'validity_ay', 'max_accel', 'max_rate',
+                                'max_wheel_speed', 'max_steer', 'max_torque', 'max_dt'))
 
     @classmethod
     def plain(cls, **overrides: Any) -> ObserverTuning:

@@ -85,6 +85,7 @@ import scipy.signal as sig
 from scipy.special import ndtr
 
 from tpms_ros.tire_model import TorsionalTire
+from vehicle_monitor_common.validation import require_positive
 
 N_WHEELS = 4
 AXLES: dict[str, tuple[int, int]] = {'front': (0, 1), 'rear': (2, 3)}
@@ -233,19 +234,12 @@ class StiffnessObserverParams:
     max_tooth_rate_fraction: float = 0.9
 
     def __post_init__(self) -> None:
-        def positive(name: str) -> None:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f'StiffnessObserverParams.{name} must be finite and > 0, '
-                                 f'got {value!r}')
-
-        for name in ('sample_rate_hz', 'observer_pole_factor', 'block_s', 'calibration_s',
-                     'rolling_radius_m', 'max_accel_mps2', 'max_slip', 'max_wheel_torque_nm',
-                     'max_lateral_accel_mps2', 'wheelbase_m',
-                     'gate_lowpass_hz', 'max_omega_rad_s', 'dead_omega_rad_s', 'stuck_s',
-                     'settle_s', 'timing_tolerance', 'warning_pressure_ratio',
-                     'tooth_learning_s', 'tooth_warmup_s', 'tooth_phase_s'):
-            positive(name)
+        require_positive(self, (
+            'sample_rate_hz', 'observer_pole_factor', 'block_s', 'calibration_s',
+            'rolling_radius_m', 'max_accel_mps2', 'max_slip', 'max_wheel_torque_nm',
+            'max_lateral_accel_mps2', 'wheelbase_m', 'gate_lowpass_hz', 'max_omega_rad_s',
+            'dead_omega_rad_s', 'stuck_s', 'settle_s', 'timing_tolerance',
+            'warning_pressure_ratio', 'tooth_learning_s', 'tooth_warmup_s', 'tooth_phase_s'))
         if not (isinstance(self.encoder_teeth, int) and self.encoder_teeth >= 2):
             raise ValueError('StiffnessObserverParams.encoder_teeth must be an int >= 2, '
                              f'got {self.encoder_teeth!r}')

@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from vehicle_monitor_common.validation import require_positive
+
 N_TIRES = 4
 TIRE_NAMES = ('FL', 'FR', 'RL', 'RR')
 
@@ -109,10 +111,7 @@ class VoterParams:
                 raise ValueError(
                     f'VoterParams.method_thresholds[{name!r}] must be in (h0={self.h0}, 1), '
                     f'got {h}')
-        for name in ('max_age_s', 'set_on_s', 'set_off_s'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'VoterParams.{name} must be finite and >= 0, got {value}')
+        require_positive(self, ('max_age_s', 'set_on_s', 'set_off_s'), allow_zero=True)
         if not self.max_age_s > 0.0:
             raise ValueError(f'VoterParams.max_age_s must be > 0, got {self.max_age_s}')
         if not 0.0 < self.clear_ratio <= 1.0:

@@ -48,6 +48,7 @@ import numpy as np
 from scipy import signal
 
 from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+from vehicle_monitor_common.validation import require_positive
 
 TORSIONAL_MODE_HZ = (40.0, 50.0)
 """The paper's torsional tire mode band, Hz (used by the paper)."""
@@ -137,14 +138,9 @@ class VibrationParams:
         positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
                     'rls_regularization', 'max_wheel_speed', 'z_flag', 'z_full',
                     'rel_noise_floor', 'min_calibration_s', 'stuck_s')
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'VibrationParams.{name} must be finite and > 0, got {value}')
-        for name in ('min_wheel_speed', 'guard_s', 'calibration_settle_s'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'VibrationParams.{name} must be finite and >= 0, got {value}')
+        require_positive(self, positive)
+        require_positive(self, ('min_wheel_speed', 'guard_s', 'calibration_settle_s'),
+                         allow_zero=True)
         low, high = self.mode_band_hz
         if not (math.isfinite(low) and math.isfinite(high) and 0.0 < low < high):
             raise ValueError(f'VibrationParams.mode_band_hz must be 0 < low < high, got '

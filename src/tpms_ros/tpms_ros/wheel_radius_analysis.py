@@ -68,6 +68,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+from vehicle_monitor_common.validation import require_positive
 
 CALIBRATION_VERSION = 3
 PAIR_NAMES = ('delta_13', 'delta_24', 'delta_34', 'delta_12')
@@ -229,17 +230,11 @@ class WheelRadiusParams:
                     'wheel_yaw_noise_std', 'gyro_offset0_std', 'min_calibration_s',
                     'noise_block_s',
                     'radius_noise_floor', 'informative_std', 'z_flag', 'z_full', 'yaw_jerk_std')
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'WheelRadiusParams.{name} must be finite and > 0, got {value}')
+        require_positive(self, positive)
         non_negative = ('min_speed_mps', 'brake_torque_nm', 'wheel_recover_s',
                         'inv_stiffness_rw', 'delta_rw', 'gyro_offset_rw',
                         'calibration_settle_s', 'wheel_inertia_kgm2', 'cg_height_m')
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'WheelRadiusParams.{name} must be finite and >= 0, got {value}')
+        require_positive(self, non_negative, allow_zero=True)
         loads = np.asarray(self.static_load_n, dtype=float)
         if loads.shape != (N_TIRES,) or not np.all(np.isfinite(loads)) or np.any(loads <= 0):
             raise ValueError(f'WheelRadiusParams.static_load_n must be 4 loads > 0 N, got '
