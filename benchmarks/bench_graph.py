@@ -517,10 +517,6 @@ def latency(seconds: float, per_process: bool) -> None:
         road.player: {'bag': str(road.scenarios[0].bag), 'as_fast_as_possible': False,
                       'rate': 1.0, 'topics': ['/vehicle/wheel_speeds', '/vehicle/imu',
                                               '/vehicle/driver_inputs']}})
-    player = GraphSpec(tuple(n for n in spec.nodes if n.name == road.player), spec.executor,
-                       spec.use_sim_time)
-    estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != road.player),
-                           spec.executor, spec.use_sim_time)
     context = rclpy.Context()
     rclpy.init(context=context)
     graph: Graph | None = None
@@ -528,8 +524,11 @@ def latency(seconds: float, per_process: bool) -> None:
         _, processes, stop, _ = _node_processes(spec, road.player, {})
         executor: Any = EXECUTORS[spec.executor](context)
     else:
+        player = GraphSpec(tuple(n for n in spec.nodes if n.name == road.player),
+                           spec.executor, spec.use_sim_time)
         _, processes, stop, _ = _node_processes(player, road.player, {})
-        graph = Graph(estimators, context)
+        graph = Graph(GraphSpec(tuple(n for n in spec.nodes if n.name != road.player),
+                                spec.executor, spec.use_sim_time), context)
         executor = graph.executor
     probe = LatencyProbe(context=context)
     executor.add_node(probe)
@@ -558,7 +557,7 @@ def latency(seconds: float, per_process: bool) -> None:
     stamps = np.array(sorted(probe.samples), dtype=np.int64)
     received = np.array([probe.samples[s] for s in stamps])
     offset = float(np.min(received - stamps * 1e-9))  # the player's schedule: stamp -> wall
-    layout = ('one process per estimator' if per_process else 'estimators composed in one process')
+    layout = 'one process per estimator' if per_process else 'estimators composed in one process'
     print(f'  road graph at real rate for {seconds:.0f} s, {layout}; a wheel-speed sample reaches '
           f'the probe after p50 {1e3 * np.median(received - stamps * 1e-9 - offset):.2f} ms')
     for topic in LatencyProbe.OUTPUTS:
