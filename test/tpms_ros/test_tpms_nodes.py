@@ -134,18 +134,21 @@ VIB_TEST = {'sample_rate_hz': FS, 'analysis_rate_hz': FS, 'memory_s': 2.0,
             'calibration_duration_s': 4.0, 'diagnostics_period_s': 0.1, 'bad_hold_s': 0.5}
 
 
-def _vibration_node(make_node: Callable[..., Any], calibration_file: Path,
+def _vibration_node(make_node: Callable[..., Any], calibration_file: Path, namespace: str = '',
                     **extra: Any) -> Any:
     values = {**VIB_TEST, 'calibration_file': str(calibration_file), **extra}
-    return make_node(VibrationAnalyzerNode, parameter_overrides=[
-        *_reliable('vehicle/wheel_speeds'), *[Parameter(k, value=v) for k, v in values.items()]])
+    return make_node(VibrationAnalyzerNode, namespace=namespace or None, parameter_overrides=[
+        *_reliable(f'{namespace}/vehicle/wheel_speeds'.lstrip('/')),
+        *[Parameter(k, value=v) for k, v in values.items()]])
 
 
 class WheelFeeder:
     """Publishes WheelSpeeds rows at FS with consecutive stamps, chunk by chunk."""
 
-    def __init__(self, node: Node, collector: Collector, spin_until: Callable[..., bool]) -> None:
-        self.pub = node.create_publisher(WheelSpeeds, '/vehicle/wheel_speeds', DEEP)
+    def __init__(self, node: Node, collector: Collector, spin_until: Callable[..., bool],
+                 namespace: str = '') -> None:
+        self.output = f'{namespace}/tpms/tire_resonance'
+        self.pub = node.create_publisher(WheelSpeeds, f'{namespace}/vehicle/wheel_speeds', DEEP)
         self.collector = collector
         self.spin_until = spin_until
         self.next_ns = T0_NS
@@ -163,7 +166,7 @@ class WheelFeeder:
                 self.next_ns += round(1e9 / FS)
             last = self.sent[-1]
             assert self.spin_until(
-                lambda last=last: self.collector.last_stamp('/tpms/tire_resonance') >= last,
+                lambda last=last: self.collector.last_stamp(self.output) >= last,
                 10.0), 'vibration_analyzer did not answer the chunk'
 
 
@@ -275,6 +278,38 @@ def test_vibration_bad_input_rejected_and_wheel_unknown(
                 and v['rejected_bad_value_per_wheel'] == '[1, 0, 0, 0]')
 
     assert spin_until(lambda: out.diag('/vibration_analyzer', counted) is not None, 5.0)
+
+
+def test_vibration_processes_ahead_of_each_output_without_changing_it(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """With process_ahead_s the sample an output answers leaves only the last process_ahead_s
+    of samples to the core (the bulk went earlier); the outputs are those of process_ahead_s 0."""
+    omega = _resonant_wheel_speeds(1000, NOMINAL_HZ, seed=7)
+    results = {}
+    for ahead_s in (0.0, 0.02):
+        namespace = f'/run{len(results)}'
+        node = _vibration_node(make_node, tmp_path / f'v{ahead_s}.yaml', namespace=namespace,
+                               process_ahead_s=ahead_s, block_s=0.5)
+        chunks: list[int] = []
+        process = node.analyzer.process
+
+        def counted(block: np.ndarray, process: Callable[..., Any] = process,
+                    chunks: list[int] = chunks) -> Any:
+            chunks.append(len(block))
+            return process(block)
+
+        node.analyzer.process = counted
+        tester = make_node(f'tester{len(results)}')
+        out = Collector(tester, {f'{namespace}/tpms/tire_resonance': TireResonance})
+        WheelFeeder(tester, out, spin_until, namespace).feed(omega)
+        results[ahead_s] = (chunks, out.msgs[f'{namespace}/tpms/tire_resonance'])
+    (plain_chunks, plain), (ahead_chunks, ahead) = results[0.0], results[0.02]
+    period = round(FS / node.parameters.publish_rate_hz)               # 20 samples
+    assert plain_chunks == [period] * 50           # cut where each output falls due
+    assert ahead_chunks == [period - 4, 4] * 50    # 0.02 s at 200 Hz left for the output
+    assert [stamp_ns(m.header.stamp) for m in ahead] == [stamp_ns(m.header.stamp) for m in plain]
+    np.testing.assert_allclose([m.frequency_hz for m in ahead], [m.frequency_hz for m in plain],
+                               rtol=1e-12)
 
 
 def test_vibration_corrupt_calibration_file_is_reported(

@@ -13,10 +13,11 @@ Topics (relative, so a namespace moves them):
   ``calibration_s`` of *valid* data (the tires must be at ``nominal_pressure_kpa``).
 
 Processing: wheel speeds are buffered and handed to the core in chunks of ``process_period_s``
-of *data* time (the core's result does not depend on the chunking; short chunks keep the work
-left when an output falls due, hence its latency, small), and an output is published every
-``1 / publish_rate_hz`` of data time, so a replay at any speed gives the same outputs. Each
-output is stamped with the last wheel-speed sample it answers.
+of *data* time, once more ``process_ahead_s`` before each output falls due (the core's result
+does not depend on the chunking; processing ahead leaves little work for the sample an output
+answers, hence a short latency), and an output is published every ``1 / publish_rate_hz`` of
+data time, so a replay at any speed gives the same outputs. Each output is stamped with the last
+wheel-speed sample it answers.
 
 Time alignment of the driver inputs: each wheel-speed sample takes the latest driver-input
 message not newer than itself (sample and hold); one older than ``driver_inputs_max_age_s`` is
@@ -65,6 +66,7 @@ from vehicle_monitor_common.node_helpers import (
     STALE,
     WARN,
     Diagnostics,
+    ProcessAhead,
     StampCheck,
     TypedParameters,
     param,
@@ -83,13 +85,15 @@ _TIRE = TorsionalTire()
 RATE_TOLERANCE = _D.timing_tolerance
 
 
-def _spans(first_ns: int, last_ns: int, count: int, rate_hz: float,
-           sample_rate_hz: float) -> bool:
-    """Whether ``count`` samples from first_ns to last_ns cover one period of rate_hz: n
-    samples cover n mean intervals (one sample: one nominal interval)."""
+def _to_go_s(first_ns: int, last_ns: int, count: int, rate_hz: float,
+             sample_rate_hz: float) -> float:
+    """Data time, s, until ``count`` samples from first_ns to last_ns span one period of rate_hz
+    (0 or less: they do): n samples cover n mean intervals (one sample: one nominal interval)."""
     if count < 2:
-        return rate_hz >= sample_rate_hz * 0.999
-    return (last_ns - first_ns) * count >= 1e9 / rate_hz * (count - 1) * 0.999
+        spanned_s = 1.0 / sample_rate_hz
+    else:
+        spanned_s = (last_ns - first_ns) * 1e-9 * count / (count - 1)
+    return 0.999 / rate_hz - spanned_s
 
 
 @dataclass(frozen=True)
@@ -179,6 +183,10 @@ class StiffnessNodeParameters:
                                     'data time, s (no effect on the result; shorter: less '
                                     'work when an output falls due, more per-call '
                                     'overhead)', low=0.001, high=10.0)
+    process_ahead_s: float = param(0.02, 'the buffered wheel speeds also go to the core this '
+                                   'long (data time) before each output falls due, so little '
+                                   'work is left when it does: lower output latency for one '
+                                   'more core call per output, s (0: off)', low=0.0, high=10.0)
 
     def __post_init__(self) -> None:
         if self.process_period_s * self.sample_rate_hz < 1.0:
@@ -245,6 +253,7 @@ class TireStiffnessObserverNode(Node):
         # Samples since the last output and the first of them (outputs every publish period).
         self._window_count = 0
         self._window_first_ns = 0
+        self._ahead = ProcessAhead()
         # (stamp ns, wheel torques, steering angle) of the driver inputs, for the gates.
         self._driver: deque[tuple[int, np.ndarray, float]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
@@ -387,12 +396,12 @@ class TireStiffnessObserverNode(Node):
             self._window_first_ns = stamp
         self._window_count += 1
         p = self.parameters
-        # A span of n samples covers n mean intervals of data time.
-        publish = _spans(self._window_first_ns, stamp, self._window_count, p.publish_rate_hz,
-                         p.sample_rate_hz)
-        if publish or _spans(self._buffer_ns[0], stamp, len(self._buffer_ns),
-                             1.0 / p.process_period_s, p.sample_rate_hz):
-            self._process(publish)
+        to_output_s = _to_go_s(self._window_first_ns, stamp, self._window_count,
+                               p.publish_rate_hz, p.sample_rate_hz)
+        if (to_output_s <= 0.0 or self._ahead.due(to_output_s, p.process_ahead_s)
+                or _to_go_s(self._buffer_ns[0], stamp, len(self._buffer_ns),
+                            1.0 / p.process_period_s, p.sample_rate_hz) <= 0.0):
+            self._process(publish=to_output_s <= 0.0)
 
     def _driver_inputs_for(self, stamps: np.ndarray,
                            ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -464,6 +473,7 @@ class TireStiffnessObserverNode(Node):
         self._stiffness_pub.publish(stiffness)
         self._indication_pub.publish(indication)
         self.published += 1
+        self._ahead.published()
 
     def _update_diagnostics(self) -> None:
         p = self.parameters

@@ -7,7 +7,8 @@ wheel-speed sample of the block they answer, plus ``/diagnostics``. Service ``~/
 the result is saved to ``calibration_file`` and reloaded at start.
 
 Samples are buffered into blocks of ``block_s`` (the core is vectorised over a block; one call
-per sample would cost ~100x more). Stamps: an out-of-order or repeated sample is rejected; a
+per sample would cost ~100x more), cut where an output falls due and ``process_ahead_s`` before
+(so little work is left for the sample an output answers, hence a short latency). Stamps: an out-of-order or repeated sample is rejected; a
 few missing samples (at most ``max_gap_s``) are filled with NaN rows, which the core treats as
 bad samples (held, skipped by the regression), so the block stays uniformly sampled; a longer
 gap restarts the filters. A wheel with a bad sample (non-finite, negative, above
@@ -37,6 +38,7 @@ from vehicle_monitor_common.node_helpers import (
     WARN,
     ConfigurationError,
     Diagnostics,
+    ProcessAhead,
     StampCheck,
     TypedParameters,
     param,
@@ -102,9 +104,12 @@ class VibrationAnalyzerParameters:
                                                                            'rear'),
                                         read_only=True)
     block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
-                           'duration, s (no effect on the result; shorter: less work when an '
-                           'output falls due, more per-call overhead)', low=0.005, high=5.0,
-                           read_only=True)
+                           'duration at most, s (no effect on the result; shorter: more '
+                           'per-call overhead)', low=0.005, high=5.0, read_only=True)
+    process_ahead_s: float = param(0.02, 'the buffered samples also go to the core this long '
+                                   '(data time) before each output falls due, so little work '
+                                   'is left when it does: lower output latency for one more '
+                                   'core call per output, s (0: off)', low=0.0, high=10.0)
     max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '
                              'filters; shorter ones are filled as missing samples, s',
                              low=1e-4, high=10.0)
@@ -163,6 +168,7 @@ class VibrationAnalyzerNode(Node):
         self._block_missing = 0              # ... of which in the current buffer
         self._last_bad_s = np.full(N_TIRES, -math.inf)
         self._last_publish_s = -math.inf
+        self._ahead = ProcessAhead()
         self._last_stamp_s = math.nan
         self._last_known = np.zeros(N_TIRES, dtype=bool)
         self._last_flags = np.zeros(N_TIRES, dtype=bool)
@@ -232,7 +238,13 @@ class VibrationAnalyzerNode(Node):
             self._buffer_first_ns = stamp
         self._buffer.append(omega)
         self._buffer_last_ns = stamp
-        if len(self._buffer) >= self._block_len:
+        p = self.parameters
+        if self._last_publish_s == -math.inf:
+            # The first output answers one publish period of data (n samples, n intervals).
+            self._last_publish_s = stamp * 1e-9 - 1.0 / p.sample_rate_hz
+        to_output_s = self._last_publish_s + 1.0 / p.publish_rate_hz - stamp * 1e-9
+        if (len(self._buffer) >= self._block_len or to_output_s <= 1e-9
+                or self._ahead.due(to_output_s, p.process_ahead_s)):
             self._process_buffer()
 
     def _process_buffer(self) -> None:
@@ -253,9 +265,6 @@ class VibrationAnalyzerNode(Node):
         if event:
             self.get_logger().info(event)
         self._last_stamp_s = last_s
-        if self._last_publish_s == -math.inf:
-            # The first output answers one publish period of data (n samples, n intervals).
-            self._last_publish_s = first_s - 1.0 / self.parameters.sample_rate_hz
         if last_s - self._last_publish_s >= 1.0 / self.parameters.publish_rate_hz - 1e-9:
             self._publish(estimate.frequency_hz, estimate.known, self._buffer_last_ns, last_s)
 
@@ -264,6 +273,7 @@ class VibrationAnalyzerNode(Node):
     def _publish(self, frequency: np.ndarray, core_known: np.ndarray, stamp: int,
                  stamp_s: float) -> None:
         self._last_publish_s = stamp_s
+        self._ahead.published()
         sensor_ok = stamp_s - self._last_bad_s >= self.parameters.bad_hold_s
         valid = core_known & sensor_ok
         cal = self._analyzer.calibration

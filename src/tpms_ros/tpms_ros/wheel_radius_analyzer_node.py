@@ -19,6 +19,10 @@ keeps the tire unknown for ``wheel_recover_s``. A driver input older than ``max_
 is stale: the torque becomes NaN (longitudinal filters pause) and the steering angle NaN (the
 front-axle lateral measurement pauses). Without the IMU no bin closes: the analysis pauses and
 the diagnostics say so (its indication then goes stale at the voter).
+
+Processing: aligned bins go to the core in chunks of ``process_period_s``, where an output falls
+due and ``process_ahead_s`` before it (so little work is left for the sample an output answers,
+hence a short latency).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from vehicle_monitor_common.node_helpers import (
     OUTPUT_QOS,
     WARN,
     Diagnostics,
+    ProcessAhead,
     StampCheck,
     TypedParameters,
     param,
@@ -164,6 +169,10 @@ class WheelRadiusAnalyzerParameters:
                                     'IMU time, or sooner when an output falls due, s (no '
                                     'effect on the result; per-call overhead)', low=0.0,
                                     high=10.0)
+    process_ahead_s: float = param(0.02, 'the aligned bins also go to the core this long (IMU '
+                                   'time) before each output falls due, so little work is '
+                                   'left when it does: lower output latency for one more core '
+                                   'call per output, s (0: off)', low=0.0, high=10.0)
     calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
                                           low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
@@ -218,6 +227,7 @@ class WheelRadiusAnalyzerNode(Node):
         self._last_long_update = -math.inf
         self._last_lat_update = -math.inf
         self._last_publish_s = -math.inf
+        self._ahead = ProcessAhead()
         self._last_stamp_s = math.nan
         self._gyro_ok = True
         self._last_known = np.zeros(N_TIRES, dtype=bool)
@@ -332,8 +342,9 @@ class WheelRadiusAnalyzerNode(Node):
         if not self._pending:
             return
         first_s, last_s = self._pending[0][0], self._pending[-1][0]
-        if (last_s - first_s >= p.process_period_s - 1e-9
-                or last_s - self._last_publish_s >= 1.0 / p.publish_rate_hz - 1e-9):
+        to_output_s = self._last_publish_s + 1.0 / p.publish_rate_hz - last_s
+        if (last_s - first_s >= p.process_period_s - 1e-9 or to_output_s <= 1e-9
+                or self._ahead.due(to_output_s, p.process_ahead_s)):
             pending, self._pending = self._pending, []
             self._process(pending)
 
@@ -401,6 +412,7 @@ class WheelRadiusAnalyzerNode(Node):
     def _publish(self, estimate: Any, stamp_s: float) -> None:
         p = self.parameters
         self._last_publish_s = stamp_s
+        self._ahead.published()
         sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
         header_stamp = Time(sec=sec, nanosec=nanosec)
         cal = self._analyzer.calibration

@@ -271,6 +271,32 @@ class StampCheck:
         return reason
 
 
+@dataclass
+class ProcessAhead:
+    """When a node that answers buffered samples in chunks processes its buffer early.
+
+    An output stamped with sample s can only leave once every buffered sample up to s went
+    through the estimator, so its latency is the work on what is still buffered when s
+    arrives. Processing the buffer once, a lead time of data before each output falls due,
+    leaves only the samples of that lead for then (one more core call per output); the bulk
+    of the work runs while the sensor stream still has the lead to go.
+    """
+
+    _armed: bool = True
+
+    def due(self, remaining_s: float, lead_s: float) -> bool:
+        """True once per output, at the first sample within ``lead_s`` before it falls due
+        (``remaining_s``: data time still to go; 0 or less: the output itself)."""
+        if not self._armed or remaining_s <= 1e-9 or remaining_s > lead_s + 1e-9:
+            return False
+        self._armed = False
+        return True
+
+    def published(self) -> None:
+        """An output left: the next one gets its early processing again."""
+        self._armed = True
+
+
 def stamp_ns(stamp: Any) -> int:
     """builtin_interfaces/Time -> int nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
