@@ -8,10 +8,11 @@ the result is saved to ``calibration_file`` and reloaded at start.
 
 Samples are buffered into blocks of ``block_s`` (the core is vectorised over a block; one call
 per sample would cost ~100x more), cut where an output falls due and ``process_ahead_s`` before
-(so little work is left for the sample an output answers, hence a short latency). Stamps: an out-of-order or repeated sample is rejected; a
-few missing samples (at most ``max_gap_s``) are filled with NaN rows, which the core treats as
-bad samples (held, skipped by the regression), so the block stays uniformly sampled; a longer
-gap restarts the filters. A wheel with a bad sample (non-finite, negative, above
+(so little work is left for the sample an output answers, hence a short latency).
+
+Stamps: an out-of-order or repeated sample is rejected; a few missing samples (at most
+``max_gap_s``) are filled with NaN rows, which the core treats as bad samples (held, skipped by
+the regression), so the block stays uniformly sampled; a longer gap restarts the filters. A wheel with a bad sample (non-finite, negative, above
 ``max_wheel_speed``, stuck) is unknown for ``bad_hold_s`` afterwards, never flagged low.
 """
 
