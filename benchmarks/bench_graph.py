@@ -38,6 +38,7 @@ import functools
 import multiprocessing
 from pathlib import Path
 import re
+import struct
 import subprocess
 import sys
 import tempfile
@@ -45,6 +46,7 @@ import threading
 import time
 from typing import Any
 
+from builtin_interfaces.msg import Time
 import numpy as np
 import rclpy
 from rclpy.node import Node
@@ -233,6 +235,8 @@ class NullPlan:
     outputs: tuple[int, ...]
 
 
+# CDR (little-endian) header.stamp after the 4-byte encapsulation header.
+_RAW_STAMP = struct.Struct('<iI')
 # Null node plans by node name: the graph file names the class, not its arguments.
 _NULL_PLANS: dict[str, NullPlan] = {}
 
@@ -240,11 +244,11 @@ _NULL_PLANS: dict[str, NullPlan] = {}
 class NullNode(Node):
     """A no-op stand-in for an estimator: its subscriptions and publishers, none of its work.
 
-    Every input is received (and deserialised, as by the real node) and dropped. Per message of
-    the trigger input, the outputs due by then are published: a message built once (default
-    values), its ``header.stamp`` set to the latest input stamp, as every output of this
-    product is stamped with the input it answers; the player's pacing on the sync topics
-    therefore advances as with the real node.
+    Every input is received (deserialised, or raw where the real node subscribes raw) and
+    dropped. Per message of the trigger input, the outputs due by then are published: a message
+    built once (default values), its ``header.stamp`` set to the latest input stamp, as every
+    output of this product is stamped with the input it answers; the player's pacing on the
+    sync topics therefore advances as with the real node.
     """
 
     def __init__(self, node_name: str, **kwargs: Any) -> None:
@@ -262,6 +266,12 @@ class NullNode(Node):
                                      raw=endpoint.raw)
 
     def _on_input(self, msg: Any) -> None:
+        if isinstance(msg, bytes):
+            # a raw subscription: stamped messages start with header.stamp (as the real node
+            # reads it, from the bytes)
+            sec, nanosec = _RAW_STAMP.unpack_from(msg, 4)
+            self._stamp = Time(sec=sec, nanosec=nanosec)
+            return
         header = getattr(msg, 'header', None)
         if header is not None:
             self._stamp = header.stamp

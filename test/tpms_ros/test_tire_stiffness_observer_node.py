@@ -9,7 +9,6 @@ from __future__ import annotations
 from collections.abc import Callable
 import dataclasses
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -218,8 +217,8 @@ def test_corrupt_calibration_file_reported(
 def test_bad_input_rejected_and_wheel_unknown(
         drive: RoadSimulationResult, make_node: Callable[..., Any],
         spin_until: Callable[..., bool]) -> None:
-    """Wrong-size, repeated and out-of-order messages are counted; a NaN wheel is unknown,
-    never flagged low, and the other wheels keep estimating."""
+    """Malformed payloads, repeated and out-of-order messages are counted; a NaN wheel is
+    unknown, never flagged low, and the other wheels keep estimating."""
     harness = Harness(make_node, spin_until)
     node = make_node(TireStiffnessObserverNode, parameter_overrides=_overrides(
         {**FAST, 'calibrate_on_start': True}))
@@ -230,9 +229,10 @@ def test_bad_input_rejected_and_wheel_unknown(
     # Out-of-order and repeated stamps, then the rest in order.
     harness.feed(node, stamps[[5400, 5499, 10]], omega[[5400, 5499, 10]], burst=3)
     harness.feed(node, stamps[5500:], omega[5500:])
-    node._on_wheel_speeds(SimpleNamespace(header=SimpleNamespace(stamp=Time(sec=1)),
-                                          omega=[1.0, 2.0, 3.0]))
-    assert node.rejected == {'wrong_size': 1, 'repeated': 1, 'out_of_order': 2}
+    # A payload that is not a WheelSpeeds (a replay publishes a damaged bag's bytes as they are).
+    harness.pub.publish(b'\x00\x01\x00\x00' + bytes(20))
+    assert spin_until(lambda: node.rejected['malformed'] == 1, 5.0)
+    assert node.rejected == {'malformed': 1, 'repeated': 1, 'out_of_order': 2}
     assert spin_until(lambda: len(harness.indication) >= 24, 10.0)
     last = harness.indication[-1]
     assert not last.known[0] and not last.underinflated[0] and last.confidence[0] == 0.0

@@ -258,23 +258,21 @@ def test_vibration_bad_input_rejected_and_wheel_unknown(
     assert not ind.underinflated[0] and ind.confidence[0] == 0.0
     assert not out.msgs['/tpms/tire_resonance'][-1].valid[0]
 
-    # a repeated and an old stamp, then a 3-element array handed to the callback in-process
-    # (DDS pads a short float64[4] to four values, so that case cannot arrive over the wire)
+    # a repeated and an old stamp, then a payload too short for a WheelSpeeds (a replay
+    # publishes a damaged bag's bytes as they are)
     for ns in (feeder.sent[-1], feeder.sent[-5]):
         msg = WheelSpeeds()
         msg.header.stamp = _time(ns)
         msg.omega = [70.0] * 4
         feeder.pub.publish(msg)
-    short = WheelSpeeds()
-    short.omega = [70.0, 70.0, 70.0]
-    node._on_wheel_speeds(short)
+    feeder.pub.publish(b'\x00\x01\x00\x00' + bytes(20))
     feeder.feed(_resonant_wheel_speeds(200, NOMINAL_HZ, seed=6))
     assert all(out.msgs['/tpms/indication/vibration'][-1].known)   # recovered after bad_hold_s
 
     def counted(status: Any) -> bool:
         v = _values(status)
         return (v['rejected_repeated'] == '1' and v['rejected_out_of_order'] == '1'
-                and v['rejected_wrong_size'] == '1'
+                and v['rejected_malformed'] == '1'
                 and v['rejected_bad_value_per_wheel'] == '[1, 0, 0, 0]')
 
     assert spin_until(lambda: out.diag('/vibration_analyzer', counted) is not None, 5.0)

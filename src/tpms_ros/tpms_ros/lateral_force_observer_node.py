@@ -49,7 +49,7 @@ from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
-from vehicle_monitor_msgs.msg import DriverInputs, TireForces, WheelSpeeds
+from vehicle_monitor_msgs.msg import DriverInputs, TireForces
 
 from tpms_ros.lateral_force_observer import (
     PAPER_SCALING,
@@ -59,6 +59,7 @@ from tpms_ros.lateral_force_observer import (
     ObserverTuning,
     ObserverVehicleParams,
 )
+from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.node_helpers import (
     OK,
     OUTPUT_QOS,
@@ -203,7 +204,7 @@ class LateralForceObserverNode(Node):
 
         self._publisher = self.create_publisher(TireForces, 'vehicle/tire_forces', OUTPUT_QOS)
         sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
-        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
         self._diagnostics = Diagnostics(self, hardware_id='vehicle_imu')
         self._update_diagnostics()
@@ -232,9 +233,8 @@ class LateralForceObserverNode(Node):
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
         self._period_events[reason] = self._period_events.get(reason, 0) + 1
 
-    def _accept_stamp(self, topic: str, msg: Any) -> int | None:
+    def _accept_stamp(self, topic: str, stamp: int) -> int | None:
         self.received[topic] += 1
-        stamp = stamp_ns(msg.header.stamp)
         verdict = self._checks[topic].check(stamp)
         if verdict in ('repeated', 'out_of_order'):
             self._reject(f'{topic}_{verdict}')
@@ -242,19 +242,23 @@ class LateralForceObserverNode(Node):
         return stamp
 
     def _on_imu(self, msg: Imu) -> None:
-        stamp = self._accept_stamp('imu', msg)
+        stamp = self._accept_stamp('imu', stamp_ns(msg.header.stamp))
         if stamp is None:
             return
         acc, rate = msg.linear_acceleration, msg.angular_velocity
         self._imu.append((stamp, float(acc.x), float(acc.y), float(rate.z), float(rate.x)))
         self._drain()
 
-    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
-        stamp = self._accept_stamp('wheel_speeds', msg)
+    def _on_malformed(self, _: str) -> None:
+        self.received['wheel_speeds'] += 1
+        self._reject('wheel_speeds_malformed')
+
+    def _on_wheel_speeds(self, stamp_in: int, speeds: tuple[float, ...]) -> None:
+        stamp = self._accept_stamp('wheel_speeds', stamp_in)
         if stamp is None:
             return
-        omega = np.asarray(msg.omega, dtype=float)
-        if omega.shape != (4,) or not np.all(np.isfinite(omega)):
+        omega = np.array(speeds)
+        if not np.all(np.isfinite(omega)):
             # A bad sample must not enter the interval mean; the others still do.
             self._reject('wheel_speeds_invalid')
             return
@@ -263,7 +267,7 @@ class LateralForceObserverNode(Node):
         self._drain()
 
     def _on_driver_inputs(self, msg: DriverInputs) -> None:
-        stamp = self._accept_stamp('driver_inputs', msg)
+        stamp = self._accept_stamp('driver_inputs', stamp_ns(msg.header.stamp))
         if stamp is None:
             return
         torque = np.asarray(msg.wheel_torque, dtype=float)

@@ -24,7 +24,7 @@ message not newer than itself (sample and hold); one older than ``driver_inputs_
 stale and the torque and cornering gates are skipped for that sample (counted in the core's
 ``torque_invalid`` and ``steering_invalid``).
 
-Bad input: a message with other than four speeds, or a repeated or out-of-order stamp, is
+Bad input: a payload that is not a WheelSpeeds, or a repeated or out-of-order stamp, is
 rejected and counted here; non-finite, negative, dead and stuck speeds, gaps and sample-rate
 changes are rejected per wheel by the core, which reports the tire *unknown* (``valid`` and
 ``known`` false), never low. The input rate is measured and a mismatch with
@@ -49,7 +49,7 @@ from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
 from std_srvs.srv import Trigger
-from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
+from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication
 
 from tpms_ros.stiffness_observer import (
     PressureRelation,
@@ -58,6 +58,7 @@ from tpms_ros.stiffness_observer import (
     TireStiffnessObserver,
 )
 from tpms_ros.tire_model import TorsionalTire
+from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -244,7 +245,7 @@ class TireStiffnessObserverNode(Node):
         p = self._typed.value
         self._observer = TireStiffnessObserver(p.estimator_params(), p.tire())
         self._stamps = StampCheck(max_gap_s=math.inf)
-        self.rejected: dict[str, int] = {'wrong_size': 0, 'repeated': 0, 'out_of_order': 0}
+        self.rejected: dict[str, int] = {'malformed': 0, 'repeated': 0, 'out_of_order': 0}
         self.received = 0
         self.processed = 0
         self.published = 0
@@ -272,7 +273,7 @@ class TireStiffnessObserverNode(Node):
                                                     OUTPUT_QOS)
         self._indication_pub = self.create_publisher(TpmsIndication, 'tpms/indication/stiffness',
                                                      OUTPUT_QOS)
-        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         if p.use_driver_inputs:
             sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs',
                                 self._on_driver_inputs)
@@ -379,13 +380,12 @@ class TireStiffnessObserverNode(Node):
             return  # the gates simply hold the previous inputs
         self._driver.append((stamp, torque, float(msg.steering_angle)))
 
-    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+    def _on_malformed(self, _: str) -> None:
         self.received += 1
-        omega = msg.omega
-        if len(omega) != 4:
-            self.rejected['wrong_size'] += 1
-            return
-        stamp = stamp_ns(msg.header.stamp)
+        self.rejected['malformed'] += 1
+
+    def _on_wheel_speeds(self, stamp: int, omega: tuple[float, ...]) -> None:
+        self.received += 1
         verdict = self._stamps.check(stamp)
         if verdict in ('repeated', 'out_of_order'):
             self.rejected[verdict] += 1

@@ -27,11 +27,12 @@ from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
 from std_srvs.srv import Trigger
-from vehicle_monitor_msgs.msg import TireResonance, WheelSpeeds
+from vehicle_monitor_msgs.msg import TireResonance
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
 from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
 from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
+from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -45,8 +46,6 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
     param,
     run_node,
-    sensor_subscription,
-    stamp_ns,
 )
 
 _DEFAULTS = VibrationParams()
@@ -164,7 +163,7 @@ class VibrationAnalyzerNode(Node):
         self._buffer: list[np.ndarray] = []
         self._buffer_first_ns = 0
         self._buffer_last_ns = 0
-        self._counts = dict.fromkeys(('received', 'processed_blocks', 'wrong_size', 'gaps',
+        self._counts = dict.fromkeys(('received', 'processed_blocks', 'malformed', 'gaps',
                                       'missing_samples'), 0)
         self._missing_per_wheel = 0          # NaN rows the node inserted (core counts them)
         self._block_missing = 0              # ... of which in the current buffer
@@ -188,7 +187,7 @@ class VibrationAnalyzerNode(Node):
                                                     OUTPUT_QOS)
         self._indication_pub = self.create_publisher(IndicationMsg, 'tpms/indication/vibration',
                                                      OUTPUT_QOS)
-        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
         self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s,
                                         update=self._update_diagnostics)
@@ -211,15 +210,15 @@ class VibrationAnalyzerNode(Node):
 
     # -- input ---------------------------------------------------------------------------------
 
-    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
+    def _on_malformed(self, _: str) -> None:
         self._counts['received'] += 1
         self._rate_count += 1
-        omega = np.asarray(msg.omega, dtype=float)
-        if omega.shape != (N_TIRES,):
-            # unreachable over DDS for a float64[4] field, but an in-process caller can
-            self._counts['wrong_size'] += 1
-            return
-        stamp = stamp_ns(msg.header.stamp)
+        self._counts['malformed'] += 1
+
+    def _on_wheel_speeds(self, stamp: int, speeds: tuple[float, ...]) -> None:
+        self._counts['received'] += 1
+        self._rate_count += 1
+        omega = np.array(speeds)
         verdict = self._stamps.check(stamp)
         if verdict in ('repeated', 'out_of_order'):
             return
@@ -335,7 +334,7 @@ class VibrationAnalyzerNode(Node):
             'processed_blocks': self._counts['processed_blocks'],
             'rejected_out_of_order': self._stamps.rejected.get('out_of_order', 0),
             'rejected_repeated': self._stamps.rejected.get('repeated', 0),
-            'rejected_wrong_size': self._counts['wrong_size'],
+            'rejected_malformed': self._counts['malformed'],
             'rejected_bad_value_per_wheel': rejected_values.tolist(),
             'gated_low_speed_per_wheel': self._analyzer.gated.tolist(),
             'missing_samples': self._counts['missing_samples'],
@@ -346,7 +345,7 @@ class VibrationAnalyzerNode(Node):
             'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
             'last_stamp_s': self._last_stamp_s,
         }
-        rejected_total = (sum(self._stamps.rejected.values()) + self._counts['wrong_size']
+        rejected_total = (sum(self._stamps.rejected.values()) + self._counts['malformed']
                           + int(rejected_values.sum()))
         # every problem is listed; the worst sets the level
         problems: list[tuple[int, str]] = []

@@ -37,11 +37,12 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
-from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets, WheelSpeeds
+from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
 from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
 from tpms_ros.wheel_radius_analysis import PAIR_NAMES, WheelRadiusAnalyzer, WheelRadiusParams
+from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -218,8 +219,9 @@ class WheelRadiusAnalyzerNode(Node):
         self._pending: list[tuple[float, np.ndarray, float, float, np.ndarray]] = []
         self._driver: deque[tuple[int, float, np.ndarray]] = deque()
         self._last_bin_end: int | None = None
-        self._counts = dict.fromkeys(('wrong_size', 'empty_bins', 'stale_driver_inputs',
-                                      'skipped_imu_samples', 'bins'), 0)
+        # wrong_size: driver inputs; malformed: wheel-speed payloads
+        self._counts = dict.fromkeys(('wrong_size', 'malformed', 'empty_bins',
+                                      'stale_driver_inputs', 'skipped_imu_samples', 'bins'), 0)
         self._received = dict.fromkeys(self._checks, 0)
         self._rate_counts = dict.fromkeys(self._checks, 0)
         self._rate_since_ns = self.get_clock().now().nanoseconds
@@ -245,7 +247,7 @@ class WheelRadiusAnalyzerNode(Node):
                                                  OUTPUT_QOS)
         self._indication_pub = self.create_publisher(
             IndicationMsg, 'tpms/indication/wheel_radius', OUTPUT_QOS)
-        sensor_subscription(self, WheelSpeeds, 'vehicle/wheel_speeds', self._on_wheel_speeds)
+        subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
         sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
@@ -274,28 +276,26 @@ class WheelRadiusAnalyzerNode(Node):
 
     # -- inputs --------------------------------------------------------------------------------
 
-    def _accept(self, topic: str, stamp: Any) -> int | None:
+    def _accept(self, topic: str, ns: int) -> int | None:
         self._received[topic] += 1
         self._rate_counts[topic] += 1
-        ns = stamp_ns(stamp)
         return ns if self._checks[topic].check(ns) in ('ok', 'gap') else None
 
-    def _on_wheel_speeds(self, msg: WheelSpeeds) -> None:
-        omega = np.asarray(msg.omega, dtype=float)
-        if omega.shape != (N_TIRES,):
-            self._received['wheel_speeds'] += 1
-            self._counts['wrong_size'] += 1
-            return
-        ns = self._accept('wheel_speeds', msg.header.stamp)
+    def _on_malformed(self, _: str) -> None:
+        self._received['wheel_speeds'] += 1
+        self._counts['malformed'] += 1
+
+    def _on_wheel_speeds(self, stamp: int, speeds: tuple[float, ...]) -> None:
+        ns = self._accept('wheel_speeds', stamp)
         if ns is None:
             return
-        self._wheels.append((ns, omega))
+        self._wheels.append((ns, np.array(speeds)))
         while self._wheels and self._wheels[0][0] < ns - _WHEEL_HORIZON_NS:
             self._wheels.popleft()
         self._drain()
 
     def _on_imu(self, msg: Imu) -> None:
-        ns = self._accept('imu', msg.header.stamp)
+        ns = self._accept('imu', stamp_ns(msg.header.stamp))
         if ns is None:
             return
         # a NaN yaw rate goes through: the core counts it and skips the gyro update
@@ -308,7 +308,7 @@ class WheelRadiusAnalyzerNode(Node):
             self._received['driver_inputs'] += 1
             self._counts['wrong_size'] += 1
             return
-        ns = self._accept('driver_inputs', msg.header.stamp)
+        ns = self._accept('driver_inputs', stamp_ns(msg.header.stamp))
         if ns is None:
             return
         self._driver.append((ns, float(msg.steering_angle), torque))
@@ -465,6 +465,7 @@ class WheelRadiusAnalyzerNode(Node):
             for reason in ('out_of_order', 'repeated'):
                 values[f'rejected_{reason}.{topic}'] = check.rejected.get(reason, 0)
         values['rejected_wrong_size'] = self._counts['wrong_size']
+        values['rejected_malformed'] = self._counts['malformed']
         for key in ('bad_wheel_speed', 'bad_torque', 'bad_gyro', 'gyro_stuck', 'gap',
                     'long_gated', 'lat_gated', 'accepted'):
             values[f'core.{key}'] = counts[key]

@@ -51,11 +51,12 @@ OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 
 
 def sensor_subscription(node: Node, msg_type: Any, topic: str,
-                        callback: Callable[[Any], None]) -> Any:
+                        callback: Callable[[Any], None], raw: bool = False) -> Any:
     """Subscribe a sensor input: SENSOR_QOS, overridable through the standard
-    ``qos_overrides.<topic>.subscription.*`` parameters (how a replay makes inputs reliable)."""
+    ``qos_overrides.<topic>.subscription.*`` parameters (how a replay makes inputs reliable);
+    ``raw``: the callback gets the serialised bytes."""
     return node.create_subscription(
-        msg_type, topic, callback, SENSOR_QOS,
+        msg_type, topic, callback, SENSOR_QOS, raw=raw,
         qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
 
