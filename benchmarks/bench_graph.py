@@ -511,32 +511,45 @@ class LatencyProbe(Node):
         self.outputs[topic].setdefault(self._stamp(msg), time.monotonic())
 
 
-def latency(seconds: float, per_process: bool) -> None:
+LATENCY_LAYOUTS = {
+    'composed': 'estimators composed in one process',
+    'per_process': 'one process per estimator',
+    'no_estimators': 'no estimators (transport floor: player process -> probe)',
+}
+
+
+def latency(seconds: float, layout: str) -> None:
     """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99.
 
     The player runs in a process of its own, as the sensor drivers of a vehicle do (in the
     estimators' process its publishing thread would compete with their executor for the
     GIL). Composed: every estimator and the probe on one executor (a sample's callbacks, and
     any chunk work due with it, run one after the other). Per process: each estimator in its
-    own process, the probe in this one.
+    own process, the probe in this one. No estimators: the player and the probe alone, what
+    the transport and the scheduling of this machine add before any estimator work.
     """
     road = next(d for d in domains() if d.name == 'road')
     spec = load_graph(road.graph)
     nodes = tuple(n for n in spec.nodes if n.name != road.recorder)
-    spec = with_parameters(GraphSpec(nodes, spec.executor, spec.use_sim_time), {
-        road.player: {'bag': str(road.scenarios[0].bag), 'as_fast_as_possible': False,
-                      'rate': 1.0, 'topics': ['/vehicle/wheel_speeds', '/vehicle/imu',
-                                              '/vehicle/driver_inputs']}})
+    replay = {'bag': str(road.scenarios[0].bag), 'as_fast_as_possible': False, 'rate': 1.0,
+              'topics': ['/vehicle/wheel_speeds', '/vehicle/imu', '/vehicle/driver_inputs']}
+    if layout == 'no_estimators':
+        replay['wait_timeout'] = 1.0     # no estimator subscribes, no sync topic will appear
+    spec = with_parameters(GraphSpec(nodes, spec.executor, spec.use_sim_time),
+                           {road.player: replay})
     context = rclpy.Context()
     rclpy.init(context=context)
     graph: Graph | None = None
-    if per_process:
+    if layout == 'per_process':
         _, processes, stop, _ = _node_processes(spec, road.player, {})
         executor: Any = EXECUTORS[spec.executor](context)
     else:
         player = GraphSpec(tuple(n for n in spec.nodes if n.name == road.player),
                            spec.executor, spec.use_sim_time)
         _, processes, stop, _ = _node_processes(player, road.player, {})
+    if layout == 'no_estimators':
+        executor = EXECUTORS[spec.executor](context)
+    elif layout == 'composed':
         graph = Graph(GraphSpec(tuple(n for n in spec.nodes if n.name != road.player),
                                 spec.executor, spec.use_sim_time), context)
         executor = graph.executor
@@ -567,9 +580,12 @@ def latency(seconds: float, per_process: bool) -> None:
     stamps = np.array(sorted(probe.samples), dtype=np.int64)
     received = np.array([probe.samples[s] for s in stamps])
     offset = float(np.min(received - stamps * 1e-9))  # the player's schedule: stamp -> wall
-    layout = 'one process per estimator' if per_process else 'estimators composed in one process'
-    print(f'  road graph at real rate for {seconds:.0f} s, {layout}; a wheel-speed sample reaches '
-          f'the probe after p50 {1e3 * np.median(received - stamps * 1e-9 - offset):.2f} ms')
+    arrival_ms = 1e3 * (received - stamps * 1e-9 - offset)
+    p50, p99 = np.percentile(arrival_ms, [50, 99])
+    print(f'  road graph at real rate for {seconds:.0f} s, {LATENCY_LAYOUTS[layout]}; a '
+          f'wheel-speed sample reaches the probe after p50 {p50:.2f} ms, p99 {p99:.2f} ms')
+    if layout == 'no_estimators':
+        return
     for topic in LatencyProbe.OUTPUTS:
         matched = [(s, t) for s, t in probe.outputs[topic].items() if s in probe.samples]
         if not matched:
@@ -647,8 +663,8 @@ def main() -> None:
             process_per_node(domain, short)
     if not args.skip_latency:
         print('3. input-to-warning latency at real rate')
-        for per_process in (False, True):
-            latency(args.latency_seconds, per_process)
+        for layout in LATENCY_LAYOUTS:
+            latency(args.latency_seconds, layout)
     if not args.skip_offline:
         print('4. offline throughput of each estimator vs its plainest implementation')
         offline()
