@@ -310,6 +310,26 @@ def test_vibration_processes_ahead_of_each_output_without_changing_it(
                                rtol=1e-12)
 
 
+def test_vibration_output_phase_delays_every_output(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """output_phase_s shifts the outputs in data time and keeps their period (how composed
+    nodes stagger their work)."""
+    _vibration_node(make_node, tmp_path / 'v.yaml', output_phase_s=0.05)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance})
+    feeder = WheelFeeder(tester, out, spin_until)
+    assert spin_until(lambda: feeder.pub.get_subscription_count() > 0, 10.0)
+    for k, row in enumerate(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=8)):
+        msg = WheelSpeeds()
+        msg.header.stamp = _time(T0_NS + k * round(1e9 / FS))
+        msg.omega = row.tolist()
+        feeder.pub.publish(msg)
+    # Without a phase the outputs answer samples 19, 39, ...; 0.05 s is 10 samples later.
+    expected = [T0_NS + k * round(1e9 / FS) for k in range(29, 400, 20)]
+    assert spin_until(lambda: len(out.msgs['/tpms/tire_resonance']) == len(expected), 10.0)
+    assert [stamp_ns(m.header.stamp) for m in out.msgs['/tpms/tire_resonance']] == expected
+
+
 def test_vibration_corrupt_calibration_file_is_reported(
         make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
     """A corrupt file: the node starts uncalibrated, says so on /diagnostics, tires unknown."""

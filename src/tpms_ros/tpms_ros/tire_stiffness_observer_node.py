@@ -188,6 +188,11 @@ class StiffnessNodeParameters:
                                    'long (data time) before each output falls due, so little '
                                    'work is left when it does: lower output latency for one '
                                    'more core call per output, s (0: off)', low=0.0, high=10.0)
+    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
+                                  'otherwise, and every later one with it (the period stays): '
+                                  'nodes composed in one process take different phases so '
+                                  'that the work of their outputs does not coincide, s',
+                                  low=0.0, high=10.0)
 
     def __post_init__(self) -> None:
         if self.process_period_s * self.sample_rate_hz < 1.0:
@@ -255,6 +260,8 @@ class TireStiffnessObserverNode(Node):
         self._window_count = 0
         self._window_first_ns = 0
         self._ahead = ProcessAhead()
+        # Data time added to the first output's due time (output_phase_s), 0 once it left.
+        self._first_output_delay_s = p.output_phase_s
         # (stamp ns, wheel torques, steering angle) of the driver inputs, for the gates.
         self._driver: deque[tuple[int, np.ndarray, float]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
@@ -397,7 +404,7 @@ class TireStiffnessObserverNode(Node):
         self._window_count += 1
         p = self.parameters
         to_output_s = _to_go_s(self._window_first_ns, stamp, self._window_count,
-                               p.publish_rate_hz, p.sample_rate_hz)
+                               p.publish_rate_hz, p.sample_rate_hz) + self._first_output_delay_s
         if (to_output_s <= 0.0 or self._ahead.due(to_output_s, p.process_ahead_s)
                 or _to_go_s(self._buffer_ns[0], stamp, len(self._buffer_ns),
                             1.0 / p.process_period_s, p.sample_rate_hz) <= 0.0):
@@ -474,6 +481,7 @@ class TireStiffnessObserverNode(Node):
         self._indication_pub.publish(indication)
         self.published += 1
         self._ahead.published()
+        self._first_output_delay_s = 0.0
 
     def _update_diagnostics(self) -> None:
         p = self.parameters

@@ -111,6 +111,11 @@ class VibrationAnalyzerParameters:
                                    '(data time) before each output falls due, so little work '
                                    'is left when it does: lower output latency for one more '
                                    'core call per output, s (0: off)', low=0.0, high=10.0)
+    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
+                                  'otherwise, and every later one with it (the period stays): '
+                                  'nodes composed in one process take different phases so '
+                                  'that the work of their outputs does not coincide, s',
+                                  low=0.0, high=10.0)
     max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '
                              'filters; shorter ones are filled as missing samples, s',
                              low=1e-4, high=10.0)
@@ -241,8 +246,9 @@ class VibrationAnalyzerNode(Node):
         self._buffer_last_ns = stamp
         p = self.parameters
         if self._last_publish_s == -math.inf:
-            # The first output answers one publish period of data (n samples, n intervals).
-            self._last_publish_s = stamp * 1e-9 - 1.0 / p.sample_rate_hz
+            # The first output answers one publish period of data (n samples, n intervals),
+            # output_phase_s more.
+            self._last_publish_s = stamp * 1e-9 - 1.0 / p.sample_rate_hz + p.output_phase_s
         to_output_s = self._last_publish_s + 1.0 / p.publish_rate_hz - stamp * 1e-9
         if (len(self._buffer) >= self._block_len or to_output_s <= 1e-9
                 or self._ahead.due(to_output_s, p.process_ahead_s)):

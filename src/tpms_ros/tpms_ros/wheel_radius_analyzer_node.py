@@ -174,6 +174,11 @@ class WheelRadiusAnalyzerParameters:
                                    'time) before each output falls due, so little work is '
                                    'left when it does: lower output latency for one more core '
                                    'call per output, s (0: off)', low=0.0, high=10.0)
+    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
+                                  'otherwise, and every later one with it (the period stays): '
+                                  'nodes composed in one process take different phases so '
+                                  'that the work of their outputs does not coincide, s',
+                                  low=0.0, high=10.0)
     calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
                                           low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
@@ -342,6 +347,9 @@ class WheelRadiusAnalyzerNode(Node):
         if not self._pending:
             return
         first_s, last_s = self._pending[0][0], self._pending[-1][0]
+        if self._last_publish_s == -math.inf:
+            # The first bin is answered at once, or output_phase_s later.
+            self._last_publish_s = first_s - 1.0 / p.publish_rate_hz + p.output_phase_s
         to_output_s = self._last_publish_s + 1.0 / p.publish_rate_hz - last_s
         if (last_s - first_s >= p.process_period_s - 1e-9 or to_output_s <= 1e-9
                 or self._ahead.due(to_output_s, p.process_ahead_s)):
