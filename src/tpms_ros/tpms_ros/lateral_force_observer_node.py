@@ -253,9 +253,8 @@ class LateralForceObserverNode(Node):
         self.received['wheel_speeds'] += 1
         self._reject('wheel_speeds_malformed')
 
-    def _on_wheel_speeds(self, stamp_in: int, speeds: tuple[float, ...]) -> None:
-        stamp = self._accept_stamp('wheel_speeds', stamp_in)
-        if stamp is None:
+    def _on_wheel_speeds(self, stamp: int, speeds: tuple[float, ...]) -> None:
+        if self._accept_stamp('wheel_speeds', stamp) is None:
             return
         omega = np.array(speeds)
         if not np.all(np.isfinite(omega)):
