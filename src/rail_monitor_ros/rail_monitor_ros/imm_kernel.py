@@ -7,15 +7,17 @@ call, in the cheaper order a loop allows (mix the means first, then one product 
 instead of F_j x_i for every pair i, j). The exact cycle (mode-matched covariances) stays in
 numpy in :mod:`rail_monitor_ros.suspension_imm`; the tests hold the two to the same results.
 
-Compiled on first use and cached beside this file (``cache=True``), so a node starts without
-recompiling after the first run.
+Compiled when this module is first imported (explicit signatures: C-contiguous float64 arrays,
+what the monitor passes), not on the first sample: a node compiles while it starts (about 9 s
+the first time), not while data waits, which would stall a replay's pacing. The result is
+cached beside this file (``cache=True``), so later starts load it in under a second.
 """
 
 from __future__ import annotations
 
 import math
 
-from numba import njit
+from numba import njit, types
 import numpy as np
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -23,12 +25,35 @@ LOG_2PI = math.log(2.0 * math.pi)
 CBAR_FLOOR = 1e-300
 
 
+_F1, _F2, _F3 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
+
 # Reassociation lets the reductions vectorise; no 'nnan'/'ninf': the definiteness test must
 # see a NaN.
 _FASTMATH = {'reassoc', 'contract'}
 
 
-@njit(cache=True, fastmath=_FASTMATH)
+@njit(types.void(_F1, types.float64, _F1), cache=True)
+def posterior_probabilities(log_post: np.ndarray, probability_floor: float,
+                            out: np.ndarray) -> None:
+    """out = normalised exp(log_post) (log-sum-exp: no mode underflows to an undefined
+    ratio), then floored at ``probability_floor`` (0: none) and renormalised."""
+    peak = log_post.max()
+    total = 0.0
+    for j in range(log_post.shape[0]):
+        out[j] = math.exp(log_post[j] - peak)
+        total += out[j]
+    if probability_floor > 0.0:
+        floored = 0.0
+        for j in range(out.shape[0]):
+            out[j] = max(out[j] / total, probability_floor)
+            floored += out[j]
+        total = floored
+    for j in range(out.shape[0]):
+        out[j] /= total
+
+
+@njit(types.boolean(_F2, _F1, _F2, _F3, _F2, _F2, _F3, _F3, _F1, types.float64, _F2, _F1, _F1),
+      cache=True, fastmath=_FASTMATH)
 def steady_imm_cycle(x: np.ndarray, mu: np.ndarray, transition: np.ndarray,
                      f_top: np.ndarray, f_input_t: np.ndarray, hf_rows: np.ndarray,
                      prior_ht: np.ndarray, s_ss: np.ndarray, z: np.ndarray,
@@ -156,27 +181,7 @@ def steady_imm_cycle(x: np.ndarray, mu: np.ndarray, transition: np.ndarray,
     return True
 
 
-@njit(cache=True)
-def posterior_probabilities(log_post: np.ndarray, probability_floor: float,
-                            out: np.ndarray) -> None:
-    """out = normalised exp(log_post) (log-sum-exp: no mode underflows to an undefined
-    ratio), then floored at ``probability_floor`` (0: none) and renormalised."""
-    peak = log_post.max()
-    total = 0.0
-    for j in range(log_post.shape[0]):
-        out[j] = math.exp(log_post[j] - peak)
-        total += out[j]
-    if probability_floor > 0.0:
-        floored = 0.0
-        for j in range(out.shape[0]):
-            out[j] = max(out[j] / total, probability_floor)
-            floored += out[j]
-        total = floored
-    for j in range(out.shape[0]):
-        out[j] /= total
-
-
-@njit(cache=True)
+@njit(types.void(_F1, _F2, _F1, types.int64, _F1, _F2, types.float64, _F1), cache=True)
 def smooth_probabilities(mu: np.ndarray, window: np.ndarray, window_sum: np.ndarray,
                          count: int, smoothed: np.ndarray, mode_ratios: np.ndarray,
                          min_fraction: float, ratios: np.ndarray) -> None:
