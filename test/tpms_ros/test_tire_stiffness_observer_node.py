@@ -239,7 +239,6 @@ def test_bad_input_rejected_and_wheel_unknown(
     assert all(last.known[1:])   # calibrated after 4 s and still judged on good data
     assert list(harness.stiffness[-1].valid) == [False, True, True, True]
     assert node.observer.counters['invalid_sample'][0] == 1000
-    node._diagnostics.publish()
     assert spin_until(lambda: any(s.level == bytes([2]) and 'FL: invalid_sample' in s.message
                                   for s in harness.diagnostics), 5.0)
 

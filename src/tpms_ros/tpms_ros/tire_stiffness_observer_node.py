@@ -285,7 +285,10 @@ class TireStiffnessObserverNode(Node):
             sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs',
                                 self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
-        self._diagnostics = Diagnostics(self, hardware_id='wheel_speed_sensors')
+        # The status is refreshed when it is published (1 Hz), not with every output: the
+        # output's latency does not carry it.
+        self._diagnostics = Diagnostics(self, hardware_id='wheel_speed_sensors',
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     # -- parameters and calibration ----------------------------------------------------------
@@ -451,7 +454,6 @@ class TireStiffnessObserverNode(Node):
         if publish:
             self._window_count = 0
             self._publish(estimate, int(stamps[-1]))
-            self._update_diagnostics()
 
     # -- outputs -----------------------------------------------------------------------------
 
