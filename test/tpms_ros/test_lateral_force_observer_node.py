@@ -199,7 +199,7 @@ class Feeder:
 
 def test_bad_input_stale_topics_and_validity(
         make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
-    """Out-of-order IMU, NaN IMU and NaN wheel speeds are rejected and counted; missing
+    """Out-of-order IMU, NaN IMU, NaN and malformed wheel speeds are rejected and counted; missing
     driver inputs skip IMU samples (reported); |ay| > 0.5 g is flagged, output and diagnostics."""
     feeder = Feeder(make_node, spin_until)
     node = make_node(LateralForceObserverNode)
@@ -213,7 +213,10 @@ def test_bad_input_stale_topics_and_validity(
     feeder.send(node, 50, 60, imu_nan={55})
     feeder.send(node, 60, 80, driver_off=range(65, 75))
     feeder.send(node, 80, 90, wheel_nan=True)
+    feeder.wheels.publish(b'\x00\x01\x00\x00' + bytes(20))   # not a WheelSpeeds
+    feeder.sent += 1
     assert spin_until(lambda: node.received['imu'] >= 91, 5.0)
+    assert spin_until(lambda: node.rejected.get('wheel_speeds_malformed') == 1, 5.0)
     assert node.rejected['imu_out_of_order'] == 1
     assert node.observer.health.rejected == {'non_finite': 1}
     assert node.rejected['wheel_speeds_invalid'] == 10

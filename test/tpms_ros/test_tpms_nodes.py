@@ -236,7 +236,7 @@ def test_vibration_calibrates_persists_reloads_and_flags_a_low_tire(
 
 def test_vibration_bad_input_rejected_and_wheel_unknown(
         make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
-    """NaN, repeated/out-of-order stamps and a wrong-size array are counted; the NaN wheel is
+    """NaN, repeated/out-of-order stamps and a malformed payload are counted; the NaN wheel is
     unknown (never low) while the others stay known; the node keeps running."""
     cal_file = tmp_path / 'vibration.yaml'
     save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
@@ -506,8 +506,9 @@ def test_wheel_radius_aligns_calibrates_persists_and_reloads(
 
 def test_wheel_radius_nan_wheel_is_unknown_and_counted(
         make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
-    """A NaN wheel speed makes that tire unknown (never low) and is counted on /diagnostics;
-    a corrupt calibration file is reported and the node keeps running."""
+    """A NaN wheel speed makes that tire unknown (never low) and is counted on /diagnostics, as
+    is a malformed wheel-speed payload; a corrupt calibration file is reported and the node keeps
+    running."""
     cal_file = tmp_path / 'radius.yaml'
     save_calibration(cal_file, WheelRadiusCalibration(
         np.zeros(4), np.full(4, 2e-4), np.full(4, 30.0)).to_dict())
@@ -519,6 +520,7 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
     feeder = RadiusFeeder(tester, out, spin_until)
     drive = _drive(300, seed=3, t0=T0_NS * 1e-9, eps=np.zeros(4))
     drive['omega'][560, 1] = np.nan                      # FR, 0.2 s before the end
+    feeder.wheel.publish(b'\x00\x01\x00\x00' + bytes(20))    # not a WheelSpeeds
     feeder.feed(drive)
     ind = out.msgs['/tpms/indication/wheel_radius'][-1]
     assert not ind.known[1] and not ind.underinflated[1] and ind.confidence[1] == 0.0
@@ -527,6 +529,7 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
     assert spin_until(lambda: out.diag(
         '/wheel_radius_analyzer',
         lambda s: _values(s)['core.bad_wheel_speed'] == '1'
+        and _values(s)['rejected_malformed'] == '1'
         and _values(s)['noise_scale.delta_34'] == '1') is not None, 5.0)
 
     cal_file.write_text('version: 1\nmethod: wheel_radius\nnominal_offsets: 3\n')
