@@ -13,8 +13,8 @@ from tpms_ros.vibration_analysis import (
     VibrationCalibration,
     VibrationParams,
     ar2_rls_reference,
-    resonance_frequency,
 )
+from tpms_ros.vibration_kernel import resonance_frequency
 
 # The paper's car: 200 kPa ~ 40 Hz, 120 kPa ~ 35 Hz => f ~ p^alpha; a 15 % loss is this drop
 ALPHA = math.log(35.0 / 40.0) / math.log(120.0 / 200.0)

@@ -23,7 +23,8 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    On a driven axle (``driveline_compensation``) each driven wheel's regression sums are
    taken less the symmetrised left-right cross products, which remove the driveline modes
    both rims share (see :class:`VibrationParams`);
-3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2);
+3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2)
+   (:func:`tpms_ros.vibration_kernel.resonance_frequency`);
 4. calibration: each tire's nominal frequency and the noise of its estimate;
 5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
    confidence = clip(z / z_full, 0, 1).
@@ -265,21 +266,6 @@ class VibrationCalibration:
                                  f'got {state[key]!r}')
             arrays[key] = arr
         return cls(arrays['nominal_frequency_hz'], arrays['noise_hz'], arrays['duration_s'])
-
-
-def resonance_frequency(a1: np.ndarray, a2: np.ndarray, fs: float) -> np.ndarray:
-    """Resonance of the AR(2) model 1 / (1 + a1 q^-1 + a2 q^-2), Hz; NaN for real poles.
-
-    The pole angle w = arccos(-a1 / (2 sqrt(a2))) of the complex pair sqrt(a2) exp(+-i w)
-    gives f = fs w / (2 pi).
-    """
-    a1 = np.asarray(a1, dtype=float)
-    a2 = np.asarray(a2, dtype=float)
-    complex_poles = (a2 > 0.0) & (a1 * a1 < 4.0 * a2)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        cos_w = -a1 / (2.0 * np.sqrt(np.where(a2 > 0.0, a2, np.nan)))
-        freq = fs / (2.0 * np.pi) * np.arccos(np.clip(cos_w, -1.0, 1.0))
-    return np.where(complex_poles, freq, np.nan)
 
 
 def ar2_rls_reference(y: np.ndarray, forgetting: float, regularization: float) -> np.ndarray:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit, types
+from numba import njit, types, vectorize
 import numpy as np
 
 _F1, _F2, _F3 = types.float64[:], types.float64[:, :], types.float64[:, :, :]
@@ -28,6 +28,19 @@ _SIGNATURE = types.void(
     types.boolean, types.complex128[:, :], _F1,            # tooth correction
     _F2, _B1, _I1, _I1,                                    # per-wheel state and counts
     _F2, _B2, _F2, _F2, _F2, _B1)                          # regression state and outputs
+
+
+@vectorize([types.float64(types.float64, types.float64, types.float64)], cache=True)
+def resonance_frequency(a1: float, a2: float, fs: float) -> float:
+    """Resonance of the AR(2) model 1 / (1 + a1 q^-1 + a2 q^-2), Hz; NaN for real poles.
+
+    The pole angle w = arccos(-a1 / (2 sqrt(a2))) of the complex pair sqrt(a2) exp(+-i w)
+    gives f = fs w / (2 pi). A ufunc: the kernel calls it per sample, Python on arrays.
+    """
+    if not (a2 > 0.0 and a1 * a1 < 4.0 * a2):
+        return math.nan
+    cos_w = min(max(-a1 / (2.0 * math.sqrt(a2)), -1.0), 1.0)
+    return fs / (2.0 * math.pi) * math.acos(cos_w)
 
 
 @njit(cache=True)
@@ -199,10 +212,7 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
             trace = r11 + r22
             a1 = (r12 * q2 - r22 * q1) / det
             a2 = (r12 * q1 - r11 * q2) / det
-            freq = math.nan
-            if a2 > 0.0 and a1 * a1 < 4.0 * a2:
-                cos_w = min(max(-a1 / (2.0 * math.sqrt(a2)), -1.0), 1.0)
-                freq = fs_eff / (2.0 * math.pi) * math.acos(cos_w)
+            freq = resonance_frequency(a1, a2, fs_eff)
             known = (det > 1e-9 * trace * trace and count * (1.0 - lam) >= min_valid
                      and math.isfinite(freq))
             trace_hz[kept, w] = freq if known else math.nan
