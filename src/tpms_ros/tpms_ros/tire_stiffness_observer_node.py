@@ -70,7 +70,9 @@ from vehicle_monitor_common.node_helpers import (
     ProcessAhead,
     StampCheck,
     TypedParameters,
+    output_phase_param,
     param,
+    process_ahead_param,
     run_node,
     sensor_subscription,
     stamp_ns,
@@ -184,15 +186,8 @@ class StiffnessNodeParameters:
                                     'data time, s (no effect on the result; shorter: less '
                                     'work when an output falls due, more per-call '
                                     'overhead)', low=0.001, high=10.0)
-    process_ahead_s: float = param(0.02, 'the buffered wheel speeds also go to the core this '
-                                   'long (data time) before each output falls due, so little '
-                                   'work is left when it does: lower output latency for one '
-                                   'more core call per output, s (0: off)', low=0.0, high=10.0)
-    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
-                                  'otherwise, and every later one with it (the period stays): '
-                                  'nodes composed in one process take different phases so '
-                                  'that the work of their outputs does not coincide, s',
-                                  low=0.0, high=10.0)
+    process_ahead_s: float = process_ahead_param()
+    output_phase_s: float = output_phase_param()
 
     def __post_init__(self) -> None:
         if self.process_period_s * self.sample_rate_hz < 1.0:

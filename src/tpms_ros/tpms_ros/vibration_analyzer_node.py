@@ -44,7 +44,9 @@ from vehicle_monitor_common.node_helpers import (
     ProcessAhead,
     StampCheck,
     TypedParameters,
+    output_phase_param,
     param,
+    process_ahead_param,
     run_node,
 )
 
@@ -107,15 +109,8 @@ class VibrationAnalyzerParameters:
     block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
                            'duration at most, s (no effect on the result; shorter: more '
                            'per-call overhead)', low=0.005, high=5.0, read_only=True)
-    process_ahead_s: float = param(0.02, 'the buffered samples also go to the core this long '
-                                   '(data time) before each output falls due, so little work '
-                                   'is left when it does: lower output latency for one more '
-                                   'core call per output, s (0: off)', low=0.0, high=10.0)
-    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
-                                  'otherwise, and every later one with it (the period stays): '
-                                  'nodes composed in one process take different phases so '
-                                  'that the work of their outputs does not coincide, s',
-                                  low=0.0, high=10.0)
+    process_ahead_s: float = process_ahead_param()
+    output_phase_s: float = output_phase_param()
     max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '
                              'filters; shorter ones are filled as missing samples, s',
                              low=1e-4, high=10.0)

@@ -53,7 +53,9 @@ from vehicle_monitor_common.node_helpers import (
     ProcessAhead,
     StampCheck,
     TypedParameters,
+    output_phase_param,
     param,
+    process_ahead_param,
     run_node,
     sensor_subscription,
     stamp_ns,
@@ -170,15 +172,8 @@ class WheelRadiusAnalyzerParameters:
                                     'IMU time, or sooner when an output falls due, s (no '
                                     'effect on the result; per-call overhead)', low=0.0,
                                     high=10.0)
-    process_ahead_s: float = param(0.02, 'the aligned bins also go to the core this long (IMU '
-                                   'time) before each output falls due, so little work is '
-                                   'left when it does: lower output latency for one more core '
-                                   'call per output, s (0: off)', low=0.0, high=10.0)
-    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
-                                  'otherwise, and every later one with it (the period stays): '
-                                  'nodes composed in one process take different phases so '
-                                  'that the work of their outputs does not coincide, s',
-                                  low=0.0, high=10.0)
+    process_ahead_s: float = process_ahead_param()
+    output_phase_s: float = output_phase_param()
     calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
                                           low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '

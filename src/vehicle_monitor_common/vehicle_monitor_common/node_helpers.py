@@ -298,6 +298,21 @@ class ProcessAhead:
         self._armed = True
 
 
+def process_ahead_param() -> Any:
+    """The ``process_ahead_s`` parameter of a node using :class:`ProcessAhead`."""
+    return param(0.02, 'the buffered input also goes to the core this long (data time) before '
+                 'each output falls due, so little work is left when it does: lower output '
+                 'latency for one more core call per output, s (0: off)', low=0.0, high=10.0)
+
+
+def output_phase_param() -> Any:
+    """The ``output_phase_s`` parameter of a node whose outputs fall due in data time."""
+    return param(0.0, 'the first output comes this much data time later than otherwise, and '
+                 'every later one with it (the period stays): nodes composed in one process '
+                 'take different phases so that the work of their outputs does not coincide, s',
+                 low=0.0, high=10.0)
+
+
 def stamp_ns(stamp: Any) -> int:
     """builtin_interfaces/Time -> int nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
