@@ -255,8 +255,6 @@ class TireStiffnessObserverNode(Node):
         self._window_count = 0
         self._window_first_ns = 0
         self._ahead = ProcessAhead()
-        # Data time added to the first output's due time (output_phase_s), 0 once it left.
-        self._first_output_delay_s = p.output_phase_s
         # (stamp ns, wheel torques, steering angle) of the driver inputs, for the gates.
         self._driver: deque[tuple[int, np.ndarray, float]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
@@ -401,8 +399,10 @@ class TireStiffnessObserverNode(Node):
             self._window_first_ns = stamp
         self._window_count += 1
         p = self.parameters
+        # output_phase_s delays the first output (and so every later one)
         to_output_s = _to_go_s(self._window_first_ns, stamp, self._window_count,
-                               p.publish_rate_hz, p.sample_rate_hz) + self._first_output_delay_s
+                               p.publish_rate_hz, p.sample_rate_hz) + (
+            0.0 if self.published else p.output_phase_s)
         if (to_output_s <= 0.0 or self._ahead.due(to_output_s, p.process_ahead_s)
                 or _to_go_s(self._buffer_ns[0], stamp, len(self._buffer_ns),
                             1.0 / p.process_period_s, p.sample_rate_hz) <= 0.0):
@@ -478,7 +478,6 @@ class TireStiffnessObserverNode(Node):
         self._indication_pub.publish(indication)
         self.published += 1
         self._ahead.published()
-        self._first_output_delay_s = 0.0
 
     def _update_diagnostics(self) -> None:
         p = self.parameters
