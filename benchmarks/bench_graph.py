@@ -38,7 +38,6 @@ import functools
 import multiprocessing
 from pathlib import Path
 import re
-import struct
 import subprocess
 import sys
 import tempfile
@@ -62,7 +61,7 @@ from vehicle_monitor_common.main_job import (
     use_private_domain,
     with_parameters,
 )
-from vehicle_monitor_common.player import ScenarioPlayer
+from vehicle_monitor_common.player import ScenarioPlayer, raw_header_stamp
 from vehicle_monitor_common.recorder import GraphRecorder
 from vehicle_monitor_common.runner import (
     EXECUTORS,
@@ -235,8 +234,6 @@ class NullPlan:
     outputs: tuple[int, ...]
 
 
-# CDR (little-endian) header.stamp after the 4-byte encapsulation header.
-_RAW_STAMP = struct.Struct('<iI')
 # Null node plans by node name: the graph file names the class, not its arguments.
 _NULL_PLANS: dict[str, NullPlan] = {}
 
@@ -269,7 +266,7 @@ class NullNode(Node):
         if isinstance(msg, bytes):
             # a raw subscription: stamped messages start with header.stamp (as the real node
             # reads it, from the bytes)
-            sec, nanosec = _RAW_STAMP.unpack_from(msg, 4)
+            sec, nanosec = raw_header_stamp(msg)
             self._stamp = Time(sec=sec, nanosec=nanosec)
             return
         header = getattr(msg, 'header', None)

@@ -87,6 +87,12 @@ class PlayerParameters:
                            'readers acknowledged them (0: never)', low=0, high=1000)
 
 
+def raw_header_stamp(data: bytes) -> tuple[int, int]:
+    """(sec, nanosec) of a serialised (little-endian CDR) message that starts with a header."""
+    sec, nanosec = _STAMP.unpack_from(data, 4)
+    return sec, nanosec
+
+
 def message_class(msgtype: str) -> Any:
     """The rclpy class of ``pkg/msg/Name``, or BagError when this install lacks it."""
     parts = msgtype.split('/')
@@ -181,7 +187,7 @@ class ScenarioPlayer(Node):
         return len(self._sync_subscriptions) == len(self.parameters.sync_topics)
 
     def _on_progress(self, topic: str, data: bytes) -> None:
-        sec, nanosec = _STAMP.unpack_from(data, 4)
+        sec, nanosec = raw_header_stamp(data)
         with self._progress_lock:
             stamp = sec * 1_000_000_000 + nanosec
             if stamp > self._progress.get(topic, -1):
