@@ -115,8 +115,7 @@ class PressureRelation:
     slope: float = 0.234375 / 0.4
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.slope) and self.slope > 0.0):
-            raise ValueError(f'PressureRelation.slope must be finite and > 0, got {self.slope}')
+        require_positive(self, ('slope',))
 
     def pressure_ratio(self, stiffness_ratio: np.ndarray) -> np.ndarray:
         """p / p0 for the given K / K0."""
@@ -272,9 +271,7 @@ class StiffnessObserverParams:
         if self.drive_compensation not in ('partner', 'difference'):
             raise ValueError("StiffnessObserverParams.drive_compensation must be 'partner' or "
                              f"'difference', got {self.drive_compensation!r}")
-        if not (math.isfinite(self.partner_lag_s) and self.partner_lag_s >= 0.0):
-            raise ValueError('StiffnessObserverParams.partner_lag_s must be finite and >= 0, '
-                             f'got {self.partner_lag_s!r}')
+        require_positive(self, ('partner_lag_s',), allow_zero=True)
         if not (math.isfinite(self.partner_lag_step_s)
                 and self.partner_lag_step_s * self.sample_rate_hz >= 1.0 - 1e-9):
             raise ValueError('StiffnessObserverParams.partner_lag_step_s must be at least one '
