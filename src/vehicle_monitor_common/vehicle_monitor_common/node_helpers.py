@@ -31,6 +31,15 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
+from vehicle_monitor_common.parameters import (
+    ParameterSpec,
+    build,
+    check_choice,
+    flatten,
+    param,
+    parameter_specs,
+)
+
 P = TypeVar('P')
 
 OK = DiagnosticStatus.OK
@@ -64,64 +73,29 @@ class ConfigurationError(ValueError):
     """A user error in a node's configuration: reported in one line, exit code 2."""
 
 
-def param(default: Any, description: str, *, low: float | None = None,
-          high: float | None = None, choices: Sequence[str] | None = None,
-          read_only: bool = False) -> Any:
-    """A dataclass field that is also a ROS parameter.
-
-    Args:
-        default: default value (its type is the parameter type; use a tuple for arrays).
-        description: what the parameter means, with its unit.
-        low, high: inclusive range enforced by ROS (numbers only).
-        choices: allowed values of a string parameter (checked on declare and on set).
-        read_only: the value cannot change after start (model structure, topics).
-    """
-    meta = {'description': description, 'low': low, 'high': high,
-            'choices': tuple(choices) if choices else None, 'read_only': read_only}
-    if isinstance(default, (list, tuple)):
-        return dataclasses.field(default_factory=lambda: tuple(default), metadata=meta)
-    return dataclasses.field(default=default, metadata=meta)
-
-
-def _descriptor(name: str, f: dataclasses.Field[Any], default: Any) -> ParameterDescriptor:
-    meta = f.metadata
-    text = meta.get('description', '')
-    if meta.get('choices'):
-        text += f" (one of: {', '.join(meta['choices'])})"
-    descriptor = ParameterDescriptor(name=name, description=text,
-                                     read_only=bool(meta.get('read_only')))
-    low, high = meta.get('low'), meta.get('high')
-    if low is not None or high is not None:
-        if isinstance(default, bool):
-            raise TypeError(f'{name}: a bool parameter has no range')
-        if isinstance(default, int):
+def _descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    text = spec.description
+    if spec.choices:
+        text += f" (one of: {', '.join(spec.choices)})"
+    descriptor = ParameterDescriptor(name=spec.name, description=text, read_only=spec.read_only)
+    if spec.choices:
+        descriptor.additional_constraints = f"one of: {', '.join(spec.choices)}"
+    if spec.low is not None or spec.high is not None:
+        if isinstance(spec.default, bool):
+            raise TypeError(f'{spec.name}: a bool parameter has no range')
+        if isinstance(spec.default, int):
             descriptor.integer_range = [IntegerRange(
-                from_value=int(low if low is not None else -2**63),
-                to_value=int(high if high is not None else 2**63 - 1), step=0)]
+                from_value=int(spec.low if spec.low is not None else -2**63),
+                to_value=int(spec.high if spec.high is not None else 2**63 - 1), step=0)]
         else:
             descriptor.floating_point_range = [FloatingPointRange(
-                from_value=float(low if low is not None else -math.inf),
-                to_value=float(high if high is not None else math.inf), step=0.0)]
+                from_value=float(spec.low if spec.low is not None else -math.inf),
+                to_value=float(spec.high if spec.high is not None else math.inf), step=0.0)]
     return descriptor
-
-
-def _default_of(f: dataclasses.Field[Any]) -> Any:
-    if f.default is not dataclasses.MISSING:
-        return f.default
-    if f.default_factory is not dataclasses.MISSING:
-        return f.default_factory()
-    raise TypeError(f'parameter {f.name} needs a default')
 
 
 def _ros_value(default: Any) -> Any:
     return list(default) if isinstance(default, tuple) else default
-
-
-def _check_choice(f: dataclasses.Field[Any], value: Any) -> str | None:
-    choices = f.metadata.get('choices')
-    if choices and value not in choices:
-        return f'{f.name} must be one of {", ".join(choices)}, got {value!r}'
-    return None
 
 
 def _from_ros(default: Any, value: Any) -> Any:
@@ -133,54 +107,59 @@ def _from_ros(default: Any, value: Any) -> Any:
 
 
 class TypedParameters(Generic[P]):
-    """Declares a node's parameters from a dataclass and keeps a validated typed copy.
+    """Declares a node's parameters from a parameter dataclass and keeps a validated typed copy.
 
-    The dataclass's ``__post_init__`` may raise ``ValueError`` for cross-field rules; such a
-    value is refused at start (ConfigurationError) and at runtime (the set is rejected with the
-    reason, the previous values stay).
+    The dataclass is the single definition (``parameters.param``): an estimator core's own
+    parameter class, or a node's class for its node-only parameters (topics, rates, files).
+    Nested groups are declared under dotted names. The dataclass's ``__post_init__`` may raise
+    ``ValueError`` for cross-field rules; such a value is refused at start (ConfigurationError)
+    and at runtime (the set is rejected with the reason, the previous values stay).
+    Every declared name and its definition are kept in :attr:`specs` (what the parameter test
+    checks the node's descriptors against).
     """
 
     def __init__(self, node: Node, cls: type[P], *,
                  on_change: Callable[[P], None] | None = None) -> None:
         self._node = node
         self._cls = cls
-        self._fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        self.specs: dict[str, ParameterSpec] = {s.name: s for s in parameter_specs(cls)}
         self._on_change = on_change
         values: dict[str, Any] = {}
-        for name, f in self._fields.items():
-            default = _default_of(f)
+        for name, spec in self.specs.items():
             # ROS cannot infer the type of an empty array: those are string arrays.
-            typed_empty = isinstance(default, tuple) and not default
+            typed_empty = isinstance(spec.default, tuple) and not spec.default
             try:
                 node.declare_parameter(
-                    name, Parameter.Type.STRING_ARRAY if typed_empty else _ros_value(default),
-                    _descriptor(name, f, default))
+                    name, Parameter.Type.STRING_ARRAY if typed_empty
+                    else _ros_value(spec.default), _descriptor(spec))
             except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
                 raise ConfigurationError(
                     f'parameter {name}: {str(exc).splitlines()[0]}') from None
             # An empty typed array stays unset until given: read it as empty.
-            value = node.get_parameter_or(name, Parameter(name, value=_ros_value(default))).value
-            values[name] = _from_ros(default, value)
-            problem = _check_choice(f, values[name])
+            value = node.get_parameter_or(
+                name, Parameter(name, value=_ros_value(spec.default))).value
+            values[name] = _from_ros(spec.default, value)
+            problem = check_choice(spec, values[name])
             if problem:
                 raise ConfigurationError(f'parameter {problem}')
         try:
-            self.value: P = cls(**values)
+            self.value: P = build(cls, values)
         except (TypeError, ValueError) as exc:
             raise ConfigurationError(f'invalid parameters: {exc}') from None
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
 
     def _candidate(self, parameters: list[Parameter]) -> P:
-        changes = {p.name: _from_ros(_default_of(self._fields[p.name]), p.value)
-                   for p in parameters if p.name in self._fields}
-        return dataclasses.replace(self.value, **changes)  # type: ignore[type-var]
+        values = flatten(self.value)
+        values.update({p.name: _from_ros(self.specs[p.name].default, p.value)
+                       for p in parameters if p.name in self.specs})
+        return build(self._cls, values)  # type: ignore[no-any-return]
 
     def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
         for p in parameters:
-            f = self._fields.get(p.name)
-            if f is not None:
-                problem = _check_choice(f, p.value)
+            spec = self.specs.get(p.name)
+            if spec is not None:
+                problem = check_choice(spec, p.value)
                 if problem:
                     return SetParametersResult(successful=False, reason=problem)
         try:
@@ -190,7 +169,7 @@ class TypedParameters(Generic[P]):
         return SetParametersResult(successful=True)
 
     def _apply(self, parameters: list[Parameter]) -> None:
-        if not any(p.name in self._fields for p in parameters):
+        if not any(p.name in self.specs for p in parameters):
             return
         self.value = self._candidate(parameters)
         if self._on_change is not None:
