@@ -49,13 +49,13 @@ from rail_monitor_ros.creep_ekf import (
     lateral_states_measurement,
 )
 from rail_monitor_ros.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
+from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
     WARN,
     Diagnostics,
-    StampCheck,
     TypedParameters,
     param,
     run_node,

@@ -60,13 +60,13 @@ from tpms_ros.lateral_force_observer import (
     ObserverVehicleParams,
 )
 from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
+from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     OK,
     OUTPUT_QOS,
     STALE,
     WARN,
     Diagnostics,
-    StampCheck,
     TypedParameters,
     param,
     run_node,

@@ -60,6 +60,7 @@ from tpms_ros.stiffness_observer import (
 from tpms_ros.tire_model import TorsionalTire
 from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
+from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
@@ -68,7 +69,6 @@ from vehicle_monitor_common.node_helpers import (
     WARN,
     Diagnostics,
     ProcessAhead,
-    StampCheck,
     TypedParameters,
     output_phase_param,
     param,

@@ -32,6 +32,7 @@ from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 from vehicle_monitor_msgs.msg import TpmsWarning
 
 from tpms_ros.tpms_voting import TIRE_NAMES, TpmsIndication, TpmsVoter, VoterParams
+from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
@@ -39,7 +40,6 @@ from vehicle_monitor_common.node_helpers import (
     WARN,
     ConfigurationError,
     Diagnostics,
-    StampCheck,
     TypedParameters,
     param,
     run_node,

@@ -34,6 +34,7 @@ from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
 from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
 from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
+from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
@@ -42,7 +43,6 @@ from vehicle_monitor_common.node_helpers import (
     ConfigurationError,
     Diagnostics,
     ProcessAhead,
-    StampCheck,
     TypedParameters,
     output_phase_param,
     param,

@@ -8,13 +8,13 @@ the node reads them back as one typed object.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 import math
 import sys
 from typing import Any, Generic, TypeVar
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import (
@@ -222,36 +222,6 @@ def _format(value: Any) -> str:
 
 
 @dataclass
-class StampCheck:
-    """Classifies each incoming header stamp of one input stream.
-
-    Out-of-order and repeated stamps are rejected (the filters assume increasing time); a gap
-    longer than ``max_gap_s`` is accepted but flagged so the caller can reset its filters.
-    """
-
-    max_gap_s: float
-    last_ns: int | None = None
-    rejected: dict[str, int] = dataclasses.field(default_factory=dict)
-
-    def check(self, stamp_ns: int) -> str:
-        """'ok', 'gap' (accepted, filters should restart), 'repeated' or 'out_of_order'."""
-        if self.last_ns is not None:
-            if stamp_ns == self.last_ns:
-                return self._reject('repeated')
-            if stamp_ns < self.last_ns:
-                return self._reject('out_of_order')
-            gap = (stamp_ns - self.last_ns) * 1e-9 > self.max_gap_s
-            self.last_ns = stamp_ns
-            return 'gap' if gap else 'ok'
-        self.last_ns = stamp_ns
-        return 'ok'
-
-    def _reject(self, reason: str) -> str:
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
-        return reason
-
-
-@dataclass
 class ProcessAhead:
     """When a node that answers buffered samples in chunks processes its buffer early.
 
@@ -295,6 +265,12 @@ def output_phase_param() -> Any:
 def stamp_ns(stamp: Any) -> int:
     """builtin_interfaces/Time -> int nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def time_msg(ns: int) -> Time:
+    """int nanoseconds -> builtin_interfaces/Time (negative stamps floor to the second)."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
