@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from rail_monitor_ros.rail_model import RailVehicleParams
+from rail_monitor_ros.core.rail_model import RailVehicleParams
 from rail_monitor_ros.rail_scenario import RailEvent, TrackConfig, shipped_scenario
 from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
 from rail_monitor_ros.suspension_imm import (

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rail_monitor_ros.core.rail_model import car_end_state_space, full_car_state_space
 from rail_monitor_ros.creep_ekf import (
     CreepEkf,
     CreepEkfParams,
@@ -19,7 +20,6 @@ from rail_monitor_ros.creep_ekf import (
     simulation_inputs,
     step_metrics,
 )
-from rail_monitor_ros.rail_model import car_end_state_space, full_car_state_space
 from rail_monitor_ros.rail_scenario import shipped_scenario
 from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from rail_monitor_ros.rail_model import (
+from rail_monitor_ros.core.rail_model import (
     RailVehicleParams,
     critical_speed,
     discretize_zoh,
@@ -26,7 +26,8 @@ from rail_monitor_ros.rail_model import (
     vehicle_modes,
     wheelset_inputs_from_track,
 )
-from rail_monitor_ros.track_irregularity import TRACK_SPECTRA, generate_track_profile
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from rail_monitor_ros.simulation.track_profile import generate_track_profile
 
 PARAMS = RailVehicleParams()
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from rail_monitor_ros.rail_model import full_car_state_space, vehicle_modes
+from rail_monitor_ros.core.rail_model import full_car_state_space, vehicle_modes
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 from rail_monitor_ros.rail_scenario import (
     SCENARIO_DIR,
     evaluate_profiles,
@@ -28,7 +29,6 @@ from rail_monitor_ros.rail_simulator import (
     simulate,
     to_topic_series,
 )
-from rail_monitor_ros.track_irregularity import TRACK_SPECTRA
 
 
 def _run(duration: float = 60.0, seed: int = 1, **extra: Any) -> RailSimulationResult:

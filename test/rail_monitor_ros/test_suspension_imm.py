@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from rail_monitor_ros.rail_model import RailVehicleParams
+from rail_monitor_ros.core.rail_model import RailVehicleParams
 from rail_monitor_ros.rail_scenario import shipped_scenario
 from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
 from rail_monitor_ros.suspension_imm import (

@@ -1,7 +1,7 @@
 """Wheel-rail creep factor by an augmented-state EKF (Chonan & Tsunashima; SPEC §6). No ROS.
 
 Estimation model (``model='end'``, default): one end of the full car,
-:func:`rail_monitor_ros.rail_model.car_end_state_space`: the monitored bogie with its two
+:func:`rail_monitor_ros.core.rail_model.car_end_state_space`: the monitored bogie with its two
 wheelsets (lateral + yaw), the bogie (lateral + yaw) and the whole body (lateral + yaw), the
 other bogie replaced by its secondary forces on the body as Gauss-Markov states. The paper's
 7-DOF half car (``model='half'``) is kept for comparison. The creep factor c (f11 and f22 scaled
@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg.lapack import dposv as _cholesky_solve
 
-from rail_monitor_ros.rail_model import (
+from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     OBSERVATION_PATTERNS,
     RailVehicleParams,

@@ -40,6 +40,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregularity
 
+from rail_monitor_ros.core.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
 from rail_monitor_ros.creep_ekf import (
     BOGIES,
     MODELS,
@@ -48,7 +49,6 @@ from rail_monitor_ros.creep_ekf import (
     CreepEstimate,
     lateral_states_measurement,
 )
-from rail_monitor_ros.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,

@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rail_monitor_ros.rail_model import (
+from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     MAX_SUSPENSION_RATIO,
     RailVehicleParams,
 )
-from rail_monitor_ros.track_irregularity import TRACK_SPECTRA
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 from vehicle_monitor_common.resources import share_dir, shipped_file
 
 MAX_SPEED = 150.0  # m/s; beyond any rail vehicle, and far beyond the linear model's validity
@@ -37,7 +37,7 @@ class TrackConfig:
     """Track irregularity settings.
 
     Attributes:
-        spectrum: key of :data:`rail_monitor_ros.track_irregularity.TRACK_SPECTRA`.
+        spectrum: key of :data:`rail_monitor_ros.core.track_spectra.TRACK_SPECTRA`.
         min_wavelength: shortest wavelength, m.
         max_wavelength: longest wavelength, m.
         scale: amplitude multiplier on the published spectrum.

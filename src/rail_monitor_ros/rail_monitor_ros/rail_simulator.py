@@ -25,7 +25,8 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from rail_monitor_ros.rail_model import StateSpace, full_car_state_space, vehicle_modes
+from rail_monitor_ros.core.rail_model import StateSpace, full_car_state_space, vehicle_modes
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 from rail_monitor_ros.rail_scenario import (
     ParameterProfiles,
     RailScenario,
@@ -33,7 +34,7 @@ from rail_monitor_ros.rail_scenario import (
     evaluate_profiles,
     load_rail_scenario,
 )
-from rail_monitor_ros.track_irregularity import TRACK_SPECTRA, generate_track_profile
+from rail_monitor_ros.simulation.track_profile import generate_track_profile
 from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.series import TopicSeries, stamps_from_seconds
 

@@ -55,14 +55,7 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from rail_monitor_ros.imm_kernel import (
-    CBAR_FLOOR,
-    LOG_2PI,
-    posterior_probabilities,
-    smooth_probabilities,
-    steady_imm_cycle,
-)
-from rail_monitor_ros.rail_model import (
+from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     MAX_SUSPENSION_RATIO,
     REDUCED_INPUT_NAMES,
@@ -73,7 +66,14 @@ from rail_monitor_ros.rail_model import (
     half_car_state_space,
     reduced_bogie_body_model,
 )
-from rail_monitor_ros.track_irregularity import TRACK_SPECTRA
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from rail_monitor_ros.imm_kernel import (
+    CBAR_FLOOR,
+    LOG_2PI,
+    posterior_probabilities,
+    smooth_probabilities,
+    steady_imm_cycle,
+)
 from vehicle_monitor_common.figures import pyplot, save_figure
 
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
@@ -1388,7 +1388,7 @@ def half_car_sensor_data(time: np.ndarray, track_alignment: np.ndarray,
         seed: noise seed.
         creep_factor: the truth's creep factor.
     """
-    from rail_monitor_ros.rail_model import wheelset_inputs_from_track
+    from rail_monitor_ros.core.rail_model import wheelset_inputs_from_track
 
     t = np.asarray(time, dtype=float)
     y_r = np.asarray(track_alignment, dtype=float)

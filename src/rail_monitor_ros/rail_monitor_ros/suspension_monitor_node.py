@@ -43,7 +43,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregularity
 
-from rail_monitor_ros.rail_model import (
+from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     RailVehicleParams,
     wheelset_inputs_from_track,

@@ -1,0 +1,1 @@
+"""Estimator cores: one module per method, plus the vehicle model and track spectra they use."""

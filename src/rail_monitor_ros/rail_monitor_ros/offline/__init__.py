@@ -1,0 +1,1 @@
+"""Offline evaluation, runners, metrics and plots."""

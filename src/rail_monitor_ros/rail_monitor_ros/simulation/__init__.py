@@ -1,0 +1,1 @@
+"""Rail simulator, scenario reader and track profile synthesis."""
