@@ -21,7 +21,8 @@ from filterpy.kalman import KalmanFilter
 import numpy as np
 from scipy import signal
 
-from tpms_ros.tpms_voting import TpmsIndication, TpmsVoter, VoterParams
+from tpms_ros.core.tires import TpmsIndication
+from tpms_ros.tpms_voting import TpmsVoter, VoterParams
 from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams, ar2_rls_reference
 from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusParams
 

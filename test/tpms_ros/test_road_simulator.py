@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, dlsim
 
+from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.road_scenario import Scenario, parse_scenario
 from tpms_ros.road_simulator import (
     RoadSimulationResult,
@@ -26,7 +27,6 @@ from tpms_ros.road_simulator import (
     to_topic_series,
     wheel_speed_psd,
 )
-from tpms_ros.tire_model import TorsionalTire
 from tpms_ros.vehicle_dynamics import HandlingInputs, HandlingResult, VehicleParams
 
 MSG_DIR = Path(__file__).resolve().parents[2] / 'msg_defs' / 'msg'

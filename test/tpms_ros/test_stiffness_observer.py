@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 import scipy.signal as sig
 
+from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.road_scenario import ScenarioEvent, load_scenario
 from tpms_ros.road_simulator import RoadSimulationResult, simulate_scenario
 from tpms_ros.stiffness_observer import (
@@ -33,7 +34,6 @@ from tpms_ros.stiffness_observer import (
     design_observer,
     extended_system,
 )
-from tpms_ros.tire_model import TorsionalTire
 
 FS = 1000.0
 BLOCK = 250

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tpms_ros.tpms_voting import TpmsIndication, TpmsVoter, VoterParams
+from tpms_ros.core.tires import TpmsIndication
+from tpms_ros.tpms_voting import TpmsVoter, VoterParams
 
 H0, H_VIB, H_RAD = 0.5, 0.8, 0.7
 

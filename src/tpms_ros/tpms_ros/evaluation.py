@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
 from tpms_ros.road_scenario import load_scenario
 from tpms_ros.road_simulator import scenario_topics
-from tpms_ros.tpms_voting import TIRE_NAMES, TpmsIndication, TpmsVoter, VoterParams
+from tpms_ros.tpms_voting import TpmsVoter, VoterParams
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from tpms_ros.tire_model import TorsionalTire
+from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.vehicle_dynamics import VehicleParams, max_stable_step
 
 WHEEL_NAMES: tuple[str, ...] = ('FL', 'FR', 'RL', 'RR')

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter, welch
 
+from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.road_scenario import (
     Scenario,
     friction_multiplier,
@@ -42,7 +43,6 @@ from tpms_ros.road_scenario import (
     steering_angle,
     tire_pressure,
 )
-from tpms_ros.tire_model import TorsionalTire
 from tpms_ros.vehicle_dynamics import (
     HandlingInputs,
     HandlingResult,

@@ -13,7 +13,7 @@ Per wheel the chain is (paper Fig. 4, SPEC §2)::
   simulator: FR read ~170 kPa for 120 kPa). Each wheel's tooth pattern is learned online and
   divided out, as production indirect TPMS do.
 
-* **Observer** (eq. 5-8). The two-inertia model of :class:`~tpms_ros.tire_model.TorsionalTire`
+* **Observer** (eq. 5-8). The two-inertia model of :class:`~tpms_ros.core.tire_model.TorsionalTire`
   is extended by the disturbance ``w = dK th + dD th_dot - T_d`` acting on the belt equation
   and modelled as constant (eq. 6), giving the state ``[w1 | w2, th, w]`` (eq. 7). A Gopinath
   reduced-order observer estimates ``z = [w2, th, w]`` from ``x_a = w1``::
@@ -84,7 +84,7 @@ import numpy as np
 import scipy.signal as sig
 from scipy.special import ndtr
 
-from tpms_ros.tire_model import TorsionalTire
+from tpms_ros.core.tire_model import TorsionalTire
 from vehicle_monitor_common.validation import require_positive
 
 N_WHEELS = 4

@@ -51,13 +51,13 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication
 
+from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.stiffness_observer import (
     PressureRelation,
     StiffnessEstimate,
     StiffnessObserverParams,
     TireStiffnessObserver,
 )
-from tpms_ros.tire_model import TorsionalTire
 from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.input_health import StampCheck

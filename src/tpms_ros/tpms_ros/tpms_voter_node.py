@@ -31,7 +31,8 @@ from rclpy.parameter import Parameter
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 from vehicle_monitor_msgs.msg import TpmsWarning
 
-from tpms_ros.tpms_voting import TIRE_NAMES, TpmsIndication, TpmsVoter, VoterParams
+from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
+from tpms_ros.tpms_voting import TpmsVoter, VoterParams
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,

@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.validation import require_positive
 

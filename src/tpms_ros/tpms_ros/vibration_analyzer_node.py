@@ -30,7 +30,7 @@ from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import TireResonance
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
-from tpms_ros.tpms_voting import N_TIRES, TIRE_NAMES
+from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
 from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
 from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager

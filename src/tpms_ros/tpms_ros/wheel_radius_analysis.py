@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from tpms_ros.tpms_voting import N_TIRES, TpmsIndication
+from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from vehicle_monitor_common.validation import require_positive
 
 CALIBRATION_VERSION = 3
