@@ -66,12 +66,20 @@ def test_readme_section_is_regenerated_between_markers(tmp_path: Path) -> None:
     readme = tmp_path / 'README.md'
     readme.write_text('# Title\n\nintro\n')
     results = write_results(tmp_path / 'out' / 'results.json', EVALUATIONS, RUNS)
+    figure = tmp_path / 'out' / 'road_x' / 'persson_fig9_warnings.png'
+    figure.parent.mkdir(parents=True)
+    figure.write_bytes(b'png bytes')
     assert update_readme(readme, results) is True
     first = readme.read_text()
     assert first.startswith('# Title\n\nintro\n')
     assert render_markdown_table(EVALUATIONS) in first
-    assert '(out/road_x/persson_fig9_warnings.png)' in first
+    # The figure is copied beside the README, so the link works without the run's output.
+    assert '(docs/figures/road_x/persson_fig9_warnings.png)' in first
+    assert (tmp_path / 'docs' / 'figures' / 'road_x' / 'persson_fig9_warnings.png'
+            ).read_bytes() == b'png bytes'
     assert update_readme(readme, results) is False  # nothing changed
+    figure.write_bytes(b'new png bytes')
+    assert update_readme(readme, results) is True  # a new figure is a change
     readme.write_text(first.replace('intro', 'new intro') + '\ntail\n')
     write_results(results, EVALUATIONS[:1], RUNS)
     assert update_readme(readme, results) is True

@@ -406,22 +406,35 @@ README_END = '<!-- scoreboard:end -->'
 def update_readme(readme: str | os.PathLike[str], results: str | os.PathLike[str]) -> bool:
     """Rewrite the README section between the scoreboard markers from a results file.
 
-    The section holds the scoreboard, the graph runs and links to the figures (relative to the
-    README, in the results' folder). Appended at the end when the markers are missing.
+    The section holds the scoreboard, the graph runs and links to the figures. The figures are
+    copied next to the README into ``docs/figures/<scenario>/`` (committed with it, so the links
+    work on a fresh clone where no run has written ``out/``). Appended at the end when the
+    markers are missing.
 
     Returns:
-        Whether the README changed.
+        Whether the README (or a figure) changed.
     """
     readme, results = Path(readme), Path(results)
     evaluations, runs = load_results(results)
-    figure_dir = Path(os.path.relpath(results.parent, readme.parent)).as_posix()
-    figures = [f'[{Path(f).stem}]({figure_dir}/{f})' for e in evaluations for f in e.figures]
+    figure_root = readme.parent / 'docs' / 'figures'
+    figures, copied = [], False
+    for e in evaluations:
+        for f in e.figures:
+            target, source = figure_root / f, results.parent / f
+            if not source.is_file() and not target.is_file():
+                continue  # neither written by this run nor committed before: nothing to show
+            data = source.read_bytes() if source.is_file() else target.read_bytes()
+            if not target.exists() or target.read_bytes() != data:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(data)
+                copied = True
+            figures.append(f'[{Path(f).stem}]({target.relative_to(readme.parent).as_posix()})')
     block = [README_BEGIN, '', render_markdown_table(evaluations), '']
     if runs:
         block += [render_runs_table(runs), '']
     if figures:
-        block += [f'Figures (written by the run into `{figure_dir}/`, with the report '
-                  f'`{figure_dir}/report.md`): ' + ', '.join(figures) + '.', '']
+        block += ['Figures of this run (named after the papers\' figures; every run writes them '
+                  'with its report into its output folder): ' + ', '.join(figures) + '.', '']
     block.append(README_END)
     text = readme.read_text(encoding='utf-8')
     pattern = re.compile(re.escape(README_BEGIN) + '.*?' + re.escape(README_END), re.S)
@@ -431,6 +444,6 @@ def update_readme(readme: str | os.PathLike[str], results: str | os.PathLike[str
     else:
         updated = text.rstrip('\n') + '\n\n' + section + '\n'
     if updated == text:
-        return False
+        return copied
     readme.write_text(updated, encoding='utf-8')
     return True

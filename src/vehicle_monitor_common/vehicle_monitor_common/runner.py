@@ -23,8 +23,7 @@ finished (or Ctrl-C / the timeout) and prints what the recorders received.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import importlib
 from importlib.metadata import entry_points
@@ -222,16 +221,6 @@ def _ros_value(value: Any) -> Any:
     if isinstance(value, list) and any(isinstance(v, float) for v in value):
         return [float(v) for v in value]
     return value
-
-
-@contextmanager
-def running_graph(spec: GraphSpec, context: Context | None = None) -> Iterator[Graph]:
-    """Bring a graph up for a ``with`` block, tear it down after."""
-    graph = Graph(spec, context)
-    try:
-        yield graph
-    finally:
-        graph.destroy()
 
 
 def _apply_overrides(spec: GraphSpec, overrides: list[str]) -> GraphSpec:
