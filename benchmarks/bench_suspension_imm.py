@@ -27,17 +27,19 @@ import time
 import numpy as np
 
 from rail_monitor_ros.core.rail_model import RailVehicleParams
-from rail_monitor_ros.rail_scenario import RailEvent, TrackConfig, shipped_scenario
-from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
-from rail_monitor_ros.suspension_imm import (
+from rail_monitor_ros.core.suspension_imm import (
     _SHARED_DISCRETIZATIONS,
-    ImmRunResult,
     SuspensionImm,
     SuspensionImmConfig,
-    half_car_sensor_data,
+)
+from rail_monitor_ros.offline.imm_runs import (
+    ImmRunResult,
     plot_mode_probabilities,
     run_suspension_imm,
 )
+from rail_monitor_ros.simulation.half_car import half_car_sensor_data
+from rail_monitor_ros.simulation.rail_scenario import RailEvent, TrackConfig, shipped_scenario
+from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, simulate
 
 
 def _imu(r: RailSimulationResult) -> np.ndarray:

@@ -14,22 +14,19 @@ import sys
 import numpy as np
 import pytest
 
+from rail_monitor_ros.core.fault_decision import FaultDecision
 from rail_monitor_ros.core.rail_model import RailVehicleParams
-from rail_monitor_ros.rail_scenario import shipped_scenario
-from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
-from rail_monitor_ros.suspension_imm import (
-    FaultDecision,
-    HalfCarSensorData,
+from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmConfig
+from rail_monitor_ros.core.suspension_modes import generate_mode_set, markov_transition_matrix
+from rail_monitor_ros.core.track_shaping import track_shaping_model
+from rail_monitor_ros.offline.imm_runs import (
     ImmRunResult,
-    SuspensionImm,
-    SuspensionImmConfig,
-    generate_mode_set,
-    half_car_sensor_data,
-    markov_transition_matrix,
     plot_mode_probabilities,
     run_suspension_imm,
-    track_shaping_model,
 )
+from rail_monitor_ros.simulation.half_car import HalfCarSensorData, half_car_sensor_data
+from rail_monitor_ros.simulation.rail_scenario import shipped_scenario
+from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, simulate
 
 
 @cache

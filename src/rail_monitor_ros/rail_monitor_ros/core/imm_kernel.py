@@ -5,7 +5,7 @@ array operations; as numpy calls it took about 120 us per sample, most of it cal
 which caps the monitor at about 40x real time at 200 Hz. Here the same maths runs in one
 call, in the cheaper order a loop allows (mix the means first, then one product per mode,
 instead of F_j x_i for every pair i, j). The exact cycle (mode-matched covariances) stays in
-numpy in :mod:`rail_monitor_ros.suspension_imm`; the tests hold the two to the same results.
+numpy in :mod:`rail_monitor_ros.core.suspension_imm`; the tests hold the two to the same results.
 
 Compiled when this module is first imported (explicit signatures: C-contiguous float64 arrays,
 what the monitor passes), not on the first sample: a node compiles while it starts (about 9 s

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rail_monitor_ros.imm_kernel import (
+from rail_monitor_ros.core.imm_kernel import (
     LOG_2PI,
     posterior_probabilities,
     smooth_probabilities,

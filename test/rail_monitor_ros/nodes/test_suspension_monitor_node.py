@@ -20,13 +20,13 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregularity
 import yaml
 
-from rail_monitor_ros.rail_scenario import shipped_scenario
-from rail_monitor_ros.rail_simulator import simulate, to_topic_series
-from rail_monitor_ros.suspension_monitor_node import SuspensionMonitor
+from rail_monitor_ros.nodes.suspension_monitor_node import SuspensionMonitorNode
+from rail_monitor_ros.simulation.rail_scenario import shipped_scenario
+from rail_monitor_ros.simulation.rail_simulator import simulate, to_topic_series
 from vehicle_monitor_common.bag_io import read_series, write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 
-CONFIG = (Path(__file__).resolve().parents[2]
+CONFIG = (Path(__file__).resolve().parents[3]
           / 'src/rail_monitor_ros/config/suspension_monitor.yaml')
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
                   reliability=ReliabilityPolicy.RELIABLE)
@@ -107,7 +107,7 @@ class _Feeder:
 def _setup(make_node: Callable[..., Any], **overrides: Any) -> tuple[Any, _Feeder,
                                                                       list[ModeProbabilities],
                                                                       list[DiagnosticArray]]:
-    monitor = make_node(SuspensionMonitor, parameter_overrides=_config_parameters(**overrides))
+    monitor = make_node(SuspensionMonitorNode, parameter_overrides=_config_parameters(**overrides))
     test_node = make_node('feeder')
     got: list[ModeProbabilities] = []
     diagnostics: list[DiagnosticArray] = []
@@ -119,7 +119,7 @@ def _setup(make_node: Callable[..., Any], **overrides: Any) -> tuple[Any, _Feede
 def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) -> None:
     """Every key of the shipped YAML is a declared parameter with the same default."""
     data = yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters']
-    node = make_node(SuspensionMonitor)
+    node = make_node(SuspensionMonitorNode)
     for key, value in data.items():
         assert node.has_parameter(key), key
         assert node.get_parameter(key).value == pytest.approx(value), key
@@ -244,9 +244,9 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
     a speed change re-discretises the full-car bank (its creep forces and track delays
     depend on it)."""
     with pytest.raises(ConfigurationError, match='spring_stop|mean_sojourn'):
-        make_node(SuspensionMonitor, parameter_overrides=[
+        make_node(SuspensionMonitorNode, parameter_overrides=[
             Parameter('mean_sojourn_time', value=0.001)])
-    node = make_node(SuspensionMonitor)
+    node = make_node(SuspensionMonitorNode)
     (result,) = node.set_parameters([Parameter('fault_threshold', value=1.5)])
     assert not result.successful and 'fault_threshold' in result.reason
     (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])

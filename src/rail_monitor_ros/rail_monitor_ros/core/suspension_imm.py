@@ -50,40 +50,47 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 import math
-from pathlib import Path
 
 import numpy as np
 import scipy.linalg
 
-from rail_monitor_ros.core.rail_model import (
-    MAX_CREEP_FACTOR,
-    MAX_SUSPENSION_RATIO,
-    REDUCED_INPUT_NAMES,
-    SENSOR_OUTPUT_NAMES,
-    RailVehicleParams,
-    StateSpace,
-    full_car_state_space,
-    half_car_state_space,
-    reduced_bogie_body_model,
-)
-from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
-from rail_monitor_ros.imm_kernel import (
+from rail_monitor_ros.core.fault_decision import NO_FAULT, FaultDecision, FaultStatus
+from rail_monitor_ros.core.imm_kernel import (
     CBAR_FLOOR,
     LOG_2PI,
     posterior_probabilities,
     smooth_probabilities,
     steady_imm_cycle,
 )
-from vehicle_monitor_common.figures import pyplot, save_figure
+from rail_monitor_ros.core.rail_model import (
+    MAX_CREEP_FACTOR,
+    SENSOR_OUTPUT_NAMES,
+    RailVehicleParams,
+    StateSpace,
+    full_car_state_space,
+    reduced_bogie_body_model,
+)
+from rail_monitor_ros.core.suspension_modes import (
+    RATIO_DECIMALS,
+    SuspensionMode,
+    generate_mode_set,
+    markov_transition_matrix,
+)
+from rail_monitor_ros.core.track_shaping import (
+    N_BOGIE_INPUTS,
+    TrackShapingModel,
+    input_shaped_model,
+    primary_input_combination,
+    track_driven_model,
+    track_shaping_model,
+)
+from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
-# Known inputs of the monitored bogie's two wheelsets (wheelset_inputs_from_track).
-N_BOGIE_INPUTS = len(REDUCED_INPUT_NAMES)
 ESTIMATION_MODELS = ('full_car', 'half_car')
-MODE_KINDS = ('normal', 'spring', 'damper')
-FAULT_COMPONENTS = ('', 'spring', 'damper', 'spring+damper')
 # The steady-state kernel's measurement argument for a sample without one.
 _NO_MEASUREMENT = np.empty(0)
+
 
 @dataclass(frozen=True)
 class SteadyStateGain:
@@ -139,96 +146,6 @@ _SHARED_DISCRETIZATIONS: dict[tuple[object, ...], ModeModel] = {}
 _SHARED_DISCRETIZATIONS_MAX = 512
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
 _SPD_TOLERANCE = 1e-9
-# Ratios on the mode grid are compared after rounding to this many decimals (0.1 steps are not
-# exact in binary).
-_RATIO_DECIMALS = 6
-
-
-@dataclass(frozen=True)
-class SuspensionMode:
-    """One IMM mode: a secondary lateral spring and damper ratio hypothesis.
-
-    Attributes:
-        name: 'normal', 'spring_150', 'damper_50' (percent of nominal).
-        kind: one of :data:`MODE_KINDS`.
-        spring_ratio: Ksy / nominal of the mode as generated (damper modes: 1; the adaptive
-            step moves their spring ratio at run time).
-        damper_ratio: Csy / nominal.
-        number: the paper's mode number (1 normal, 2-8 spring, 9-16 damper by default).
-    """
-
-    name: str
-    kind: str
-    spring_ratio: float
-    damper_ratio: float
-    number: int
-
-
-def _ratio_grid(start: float, stop: float, step: float, name: str) -> tuple[float, ...]:
-    """Ratios from start to stop (inclusive, either direction) in steps of |step|."""
-    for key, value in ((f'{name}_start', start), (f'{name}_stop', stop), (f'{name}_step', step)):
-        if not math.isfinite(value):
-            raise ValueError(f'{key} must be finite, got {value}')
-    if step <= 0.0:
-        raise ValueError(f'{name}_step must be > 0, got {step}')
-    for key, value in ((f'{name}_start', start), (f'{name}_stop', stop)):
-        if not 0.0 < value <= MAX_SUSPENSION_RATIO:
-            raise ValueError(f'{key} must be in (0, {MAX_SUSPENSION_RATIO}], got {value}')
-    count = int(math.floor(abs(stop - start) / step + 1e-9)) + 1
-    direction = 1.0 if stop >= start else -1.0
-    return tuple(round(start + direction * k * step, _RATIO_DECIMALS) for k in range(count))
-
-
-def generate_mode_set(spring_start: float = 1.1, spring_stop: float = 1.7,
-                      spring_step: float = 0.1, damper_start: float = 1.0,
-                      damper_stop: float = 0.3, damper_step: float = 0.1,
-                      ) -> tuple[SuspensionMode, ...]:
-    """The mode set: normal, then spring modes, then damper modes (the paper's numbering).
-
-    Defaults give the paper's 16 modes: 1 normal; 2-8 spring 110 ... 170 %; 9-16 damper
-    100 ... 30 %. A damper mode at 100 % is kept: with the adaptive step it carries the
-    estimated spring ratio (spring-only hypothesis at that ratio).
-
-    Raises:
-        ValueError: a non-finite, non-positive or out-of-range bound or step (named).
-    """
-    springs = _ratio_grid(spring_start, spring_stop, spring_step, 'spring')
-    dampers = _ratio_grid(damper_start, damper_stop, damper_step, 'damper')
-    modes = [SuspensionMode('normal', 'normal', 1.0, 1.0, 1)]
-    for ratio in springs:
-        modes.append(SuspensionMode(f'spring_{round(100 * ratio)}', 'spring', ratio, 1.0,
-                                    len(modes) + 1))
-    for ratio in dampers:
-        modes.append(SuspensionMode(f'damper_{round(100 * ratio)}', 'damper', 1.0, ratio,
-                                    len(modes) + 1))
-    names = [m.name for m in modes]
-    if len(set(names)) != len(names):
-        raise ValueError(f'mode set has duplicate names: {names}')
-    return tuple(modes)
-
-
-def markov_transition_matrix(n_modes: int, mean_sojourn_time: float, dt: float) -> np.ndarray:
-    """Mode transition matrix Pi: Pi[i, j] = P(mode j at k+1 | mode i at k); rows sum to 1.
-
-    A mode is left with probability dt / tau per step (mean sojourn time tau, geometric), to
-    any other mode alike (the paper gives no prior on which fault follows which).
-
-    Args:
-        n_modes: number of modes, >= 2.
-        mean_sojourn_time: tau, s, > dt.
-        dt: sample period, s.
-    """
-    if n_modes < 2:
-        raise ValueError(f'n_modes must be >= 2, got {n_modes}')
-    if not (math.isfinite(dt) and dt > 0.0):
-        raise ValueError(f'dt must be finite and > 0, got {dt}')
-    if not (math.isfinite(mean_sojourn_time) and mean_sojourn_time > dt):
-        raise ValueError(f'mean_sojourn_time must be finite and > dt = {dt}, '
-                         f'got {mean_sojourn_time}')
-    leave = dt / mean_sojourn_time
-    matrix = np.full((n_modes, n_modes), leave / (n_modes - 1))
-    np.fill_diagonal(matrix, 1.0 - leave)
-    return matrix
 
 
 @dataclass(frozen=True)
@@ -412,272 +329,6 @@ class SuspensionImmConfig:
                                  self.damper_start, self.damper_stop, self.damper_step)
 
 
-def primary_input_combination(vehicle: RailVehicleParams,
-                              input_names: Sequence[str]) -> np.ndarray:
-    """The combinations through which a bogie's two wheelsets act on it: T, (2 per bogie, m).
-
-    The primary springs put the wheelsets into the bogie equations only as
-    2 Ky (y_lead + y_trail) / 2 (lateral) and Ky a0 (y_lead - y_trail) + Kp (psi_lead +
-    psi_trail) (yaw), so per bogie the inputs are exactly u_lat = (y_lead + y_trail) / 2 and
-    u_yaw = (Ky a0 (y_lead - y_trail) + Kp (psi_lead + psi_trail)) / (2 Kp), an equivalent
-    wheelset yaw angle. ``input_names`` come in groups of four per bogie,
-    [y_lead, y_trail, psi_lead, psi_trail] (``REDUCED_INPUT_NAMES`` order).
-    """
-    m = len(input_names)
-    if m % N_BOGIE_INPUTS:
-        raise ValueError(f'input_names must come in groups of {N_BOGIE_INPUTS}, got {m}')
-    lever = (vehicle.primary_lateral_stiffness * vehicle.semi_wheelbase
-             / (2.0 * vehicle.primary_yaw_stiffness))
-    block = np.array([[0.5, 0.5, 0.0, 0.0], [lever, -lever, 0.5, 0.5]])
-    return scipy.linalg.block_diag(*[block] * (m // N_BOGIE_INPUTS))
-
-
-def _augmented_model(model: StateSpace, combination: np.ndarray, combination_std: np.ndarray,
-                     correlation_time: float, bandwidth_hz: float, dt: float,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact discretisation of [x; w] with the input combinations w second-order Gauss-Markov.
-
-    u enters only through w = T u (:func:`primary_input_combination`): B u = (B T^+) w exactly
-    (checked). Each w_j has states [w_j, w_j'] and the spectrum of white noise through two
-    first-order lags, poles 1 / tau and 2 pi f_b: flat below 1 / tau (long track
-    wavelengths), -40 dB/decade above f_b like the wheelset motion, so its increments over a
-    sample are smooth rather than white-noise steps. The noise density is set for the
-    stationary std. Van Loan's matrix exponential gives F and Q together.
-
-    Returns:
-        (F, Q, H) with H = [C, D T^+ on the w positions].
-    """
-    t_pinv = np.linalg.pinv(combination)
-    b_w = model.b @ t_pinv
-    d_w = model.d @ t_pinv
-    scale = max(float(np.abs(model.b).max()), 1.0)
-    if not (np.allclose(b_w @ combination, model.b, atol=1e-9 * scale)
-            and np.allclose(d_w @ combination, model.d, atol=1e-9 * scale)):
-        raise ValueError('the model inputs do not enter through primary_input_combination')
-    n, k = model.a.shape[0], combination.shape[0]
-    w1, w2 = 1.0 / correlation_time, 2.0 * math.pi * bandwidth_hz
-    size = n + 2 * k
-    a_aug = np.zeros((size, size))
-    a_aug[:n, :n] = model.a
-    spectral = np.zeros((size, size))
-    pos = n + 2 * np.arange(k)
-    a_aug[:n, pos] = b_w
-    a_aug[pos, pos + 1] = 1.0
-    a_aug[pos + 1, pos] = -w1 * w2
-    a_aug[pos + 1, pos + 1] = -(w1 + w2)
-    spectral[pos + 1, pos + 1] = 2.0 * w1 * w2 * (w1 + w2) * combination_std ** 2
-    van_loan = np.zeros((2 * size, 2 * size))
-    van_loan[:size, :size] = -a_aug
-    van_loan[:size, size:] = spectral
-    van_loan[size:, size:] = a_aug.T
-    e = scipy.linalg.expm(van_loan * dt)
-    f = e[size:, size:].T
-    q = f @ e[:size, size:]
-    h = np.zeros((model.c.shape[0], size))
-    h[:, :n] = model.c
-    h[:, pos] = d_w
-    return f, 0.5 * (q + q.T), h
-
-
-def _pade_section(tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """(A, B, C, D) of the [2/2] Pade approximant of e^{-s tau}, controllable form.
-
-    (1 - s tau/2 + (s tau)^2/12) / (1 + s tau/2 + (s tau)^2/12): all-pass (exact magnitude),
-    phase error below 2 degrees for omega tau <= 2.
-    """
-    a1, a0 = 6.0 / tau, 12.0 / tau ** 2
-    # N(s)/D(s) = 1 + (-2 a1 s) / D(s) with D = s^2 + a1 s + a0.
-    a = np.array([[0.0, 1.0], [-a0, -a1]])
-    b = np.array([[0.0], [1.0]])
-    c = np.array([[0.0, -2.0 * a1]])
-    return a, b, c, 1.0
-
-
-@dataclass(frozen=True)
-class TrackShapingModel:
-    """The track alignment under the wheelsets as the output of a linear system driven by
-    white noise (see :func:`track_shaping_model`).
-
-    Attributes:
-        a: (n, n) state matrix.
-        g: (n,) noise input vector (the noise has spectral density ``noise_density``).
-        c: (k, n) alignment under each wheelset, front to rear.
-        noise_density: white-noise spectral density, m^2 s^-3 (on the alignment rate state).
-    """
-
-    a: np.ndarray
-    g: np.ndarray
-    c: np.ndarray
-    noise_density: float
-
-
-def track_shaping_model(roughness: float, corner_wavenumber: float, long_wavenumber: float,
-                        speed: float, offsets: Sequence[float] | np.ndarray,
-                        delay_min_wavelength: float) -> TrackShapingModel:
-    """Alignment under wheelsets at the given distances behind the first, at a speed.
-
-    The alignment spectrum A Omega_c^2 / ((Omega^2 + Omega_r^2)(Omega^2 + Omega_c^2)) is white
-    noise through two first-order lags in distance; at speed v the lags are in time with
-    poles Omega_r v and Omega_c v, and the variance is the spectrum's integral
-    pi A Omega_c / (2 Omega_r (Omega_r + Omega_c)), independent of v. The states are the
-    alignment under the first wheelset and its rate. A wheelset d behind the previous one sees
-    that alignment delayed by d / v: a cascade of [2/2] Pade sections of d / v / n each, n =
-    ceil(pi d / delay_min_wavelength), so every section stays within omega tau <= 2 down to
-    that wavelength at any speed (the state count does not change with speed).
-
-    Args:
-        roughness: A, m rad.
-        corner_wavenumber: Omega_c, rad/m.
-        long_wavenumber: Omega_r, rad/m.
-        speed: v, m/s.
-        offsets: distance of each wheelset behind the first, m, non-decreasing, first 0.
-        delay_min_wavelength: shortest wavelength the delays are accurate for, m.
-    """
-    for name, value in (('roughness', roughness), ('corner_wavenumber', corner_wavenumber),
-                        ('long_wavenumber', long_wavenumber), ('speed', speed),
-                        ('delay_min_wavelength', delay_min_wavelength)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{name} must be finite and > 0, got {value}')
-    d = np.asarray(offsets, dtype=float)
-    if d.ndim != 1 or d.size < 1 or d[0] != 0.0 or np.any(np.diff(d) < 0.0):
-        raise ValueError(f'offsets must start at 0 and not decrease, got {d}')
-    r, c = long_wavenumber * speed, corner_wavenumber * speed
-    variance = (math.pi * roughness * corner_wavenumber
-                / (2.0 * long_wavenumber * (long_wavenumber + corner_wavenumber)))
-    blocks_a = [np.array([[0.0, 1.0], [-r * c, -(r + c)]])]
-    # Each block's input comes from the previous output row: a lower block-triangular A.
-    outputs = [np.array([1.0, 0.0])]
-    size = 2
-    couplings: list[tuple[int, np.ndarray]] = []
-    source = outputs[0]
-    for gap in np.diff(d):
-        n = max(1, math.ceil(math.pi * gap / delay_min_wavelength)) if gap > 0.0 else 0
-        for _ in range(n):
-            sa, sb, sc, sd = _pade_section(gap / speed / n)
-            blocks_a.append(sa)
-            couplings.append((size, sb[:, 0][:, None] * np.pad(source, (0, 2))[None, :]))
-            out = np.zeros(size + 2)
-            out[:size] = sd * source
-            out[size:] = sc[0]
-            size += 2
-            source = out
-        outputs.append(source)
-    a = np.zeros((size, size))
-    at = 0
-    for block in blocks_a:
-        k = block.shape[0]
-        a[at:at + k, at:at + k] = block
-        at += k
-    for row, coupling in couplings:
-        a[row:row + 2, :coupling.shape[1]] += coupling
-    c_out = np.array([np.pad(o, (0, size - o.size)) for o in outputs])
-    g = np.zeros(size)
-    g[1] = 1.0
-    return TrackShapingModel(a, g, c_out, 2.0 * r * c * (r + c) * variance)
-
-
-def _track_driven_model(model: StateSpace, track: TrackShapingModel, dt: float,
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact discretisation of [x; track states] with the track noise (Van Loan).
-
-    Returns:
-        (F, Q, H) with H the sensor rows over the augmented state.
-    """
-    n, k = model.a.shape[0], track.a.shape[0]
-    size = n + k
-    a_aug = np.zeros((size, size))
-    a_aug[:n, :n] = model.a
-    a_aug[:n, n:] = model.b @ track.c
-    a_aug[n:, n:] = track.a
-    g = np.concatenate([np.zeros(n), track.g])
-    van_loan = np.zeros((2 * size, 2 * size))
-    van_loan[:size, :size] = -a_aug
-    van_loan[:size, size:] = track.noise_density * np.outer(g, g)
-    van_loan[size:, size:] = a_aug.T
-    e = scipy.linalg.expm(van_loan * dt)
-    f = e[size:, size:].T
-    q = f @ e[:size, size:]
-    h = np.hstack([model.c, model.d @ track.c])
-    return f, 0.5 * (q + q.T), h
-
-
-@dataclass(frozen=True)
-class FaultStatus:
-    """The decision at one sample.
-
-    Attributes:
-        detected: a non-normal hypothesis is declared.
-        component: one of :data:`FAULT_COMPONENTS` ('' when none).
-        spring_ratio: the declared hypothesis's spring ratio (snapped to the mode grid), 1.
-        damper_ratio: the declared hypothesis's damper ratio, 1.
-        probability: the declared hypothesis's smoothed probability.
-    """
-
-    detected: bool
-    component: str
-    spring_ratio: float
-    damper_ratio: float
-    probability: float
-
-
-NO_FAULT = FaultStatus(False, '', 1.0, 1.0, 0.0)
-# The (spring, damper) ratios of the healthy suspension.
-NORMAL_HYPOTHESIS = (1.0, 1.0)
-
-
-def fault_component(spring_ratio: float, damper_ratio: float) -> str:
-    """'', 'spring', 'damper' or 'spring+damper' for ratios snapped to the mode grid."""
-    spring = round(spring_ratio, _RATIO_DECIMALS) != 1.0
-    damper = round(damper_ratio, _RATIO_DECIMALS) != 1.0
-    return {(False, False): '', (True, False): 'spring', (False, True): 'damper',
-            (True, True): 'spring+damper'}[(spring, damper)]
-
-
-class FaultDecision:
-    """Declares the hypothesis whose smoothed probability held above a threshold for a time.
-
-    Symmetric: the normal hypothesis is declared (the fault cleared) by the same rule, and a
-    change from one fault hypothesis to another (spring -> spring+damper) too.
-    """
-
-    def __init__(self, threshold: float, hold_time: float, dt: float) -> None:
-        if not 0.0 < threshold < 1.0:
-            raise ValueError(f'threshold must be in (0, 1), got {threshold}')
-        if not (math.isfinite(hold_time) and hold_time >= 0.0):
-            raise ValueError(f'hold_time must be finite and >= 0, got {hold_time}')
-        self.threshold = threshold
-        self.hold_samples = int(round(hold_time / dt))
-        self.reset()
-
-    def reset(self) -> None:
-        """Back to normal with nothing pending."""
-        self._declared: tuple[float, float] = NORMAL_HYPOTHESIS
-        self._pending: tuple[float, float] | None = None
-        self._held = 0
-
-    def update(self, keys: Sequence[tuple[float, float]],
-               probabilities: np.ndarray) -> FaultStatus:
-        """One sample: hypothesis keys (spring, damper) and their smoothed probabilities."""
-        best = int(np.argmax(probabilities))
-        if probabilities[best] > self.threshold:
-            key = keys[best]
-            if key == self._pending:
-                self._held += 1
-            else:
-                self._pending, self._held = key, 1
-            if self._held > self.hold_samples:
-                self._declared = key
-        else:
-            self._pending, self._held = None, 0
-        if self._declared == NORMAL_HYPOTHESIS:
-            return NO_FAULT
-        # The adaptive step may have moved the bank off the declared hypothesis: probability 0.
-        probability = (float(probabilities[keys.index(self._declared)])
-                       if self._declared in keys else 0.0)
-        return FaultStatus(True, fault_component(*self._declared), self._declared[0],
-                           self._declared[1], probability)
-
-
 @dataclass(frozen=True)
 class ImmStep:
     """What one IMM step produced (arrays over the modes are copies).
@@ -723,7 +374,8 @@ def _log_likelihood(residual: np.ndarray, s_inv_res: np.ndarray, chol: np.ndarra
 class SuspensionImm:
     """The batched IMM bank with smoothing, the adaptive step and the fault decision.
 
-    Streaming use: :meth:`step` per sample; offline: :func:`run_suspension_imm`.
+    Streaming use: :meth:`step` per sample; offline:
+    :func:`rail_monitor_ros.offline.imm_runs.run_suspension_imm`.
 
     Args:
         config: IMM configuration.
@@ -751,9 +403,9 @@ class SuspensionImm:
         self._base_spring = np.array([m.spring_ratio for m in self.modes])
         self.mode_damper_ratio = np.array([m.damper_ratio for m in self.modes])
         self._spring_grid = np.unique(np.round(
-            [1.0, *[m.spring_ratio for m in self.modes if m.kind == 'spring']], _RATIO_DECIMALS))
+            [1.0, *[m.spring_ratio for m in self.modes if m.kind == 'spring']], RATIO_DECIMALS))
         self._damper_grid = np.unique(np.round(
-            [1.0, *[m.damper_ratio for m in self.modes if m.kind == 'damper']], _RATIO_DECIMALS))
+            [1.0, *[m.damper_ratio for m in self.modes if m.kind == 'damper']], RATIO_DECIMALS))
         self._r_sensor = np.diag(np.array(
             [cfg.bogie_accel_noise, cfg.bogie_gyro_noise, cfg.body_accel_noise]) ** 2)
         self._full_car = cfg.estimation_model == 'full_car'
@@ -842,18 +494,18 @@ class SuspensionImm:
         return np.diag(np.concatenate([np.square(initial_std), input_var]))
 
     def _discretize(self, spring: float, damper: float) -> ModeModel:
-        key = (round(spring, _RATIO_DECIMALS), round(damper, _RATIO_DECIMALS))
+        key = (round(spring, RATIO_DECIMALS), round(damper, RATIO_DECIMALS))
         shared_key = (self.config, self.vehicle, self.creep_factor, key)
         cached = self._discretized.get(key, _SHARED_DISCRETIZATIONS.get(shared_key))
         if cached is None:
             cfg = self.config
             if self._full_car:
                 track = self._track_model()
-                f, q, h = _track_driven_model(self._model(*key), track, cfg.dt)
+                f, q, h = track_driven_model(self._model(*key), track, cfg.dt)
                 rows = np.hstack([np.zeros((self.n_inputs, self.n_states)), track.c])
                 h_known = {k: np.vstack([h, rows[:k]]) for k in self._known_sizes}
             else:
-                f, q, h = _augmented_model(self._model(*key), self._combination,
+                f, q, h = input_shaped_model(self._model(*key), self._combination,
                                            self._combination_std, cfg.input_correlation_time,
                                            cfg.input_bandwidth, cfg.dt)
                 # Known inputs are extra measurements of the first k // 2 input combinations.
@@ -895,7 +547,7 @@ class SuspensionImm:
         if not self._full_car or abs(creep_factor - self.creep_factor) <= 0.75 * step:
             return
         self.creep_factor = round(max(step, round(creep_factor / step) * step),
-                                  _RATIO_DECIMALS)
+                                  RATIO_DECIMALS)
         self._rediscretize()
 
     def _rediscretize(self) -> None:
@@ -1040,7 +692,7 @@ class SuspensionImm:
 
     def _steady_cycle(self, z: np.ndarray | None, steady: tuple[np.ndarray, ...]) -> None:
         """The IMM cycle on the steady-state covariances plus the mixing's spread of means
-        (:func:`rail_monitor_ros.imm_kernel.steady_imm_cycle`): sets ``x``, ``mu``,
+        (:func:`rail_monitor_ros.core.imm_kernel.steady_imm_cycle`): sets ``x``, ``mu``,
         ``_cbar``; the mode covariances left in ``P`` are the steady-state posteriors.
 
         Exact IMM: P-_j = F_j (sum_i w_ji P_i) F_j^T + Q_j + F_j Spread_j F_j^T with
@@ -1093,9 +745,9 @@ class SuspensionImm:
 
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (the voting modes' weighted ratio,
-        :func:`rail_monitor_ros.imm_kernel.smooth_probabilities`)."""
+        :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`)."""
         quantum = self.config.adaptation_resolution
-        snapped = round(round(self.spring_ratio / quantum) * quantum, _RATIO_DECIMALS)
+        snapped = round(round(self.spring_ratio / quantum) * quantum, RATIO_DECIMALS)
         if snapped != self._damper_spring:
             self._build_bank(snapped)
             self.rediscretizations += 1
@@ -1220,253 +872,3 @@ def _initial_std(name: str, cfg: SuspensionImmConfig) -> float:
             (True, False): cfg.initial_velocity_std,
             (False, True): cfg.initial_yaw_std,
             (True, True): cfg.initial_yaw_rate_std}[(rate, yaw)]
-
-
-@dataclass(frozen=True)
-class ImmRunResult:
-    """An offline run (row k = sample k).
-
-    Attributes:
-        time: (N,) s.
-        modes: the mode set.
-        probability: (N, M).
-        smoothed_probability: (N, M).
-        mode_spring_ratio: (N, M) spring ratio of each mode (adaptive damper modes move).
-        mode_damper_ratio: (M,).
-        spring_ratio: (N,) probability-weighted estimate.
-        damper_ratio: (N,).
-        state: (N, n) combined state of the model (``SuspensionImm.state_names``).
-        covariance: (N, n, n) combined covariance, or None (not stored).
-        fault_detected: (N,) bool.
-        fault_component: (N,) str.
-        accepted: (N,) bool, measurement used.
-        known_input: whether the known-input model was used.
-        truth_spring_ratio: (N,) or None, for plots.
-        truth_damper_ratio: (N,) or None.
-    """
-
-    time: np.ndarray
-    modes: tuple[SuspensionMode, ...]
-    probability: np.ndarray
-    smoothed_probability: np.ndarray
-    mode_spring_ratio: np.ndarray
-    mode_damper_ratio: np.ndarray
-    spring_ratio: np.ndarray
-    damper_ratio: np.ndarray
-    state: np.ndarray
-    covariance: np.ndarray | None
-    fault_detected: np.ndarray
-    fault_component: np.ndarray
-    accepted: np.ndarray
-    known_input: bool
-    truth_spring_ratio: np.ndarray | None = field(default=None)
-    truth_damper_ratio: np.ndarray | None = field(default=None)
-
-    def mode_index(self, name: str) -> int:
-        """Index of a mode by name ('spring_150'); ValueError listing the names."""
-        names = [m.name for m in self.modes]
-        if name not in names:
-            raise ValueError(f'unknown mode {name!r}; modes: {names}')
-        return names.index(name)
-
-    def first_time_above(self, name: str, threshold: float, after: float) -> float:
-        """First time >= ``after`` at which the mode's smoothed probability exceeds the
-        threshold, s (inf if never)."""
-        column = self.smoothed_probability[:, self.mode_index(name)]
-        hit = np.nonzero((self.time >= after) & (column > threshold))[0]
-        return float(self.time[hit[0]]) if hit.size else math.inf
-
-    def first_detection(self, component: str, after: float) -> float:
-        """First time >= ``after`` the decision reports this component, s (inf if never)."""
-        hit = np.nonzero((self.time >= after) & (self.fault_component == component))[0]
-        return float(self.time[hit[0]]) if hit.size else math.inf
-
-
-def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None = None,
-                       config: SuspensionImmConfig | None = None,
-                       vehicle: RailVehicleParams | None = None, time: np.ndarray | None = None,
-                       truth_spring_ratio: np.ndarray | None = None,
-                       truth_damper_ratio: np.ndarray | None = None,
-                       store_covariance: bool = False) -> ImmRunResult:
-    """Run the IMM over a recording.
-
-    Args:
-        measurements: (N, 3) [bogie lateral accel, bogie yaw rate, body lateral accel].
-        known_inputs: (N, k) known inputs per sample (see :meth:`SuspensionImm.step`: full
-            car (N, 2) or (N, 4) track alignment; half car (N, 4) wheelset inputs), or None.
-        config: IMM configuration.
-        vehicle: model parameters (Table 1 defaults).
-        time: (N,) s; default k / sample_rate.
-        truth_spring_ratio, truth_damper_ratio: (N,) ground truth kept for plots.
-        store_covariance: also keep the (N, n, n) combined covariance (slower).
-    """
-    z = np.asarray(measurements, dtype=float)
-    if z.ndim != 2 or z.shape[1] != N_OUTPUTS:
-        raise ValueError(f'measurements must have shape (N, {N_OUTPUTS}), got {z.shape}')
-    imm = SuspensionImm(config, vehicle)
-    u = None
-    if known_inputs is not None:
-        u = np.asarray(known_inputs, dtype=float)
-        if u.ndim != 2 or u.shape[0] != z.shape[0] or u.shape[1] not in imm._known_sizes[1:]:
-            raise ValueError(f'known_inputs must have shape ({z.shape[0]}, one of '
-                             f'{imm._known_sizes[1:]}), got {u.shape}')
-    n, m = z.shape[0], imm.n_modes
-    t = np.arange(n) / imm.config.sample_rate if time is None else np.asarray(time, float)
-    if t.shape != (n,):
-        raise ValueError(f'time must have shape ({n},), got {t.shape}')
-    prob = np.empty((n, m))
-    smooth = np.empty((n, m))
-    mode_spring = np.empty((n, m))
-    spring = np.empty(n)
-    damper = np.empty(n)
-    state = np.empty((n, imm.n_states))
-    cov = np.empty((n, imm.n_states, imm.n_states)) if store_covariance else None
-    detected = np.zeros(n, dtype=bool)
-    component = np.empty(n, dtype=object)
-    accepted = np.isfinite(z).all(axis=1)
-    if u is not None:
-        u_ok = np.isfinite(u).all(axis=1)
-    for k in range(n):
-        zk = z[k] if accepted[k] else None
-        uk = u[k] if u is not None and u_ok[k] else None
-        imm.advance(zk, uk)
-        prob[k] = imm.mu
-        smooth[k] = imm.smoothed
-        mode_spring[k] = imm._mode_spring_used
-        spring[k] = imm.spring_ratio
-        damper[k] = imm.damper_ratio
-        if cov is not None:
-            state[k], cov[k] = imm.combined()
-        else:
-            state[k] = imm.combined_state()
-        detected[k] = imm.fault.detected
-        component[k] = imm.fault.component
-    return ImmRunResult(t, imm.modes, prob, smooth, mode_spring, imm.mode_damper_ratio.copy(),
-                        spring, damper, state, cov, detected, component, accepted,
-                        u is not None, truth_spring_ratio, truth_damper_ratio)
-
-
-@dataclass(frozen=True)
-class HalfCarSensorData:
-    """Sensor signals of the paper's truth model (see :func:`half_car_sensor_data`).
-
-    Attributes:
-        time: (N,) s.
-        measurements: (N, 3) noisy [bogie lateral accel, bogie yaw rate, body lateral accel].
-        known_inputs: (N, 4) wheelset inputs from the track (``wheelset_inputs_from_track``).
-        spring_ratio: (N,) true spring ratio.
-        damper_ratio: (N,) true damper ratio.
-    """
-
-    time: np.ndarray
-    measurements: np.ndarray
-    known_inputs: np.ndarray
-    spring_ratio: np.ndarray
-    damper_ratio: np.ndarray
-
-
-def half_car_sensor_data(time: np.ndarray, track_alignment: np.ndarray,
-                         track_alignment_rate: np.ndarray, spring_ratio: np.ndarray,
-                         damper_ratio: np.ndarray, vehicle: RailVehicleParams | None = None,
-                         noise_std: Sequence[float] = (0.02, 1e-3, 0.02),
-                         seed: int = 0, creep_factor: float = 1.0) -> HalfCarSensorData:
-    """The paper's validation setup: the 7-DOF half car as truth on a given track.
-
-    Mori et al. simulate the half car of their Fig. 1 (two wheelsets, bogie, body lateral) and
-    estimate with the reduced model; the wheelset motion is what the estimator does not have.
-    This runs :func:`half_car_state_space` (exact zero-order hold between samples, the
-    parameters piecewise constant) on the track alignment under the two wheelsets, e.g. the
-    rail simulator's ``track_alignment[:, :2]``, and adds white sensor noise.
-
-    Args:
-        time: (N,) uniformly sampled, s.
-        track_alignment: (N, 2) alignment under the leading and trailing wheelset, m.
-        track_alignment_rate: (N, 2) its rate, m/s (for the known inputs).
-        spring_ratio, damper_ratio: (N,) the truth's secondary lateral spring and damper.
-        vehicle: truth parameters (speed included).
-        noise_std: sensor noise std (m/s^2, rad/s, m/s^2).
-        seed: noise seed.
-        creep_factor: the truth's creep factor.
-    """
-    from rail_monitor_ros.core.rail_model import wheelset_inputs_from_track
-
-    t = np.asarray(time, dtype=float)
-    y_r = np.asarray(track_alignment, dtype=float)
-    rate = np.asarray(track_alignment_rate, dtype=float)
-    springs = np.broadcast_to(np.asarray(spring_ratio, dtype=float), t.shape)
-    dampers = np.broadcast_to(np.asarray(damper_ratio, dtype=float), t.shape)
-    if t.ndim != 1 or t.size < 2 or y_r.shape != (t.size, 2) or rate.shape != y_r.shape:
-        raise ValueError('time must be (N,), track_alignment and its rate (N, 2)')
-    dt = float(np.mean(np.diff(t)))
-    params = vehicle if vehicle is not None else RailVehicleParams()
-    models: dict[tuple[float, float], tuple[np.ndarray, ...]] = {}
-    n_states = half_car_state_space(params).a.shape[0]
-    x = np.zeros(n_states)
-    out = np.empty((t.size, N_OUTPUTS))
-    # The recursion is sequential; one small matrix-vector product per sample.
-    for k in range(t.size):
-        key = (float(springs[k]), float(dampers[k]))
-        if key not in models:
-            model = half_car_state_space(params, creep_factor, *key).discretize(dt)
-            models[key] = (model.f, model.g, model.h, model.l)
-        f, g, h, l = models[key]  # noqa: E741
-        out[k] = h @ x + l @ y_r[k]
-        x = f @ x + g @ y_r[k]
-    rng = np.random.default_rng(seed)
-    measurements = out + rng.standard_normal(out.shape) * np.asarray(noise_std, dtype=float)
-    known = wheelset_inputs_from_track(y_r, rate, params.speed)
-    return HalfCarSensorData(t, measurements, known, springs.copy(), dampers.copy())
-
-
-def plot_mode_probabilities(result: ImmRunResult, path: str | Path, title: str = '') -> Path:
-    """The paper's Figs. 5-7 in one PNG: smoothed mode probabilities, spring and damper ratio.
-
-    Top: smoothed probability of every mode over time (the normal, spring and damper families
-    in distinct colour maps); middle: estimated spring ratio with the truth when known;
-    bottom: estimated damper ratio with the truth; the decision's fault periods shaded.
-
-    Args:
-        result: an offline run (:func:`run_suspension_imm`).
-        path: PNG path.
-        title: figure title.
-
-    Returns:
-        The path written.
-    """
-    plt = pyplot()
-
-    fig, (ax_p, ax_s, ax_d) = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
-    t = result.time
-    springs = [i for i, m in enumerate(result.modes) if m.kind == 'spring']
-    dampers = [i for i, m in enumerate(result.modes) if m.kind == 'damper']
-    spring_colours = plt.get_cmap('autumn')(np.linspace(0.0, 0.8, max(len(springs), 1)))
-    damper_colours = plt.get_cmap('winter')(np.linspace(0.0, 0.9, max(len(dampers), 1)))
-    for index, mode in enumerate(result.modes):
-        if mode.kind == 'normal':
-            colour = 'black'
-        elif mode.kind == 'spring':
-            colour = spring_colours[springs.index(index)]
-        else:
-            colour = damper_colours[dampers.index(index)]
-        ax_p.plot(t, result.smoothed_probability[:, index], color=colour, lw=1.0,
-                  label=f'{mode.number}: {mode.name}')
-    ax_p.set_ylabel('smoothed mode probability')
-    ax_p.set_ylim(-0.02, 1.02)
-    ax_p.legend(ncol=4, fontsize=7, loc='upper left')
-    for axis, estimate, truth, label in (
-            (ax_s, result.spring_ratio, result.truth_spring_ratio, 'spring ratio Ksy / nominal'),
-            (ax_d, result.damper_ratio, result.truth_damper_ratio,
-             'damper ratio Csy / nominal')):
-        axis.plot(t, estimate, label='IMM estimate')
-        if truth is not None:
-            axis.plot(t, truth, 'k--', label='truth')
-        axis.set_ylabel(label)
-        axis.grid(True, alpha=0.3)
-        axis.legend(loc='upper left')
-    for axis in (ax_p, ax_s, ax_d):
-        axis.fill_between(t, 0, 1, where=result.fault_detected, color='red', alpha=0.08,
-                          transform=axis.get_xaxis_transform(), label=None)
-    ax_d.set_xlabel('time, s  (shaded: fault declared)')
-    mode_label = 'known inputs' if result.known_input else 'inputs as process noise'
-    fig.suptitle(title or f'IMM suspension monitor ({mode_label})')
-    return save_figure(fig, path, dpi=110)

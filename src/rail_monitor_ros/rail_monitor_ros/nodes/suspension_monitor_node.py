@@ -7,7 +7,8 @@ the monitored bogie's are indices 0 and 1; the full-car model takes the alignmen
 four (or the first two) as measurements of its track model, the half-car model turns the first
 two into wheelset inputs); publishes
 ``rail/suspension/modes`` (ModeProbabilities) and ``/diagnostics``. The estimator is
-:class:`rail_monitor_ros.suspension_imm.SuspensionImm`; this node converts and checks messages.
+:class:`rail_monitor_ros.core.suspension_imm.SuspensionImm`; this node converts and checks
+messages.
 
 Time alignment:
 
@@ -48,7 +49,7 @@ from rail_monitor_ros.core.rail_model import (
     RailVehicleParams,
     wheelset_inputs_from_track,
 )
-from rail_monitor_ros.suspension_imm import FaultDecision, SuspensionImm, SuspensionImmConfig
+from rail_monitor_ros.core.suspension_imm import FaultDecision, SuspensionImm, SuspensionImmConfig
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
@@ -244,7 +245,7 @@ class _FrozenDetector:
         return self.repeats
 
 
-class SuspensionMonitor(Node):
+class SuspensionMonitorNode(Node):
     """IMM suspension monitor node (see the module docstring for time alignment)."""
 
     def __init__(self, node_name: str = 'suspension_monitor', **kwargs: Any) -> None:
@@ -475,7 +476,7 @@ def main(args: list[str] | None = None) -> None:
 
     from vehicle_monitor_common.node_helpers import run_node
 
-    sys.exit(run_node(SuspensionMonitor, args))
+    sys.exit(run_node(SuspensionMonitorNode, args))
 
 
 if __name__ == '__main__':
