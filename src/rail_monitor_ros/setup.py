@@ -24,13 +24,14 @@ setup(
         'console_scripts': [
             'rail_simulator = rail_monitor_ros.rail_simulator_node:main',
             'creep_estimator = rail_monitor_ros.creep_estimator_node:main',
-            'suspension_monitor = rail_monitor_ros.suspension_monitor_node:main',
+            'suspension_monitor = rail_monitor_ros.nodes.suspension_monitor_node:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
             'rail_simulator = rail_monitor_ros.rail_simulator_node:RailSimulator',
             'creep_estimator = rail_monitor_ros.creep_estimator_node:CreepEstimatorNode',
-            'suspension_monitor = rail_monitor_ros.suspension_monitor_node:SuspensionMonitor',
+            'suspension_monitor = '
+            'rail_monitor_ros.nodes.suspension_monitor_node:SuspensionMonitorNode',
         ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [
