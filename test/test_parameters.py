@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import ast
 from collections.abc import Callable, Iterator
-from importlib.metadata import entry_points
 import inspect
 import math
 from pathlib import Path
@@ -19,31 +18,26 @@ from typing import Any
 import pytest
 import yaml
 
+from vehicle_monitor_common.parameter_docs import (
+    PLAYER_BAGS,
+    collect,
+    node_specs,
+    plugins,
+    render,
+)
 from vehicle_monitor_common.parameters import ParameterSpec
 
 ROOT = Path(__file__).resolve().parents[1]
-NODE_GROUP = 'vehicle_monitor.nodes'
-# Players need a recording to start; any shipped bag of their domain serves.
-PLAYER_BAGS = {'tpms_ros/vehicle_simulator': 'bags/road_kim_huh_lateral',
-               'rail_monitor_ros/rail_simulator': 'bags/rail_creep_steps',
-               'vehicle_monitor_common/scenario_player': 'bags/rail_creep_steps'}
 # Declared by rclpy itself, not by the project.
 ROS_OWN = ('use_sim_time', 'start_type_description_service')
-
-
-def _plugins() -> dict[str, Any]:
-    return {f'{ep.dist.name if ep.dist else "?"}/{ep.name}': ep
-            for ep in entry_points(group=NODE_GROUP)}
 
 
 def _own(name: str) -> bool:
     return name not in ROS_OWN and not name.startswith('qos_overrides.')
 
 
-def _typed_parameters(node: Any) -> list[Any]:
-    from vehicle_monitor_common.node_helpers import TypedParameters
-
-    return [v for v in vars(node).values() if isinstance(v, TypedParameters)]
+def _specs(node: Any) -> dict[str, ParameterSpec]:
+    return {s.name: s for s in node_specs(node)}
 
 
 @pytest.fixture
@@ -53,8 +47,8 @@ def created(make_node: Callable[..., Any]) -> Callable[[str], Any]:
     from rclpy.parameter import Parameter
 
     def create(plugin: str) -> Any:
-        cls = _plugins()[plugin].load()
-        overrides = ([Parameter('bag', value=str(ROOT / PLAYER_BAGS[plugin]))]
+        cls = plugins()[plugin].load()
+        overrides = ([Parameter('bag', value=str(ROOT / 'bags' / PLAYER_BAGS[plugin]))]
                      if plugin in PLAYER_BAGS else [])
         return make_node(cls, parameter_overrides=overrides)
 
@@ -102,18 +96,17 @@ def _same(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
-@pytest.mark.parametrize('plugin', sorted(_plugins()))
+@pytest.mark.parametrize('plugin', sorted(plugins()))
 def test_every_parameter_has_one_definition(plugin: str, created: Callable[[str], Any]) -> None:
     """Each declared parameter comes from exactly one dataclass field, and ROS describes it
     with that field's description, range, choices and read-only flag."""
     node = created(plugin)
-    typed = _typed_parameters(node)
-    assert typed, f'{plugin} declares no parameters through TypedParameters'
+    specs = node_specs(node)
+    assert specs, f'{plugin} declares no parameters through TypedParameters'
     sources: dict[str, ParameterSpec] = {}
-    for t in typed:
-        for name, spec in t.specs.items():
-            assert name not in sources, f'{plugin}: {name} is defined in two dataclasses'
-            sources[name] = spec
+    for spec in specs:
+        assert spec.name not in sources, f'{plugin}: {spec.name} is defined in two dataclasses'
+        sources[spec.name] = spec
     declared = [n for n in node._parameters if _own(n)]
     undefined = sorted(set(declared) - set(sources))
     assert not undefined, f'{plugin} declares parameters outside any dataclass: {undefined}'
@@ -137,11 +130,11 @@ def test_every_parameter_has_one_definition(plugin: str, created: Callable[[str]
             assert _same(node.get_parameter(descriptor.name).value, spec.default), descriptor.name
 
 
-@pytest.mark.parametrize('plugin', sorted(_plugins()))
+@pytest.mark.parametrize('plugin', sorted(plugins()))
 def test_node_module_copies_no_definition(plugin: str) -> None:
     """The node's module declares no parameter by hand and keeps no module-level instance of a
     parameter class to copy defaults from (the ``_D = SomeParams()`` pattern)."""
-    module = inspect.getmodule(_plugins()[plugin].load())
+    module = inspect.getmodule(plugins()[plugin].load())
     assert module is not None and module.__file__
     tree = ast.parse(Path(module.__file__).read_text())
     for node in ast.walk(tree):
@@ -156,8 +149,8 @@ def test_node_module_copies_no_definition(plugin: str) -> None:
 
 
 def _node_configs() -> list[Path]:
-    plugins = {p.split('/')[1] for p in _plugins()}
-    return sorted(p for p in ROOT.glob('src/*/config/*.yaml') if p.stem in plugins)
+    names = {p.split('/')[1] for p in plugins()}
+    return sorted(p for p in ROOT.glob('src/*/config/*.yaml') if p.stem in names)
 
 
 @pytest.mark.parametrize('path', _node_configs(), ids=lambda p: p.name)
@@ -167,7 +160,7 @@ def test_shipped_node_config_matches_definitions(path: Path,
     equal to its definition's default (the file documents the defaults), and omits none."""
     package = path.parent.parent.name
     node = created(f'{package}/{path.stem}')
-    specs = {n: s for t in _typed_parameters(node) for n, s in t.specs.items()}
+    specs = _specs(node)
     data = yaml.safe_load(path.read_text())
     (key,) = data
     values = dict(_flatten(data[key]['ros__parameters']))
@@ -199,10 +192,17 @@ def test_graph_parameters_are_declared(graph: str, plugin: str, name: str,
     """Each node entry of a shipped graph sets only parameters its node declares, with valid
     values (qos_overrides are rclpy's own)."""
     node = created(plugin)
-    specs = {n: s for t in _typed_parameters(node) for n, s in t.specs.items()}
+    specs = _specs(node)
     for key, value in values.items():
         if key.startswith('qos_overrides.'):
             continue
         assert key in specs, f'{graph}: {name} sets undeclared parameter {key}'
         problem = _check_value(specs[key], value)
         assert problem is None, f'{graph} {name}: {problem}'
+
+
+def test_parameter_reference_is_current() -> None:
+    """docs/parameters.md is what the definitions generate (run ``parameter_docs`` after
+    changing a parameter)."""
+    expected = render(list(collect()))
+    assert (ROOT / 'docs' / 'parameters.md').read_text(encoding='utf-8') == expected

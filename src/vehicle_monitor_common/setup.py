@@ -21,6 +21,7 @@ setup(
             'run_graph = vehicle_monitor_common.runner:main',
             'monitor_demo = vehicle_monitor_common.main_job:main',
             'evaluate = vehicle_monitor_common.evaluate_cli:main',
+            'parameter_docs = vehicle_monitor_common.parameter_docs:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
