@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from tpms_ros.lateral_force_observer import (
+from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     LateralForceTrack,
     ObserverTuning,
@@ -34,9 +34,9 @@ from tpms_ros.lateral_force_observer import (
     plot_relation_check,
     tune_gains,
 )
-from tpms_ros.road_scenario import load_scenario
-from tpms_ros.road_simulator import simulate_scenario
-from tpms_ros.vehicle_dynamics import (
+from tpms_ros.simulation.road_scenario import load_scenario
+from tpms_ros.simulation.road_simulator import simulate_scenario
+from tpms_ros.simulation.vehicle_dynamics import (
     HandlingInputs,
     HandlingResult,
     VehicleParams,

@@ -13,9 +13,9 @@ import argparse
 from pathlib import Path
 import time
 
-from tpms_ros import road_simulator
-from tpms_ros.road_scenario import load_scenario, parse_scenario
-from tpms_ros.vehicle_dynamics import (
+from tpms_ros.simulation import road_simulator
+from tpms_ros.simulation.road_scenario import load_scenario, parse_scenario
+from tpms_ros.simulation.vehicle_dynamics import (
     HandlingInputs,
     HandlingResult,
     VehicleParams,

@@ -22,9 +22,9 @@ import numpy as np
 from scipy import signal
 
 from tpms_ros.core.tires import TpmsIndication
-from tpms_ros.tpms_voting import TpmsVoter, VoterParams
-from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams, ar2_rls_reference
-from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusParams
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams, ar2_rls_reference
+from tpms_ros.core.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusParams
 
 
 def best_of(fn: object, repeats: int = 3) -> float:

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from tpms_ros.vehicle_dynamics import HandlingInputs, VehicleParams, simulate_handling
+from tpms_ros.simulation.vehicle_dynamics import HandlingInputs, VehicleParams, simulate_handling
 
 
 def make_inputs(duration: float = 60.0, dt: float = 1e-3) -> HandlingInputs:

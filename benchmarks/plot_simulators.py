@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rail_monitor_ros.rail_scenario import rail_scenario_from_dict
-from rail_monitor_ros.rail_simulator import plot_acceleration_psd, simulate
-from tpms_ros.road_scenario import parse_scenario
-from tpms_ros.road_simulator import plot_wheel_speed_psd, simulate_scenario
+from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
+from rail_monitor_ros.simulation.rail_simulator import plot_acceleration_psd, simulate
+from tpms_ros.simulation.road_scenario import parse_scenario
+from tpms_ros.simulation.road_simulator import plot_wheel_speed_psd, simulate_scenario
 
 ROAD = '''seed: 11
 duration_s: 30

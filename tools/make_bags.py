@@ -13,8 +13,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 import time
 
-from rail_monitor_ros.rail_simulator import scenario_topics as rail_topics
-from tpms_ros.road_simulator import scenario_topics as road_topics
+from rail_monitor_ros.simulation.rail_simulator import scenario_topics as rail_topics
+from tpms_ros.simulation.road_simulator import scenario_topics as road_topics
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.resources import shipped_file
 from vehicle_monitor_common.series import TopicSeries

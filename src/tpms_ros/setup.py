@@ -22,27 +22,28 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'vehicle_simulator = tpms_ros.vehicle_simulator_node:main',
-            'vibration_analyzer = tpms_ros.vibration_analyzer_node:main',
-            'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:main',
-            'tpms_voter = tpms_ros.tpms_voter_node:main',
-            'tire_stiffness_observer = tpms_ros.tire_stiffness_observer_node:main',
-            'lateral_force_observer = tpms_ros.lateral_force_observer_node:main',
+            'vehicle_simulator = tpms_ros.nodes.vehicle_simulator_node:main',
+            'vibration_analyzer = tpms_ros.nodes.vibration_analyzer_node:main',
+            'wheel_radius_analyzer = tpms_ros.nodes.wheel_radius_analyzer_node:main',
+            'tpms_voter = tpms_ros.nodes.tpms_voter_node:main',
+            'tire_stiffness_observer = tpms_ros.nodes.tire_stiffness_observer_node:main',
+            'lateral_force_observer = tpms_ros.nodes.lateral_force_observer_node:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'vehicle_simulator = tpms_ros.vehicle_simulator_node:VehicleSimulator',
-            'vibration_analyzer = tpms_ros.vibration_analyzer_node:VibrationAnalyzerNode',
-            'wheel_radius_analyzer = tpms_ros.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',
-            'tpms_voter = tpms_ros.tpms_voter_node:TpmsVoterNode',
+            'vehicle_simulator = tpms_ros.nodes.vehicle_simulator_node:VehicleSimulator',
+            'vibration_analyzer = tpms_ros.nodes.vibration_analyzer_node:VibrationAnalyzerNode',
+            'wheel_radius_analyzer = '
+            'tpms_ros.nodes.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',
+            'tpms_voter = tpms_ros.nodes.tpms_voter_node:TpmsVoterNode',
             'tire_stiffness_observer = '
-            'tpms_ros.tire_stiffness_observer_node:TireStiffnessObserverNode',
+            'tpms_ros.nodes.tire_stiffness_observer_node:TireStiffnessObserverNode',
             'lateral_force_observer = '
-            'tpms_ros.lateral_force_observer_node:LateralForceObserverNode',
+            'tpms_ros.nodes.lateral_force_observer_node:LateralForceObserverNode',
         ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [
-            'road = tpms_ros.evaluation:domain',
+            'road = tpms_ros.offline.evaluation:domain',
         ],
     },
 )

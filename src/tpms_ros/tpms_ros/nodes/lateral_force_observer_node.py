@@ -1,6 +1,6 @@
 """``lateral_force_observer``: tire forces by SKFMEC (Kim & Huh 2000) on the ROS graph.
 
-Wraps :class:`tpms_ros.lateral_force_observer.LateralForceObserver` (SPEC §4).
+Wraps :class:`tpms_ros.core.lateral_force_observer.LateralForceObserver` (SPEC §4).
 
 Topics (relative, so a namespace moves them):
 
@@ -51,7 +51,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import DriverInputs, TireForces
 
-from tpms_ros.lateral_force_observer import (
+from tpms_ros.core.lateral_force_observer import (
     PAPER_SCALING,
     G,
     LateralForceEstimate,
@@ -59,7 +59,7 @@ from tpms_ros.lateral_force_observer import (
     ObserverTuning,
     ObserverVehicleParams,
 )
-from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
+from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     OK,

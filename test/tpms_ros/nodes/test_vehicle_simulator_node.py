@@ -10,7 +10,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_monitor_msgs.msg import WheelSpeeds
 
-from tpms_ros.vehicle_simulator_node import VehicleSimulator
+from tpms_ros.nodes.vehicle_simulator_node import VehicleSimulator
 from vehicle_monitor_common.bag_io import bag_topics
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.signal import lfilter, welch
 
 from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.road_scenario import (
+from tpms_ros.simulation.road_scenario import (
     Scenario,
     friction_multiplier,
     load_scenario,
@@ -43,7 +43,7 @@ from tpms_ros.road_scenario import (
     steering_angle,
     tire_pressure,
 )
-from tpms_ros.vehicle_dynamics import (
+from tpms_ros.simulation.vehicle_dynamics import (
     HandlingInputs,
     HandlingResult,
     VehicleParams,

@@ -1,4 +1,4 @@
-"""Tests of the wheel radius analysis core (tpms_ros.wheel_radius_analysis)."""
+"""Tests of the wheel radius analysis core (tpms_ros.core.wheel_radius_analysis)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tpms_ros.wheel_radius_analysis import (
+from tpms_ros.core.wheel_radius_analysis import (
     PAIR_SENSITIVITY,
     WheelRadiusAnalyzer,
     WheelRadiusCalibration,

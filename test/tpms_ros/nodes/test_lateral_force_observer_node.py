@@ -21,15 +21,15 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import DriverInputs, TireForces, WheelSpeeds
 import yaml
 
-from tpms_ros.lateral_force_observer import LateralForceObserver
-from tpms_ros.lateral_force_observer_node import LateralForceObserverNode
-from tpms_ros.road_simulator import simulate_file, to_topic_series
+from tpms_ros.core.lateral_force_observer import LateralForceObserver
+from tpms_ros.nodes.lateral_force_observer_node import LateralForceObserverNode
+from tpms_ros.simulation.road_simulator import simulate_file, to_topic_series
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.series import TopicSeries
 
-PKG = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros'
+PKG = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros'
 CONFIG = PKG / 'config' / 'lateral_force_observer.yaml'
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                   reliability=ReliabilityPolicy.RELIABLE)

@@ -1,7 +1,7 @@
 """Tests of the SKFMEC tire lateral force observer (Kim & Huh 2000, SPEC section 4).
 
-Truth: the 14-DOF vehicle of ``tpms_ros.vehicle_dynamics`` (combined-slip Magic Formula tires),
-through the scenario builders of ``benchmarks/bench_lateral_force_observer.py``.
+Truth: the 14-DOF vehicle of ``tpms_ros.simulation.vehicle_dynamics`` (combined-slip Magic
+Formula tires), through the scenario builders of ``benchmarks/bench_lateral_force_observer.py``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tpms_ros.lateral_force_observer import (
+from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     ObserverTuning,
     ObserverVehicleParams,
@@ -31,7 +31,7 @@ from tpms_ros.lateral_force_observer import (
     tune_gains,
 )
 
-_BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_lateral_force_observer.py'
+_BENCH = Path(__file__).resolve().parents[3] / 'benchmarks' / 'bench_lateral_force_observer.py'
 _spec = importlib.util.spec_from_file_location('bench_lateral_force_observer', _BENCH)
 assert _spec is not None and _spec.loader is not None
 bench = importlib.util.module_from_spec(_spec)

@@ -31,8 +31,8 @@ from vehicle_monitor_msgs.msg import TireResonance
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
-from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
-from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
+from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
+from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (

@@ -6,7 +6,7 @@ sums, AR(2) solve); as numpy calls they cost about 0.5 ms per chunk whatever its
 it call overhead. That fixed cost is what a node pays when an output falls due, so it set the
 node's output latency. Here the same recursions run sample by sample in one call.
 
-The maths is that of :class:`tpms_ros.vibration_analysis.VibrationAnalyzer` (see its module
+The maths is that of :class:`tpms_ros.core.vibration_analysis.VibrationAnalyzer` (see its module
 docstring): every state is carried across calls, so the result does not depend on the
 chunking. Compiled when this module is first imported (the explicit signature), not on the
 first chunk: a node compiles while it starts, not while data waits. The result is cached beside

@@ -16,8 +16,8 @@ import pytest
 from scipy.signal import cont2discrete, dlsim
 
 from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.road_scenario import Scenario, parse_scenario
-from tpms_ros.road_simulator import (
+from tpms_ros.simulation.road_scenario import Scenario, parse_scenario
+from tpms_ros.simulation.road_simulator import (
     RoadSimulationResult,
     _leaky_rigid_mode,
     encoder_wheel_speed,
@@ -27,9 +27,9 @@ from tpms_ros.road_simulator import (
     to_topic_series,
     wheel_speed_psd,
 )
-from tpms_ros.vehicle_dynamics import HandlingInputs, HandlingResult, VehicleParams
+from tpms_ros.simulation.vehicle_dynamics import HandlingInputs, HandlingResult, VehicleParams
 
-MSG_DIR = Path(__file__).resolve().parents[2] / 'msg_defs' / 'msg'
+MSG_DIR = Path(__file__).resolve().parents[3] / 'msg_defs' / 'msg'
 
 
 def kinematic_handling(params: VehicleParams, inputs: HandlingInputs,

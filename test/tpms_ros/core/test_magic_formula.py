@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from tpms_ros.magic_formula import (
+from tpms_ros.core.magic_formula import (
     MagicFormulaTire,
     combined_forces,
     combined_weights,

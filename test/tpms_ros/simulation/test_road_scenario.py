@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tpms_ros.road_scenario import (
+from tpms_ros.simulation.road_scenario import (
     DEFAULT_STIFFNESS_PRESSURE_SLOPE,
     Scenario,
     TireSpec,
@@ -21,7 +21,7 @@ from tpms_ros.road_scenario import (
     tire_pressure,
 )
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros' / 'scenarios'
+SCENARIO_DIR = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros' / 'scenarios'
 SHIPPED = sorted(SCENARIO_DIR.glob('*.yaml'))
 
 

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
-from tpms_ros.road_scenario import load_scenario
-from tpms_ros.road_simulator import scenario_topics
-from tpms_ros.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.simulation.road_scenario import load_scenario
+from tpms_ros.simulation.road_simulator import scenario_topics
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,

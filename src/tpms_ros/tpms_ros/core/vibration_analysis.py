@@ -24,13 +24,13 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    taken less the symmetrised left-right cross products, which remove the driveline modes
    both rims share (see :class:`VibrationParams`);
 3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2)
-   (:func:`tpms_ros.vibration_kernel.resonance_frequency`);
+   (:func:`tpms_ros.core.vibration_kernel.resonance_frequency`);
 4. calibration: each tire's nominal frequency and the noise of its estimate;
 5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
    confidence = clip(z / z_full, 0, 1).
 
 Steps 1-3 run sample by sample in one compiled call per chunk
-(:func:`tpms_ros.vibration_kernel.vibration_chunk`, numba): as some sixty numpy operations per
+(:func:`tpms_ros.core.vibration_kernel.vibration_chunk`, numba): as some sixty numpy operations per
 chunk they cost about 0.5 ms of call overhead whatever the chunk's length, the latency of a node
 whose output falls due; compiled, a 20-sample chunk costs about 0.02 ms.
 
@@ -53,7 +53,7 @@ import numpy as np
 from scipy import signal
 
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
-from tpms_ros.vibration_kernel import vibration_chunk
+from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.validation import require_positive
 
 TORSIONAL_MODE_HZ = (40.0, 50.0)

@@ -69,7 +69,7 @@ import math
 
 import numpy as np
 
-from tpms_ros.magic_formula import MagicFormulaTire, combined_weights
+from tpms_ros.core.magic_formula import MagicFormulaTire, combined_weights
 
 GRAVITY = 9.81  # m/s^2
 _N_WHEELS = 4

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tpms_ros.vehicle_dynamics import (
+from tpms_ros.simulation.vehicle_dynamics import (
     GRAVITY,
     HandlingInputs,
     HandlingResult,

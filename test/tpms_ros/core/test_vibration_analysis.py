@@ -1,4 +1,4 @@
-"""Tests of the vibration analysis core (tpms_ros.vibration_analysis)."""
+"""Tests of the vibration analysis core (tpms_ros.core.vibration_analysis)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tpms_ros.vibration_analysis import (
+from tpms_ros.core.vibration_analysis import (
     VibrationAnalyzer,
     VibrationCalibration,
     VibrationParams,
     ar2_rls_reference,
 )
-from tpms_ros.vibration_kernel import resonance_frequency
+from tpms_ros.core.vibration_kernel import resonance_frequency
 
 # The paper's car: 200 kPa ~ 40 Hz, 120 kPa ~ 35 Hz => f ~ p^alpha; a 15 % loss is this drop
 ALPHA = math.log(35.0 / 40.0) / math.log(120.0 / 200.0)

@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 
 from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.vehicle_dynamics import VehicleParams, max_stable_step
+from tpms_ros.simulation.vehicle_dynamics import VehicleParams, max_stable_step
 
 WHEEL_NAMES: tuple[str, ...] = ('FL', 'FR', 'RL', 'RR')
 

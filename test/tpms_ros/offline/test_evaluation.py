@@ -1,4 +1,4 @@
-"""Road evaluation (tpms_ros.evaluation) on a small synthetic recording with known answers.
+"""Road evaluation (tpms_ros.offline.evaluation) on a small synthetic recording with known answers.
 
 The recording is built column-wise, written to a bag and read back with header stamps, as the
 main job does with a graph's recording; every metric is set up so that it could fail.
@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tpms_ros.evaluation import (
+from tpms_ros.core.tpms_voting import VoterParams
+from tpms_ros.offline.evaluation import (
     FORCES,
     STIFFNESS,
     TRUTH_FORCES,
@@ -20,7 +21,6 @@ from tpms_ros.evaluation import (
     evaluate,
     steady_mask,
 )
-from tpms_ros.tpms_voting import VoterParams
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.evaluation import Metric, read_stamped_series
 from vehicle_monitor_common.series import TopicSeries, stamps_from_seconds

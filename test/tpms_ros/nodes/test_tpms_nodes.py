@@ -33,15 +33,15 @@ from vehicle_monitor_msgs.msg import (
 )
 import yaml
 
-from tpms_ros.tpms_voter_node import TpmsVoterNode
-from tpms_ros.vibration_analysis import VibrationCalibration
-from tpms_ros.vibration_analyzer_node import VibrationAnalyzerNode
-from tpms_ros.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusCalibration
-from tpms_ros.wheel_radius_analyzer_node import WheelRadiusAnalyzerNode
+from tpms_ros.core.vibration_analysis import VibrationCalibration
+from tpms_ros.core.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusCalibration
+from tpms_ros.nodes.vibration_analyzer_node import VibrationAnalyzerNode
+from tpms_ros.nodes.wheel_radius_analyzer_node import WheelRadiusAnalyzerNode
+from tpms_ros.nodes.tpms_voter_node import TpmsVoterNode
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 
-CONFIG = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros' / 'config'
+CONFIG = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros' / 'config'
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                   reliability=ReliabilityPolicy.RELIABLE)
 T0_NS = 1000 * 10**9

@@ -1,0 +1,1 @@
+"""Offline evaluation, tuning and plots over recordings and simulations."""

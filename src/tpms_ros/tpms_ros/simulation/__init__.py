@@ -1,0 +1,1 @@
+"""Road simulator: vehicle dynamics truth model, scenario reader, sensor synthesis."""
