@@ -14,8 +14,8 @@ import time
 import numpy as np
 import scipy.signal as sig
 
+from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
 from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
 
 FS = 1000.0
 

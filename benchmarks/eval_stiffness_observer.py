@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tpms_ros.road_simulator import RoadSimulationResult, simulate_file
-from tpms_ros.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
+from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
+from tpms_ros.simulation.road_simulator import RoadSimulationResult, simulate_file
 from vehicle_monitor_common.figures import pyplot, save_figure
 
 SCENARIOS = Path(__file__).resolve().parents[1] / 'src' / 'tpms_ros' / 'scenarios'

@@ -36,9 +36,9 @@ from eval_tpms_fusion import (
 import numpy as np
 import yaml
 
-from tpms_ros.road_scenario import Scenario, parse_scenario
-from tpms_ros.road_simulator import simulate_scenario
-from tpms_ros.tpms_voting import VoterParams
+from tpms_ros.core.tpms_voting import VoterParams
+from tpms_ros.simulation.road_scenario import Scenario, parse_scenario
+from tpms_ros.simulation.road_simulator import simulate_scenario
 
 CALIBRATION_S = 90.0
 EVALUATE_S = 300.0

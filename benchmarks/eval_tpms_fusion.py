@@ -39,17 +39,21 @@ import time
 import numpy as np
 import yaml
 
+from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
 from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
-from tpms_ros.road_scenario import Scenario, parse_scenario
-from tpms_ros.road_simulator import RoadSimulationResult, simulate_scenario, to_topic_series
-from tpms_ros.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
-from tpms_ros.tpms_voting import TpmsVoter, VoterParams
-from tpms_ros.vibration_analysis import VibrationAnalyzer, VibrationParams
-from tpms_ros.wheel_radius_analysis import (
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
+from tpms_ros.core.wheel_radius_analysis import (
     WheelRadiusAnalyzer,
     WheelRadiusParams,
     bin_wheel_speeds,
     sample_and_hold,
+)
+from tpms_ros.simulation.road_scenario import Scenario, parse_scenario
+from tpms_ros.simulation.road_simulator import (
+    RoadSimulationResult,
+    simulate_scenario,
+    to_topic_series,
 )
 from vehicle_monitor_common.figures import pyplot, save_figure
 

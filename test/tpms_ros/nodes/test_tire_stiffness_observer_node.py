@@ -21,13 +21,13 @@ from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
 import yaml
 
-from tpms_ros.road_scenario import ScenarioEvent, load_scenario
-from tpms_ros.road_simulator import RoadSimulationResult, simulate_scenario
-from tpms_ros.stiffness_observer import TireStiffnessObserver
-from tpms_ros.tire_stiffness_observer_node import TireStiffnessObserverNode
+from tpms_ros.core.stiffness_observer import TireStiffnessObserver
+from tpms_ros.nodes.tire_stiffness_observer_node import TireStiffnessObserverNode
+from tpms_ros.simulation.road_scenario import ScenarioEvent, load_scenario
+from tpms_ros.simulation.road_simulator import RoadSimulationResult, simulate_scenario
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 
-PKG = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros'
+PKG = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros'
 CONFIG = PKG / 'config' / 'tire_stiffness_observer.yaml'
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                   reliability=ReliabilityPolicy.RELIABLE)

@@ -1,4 +1,4 @@
-"""Tests of the TPMS voting fusion core (tpms_ros.tpms_voting)."""
+"""Tests of the TPMS voting fusion core (tpms_ros.core.tpms_voting)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tpms_ros.core.tires import TpmsIndication
-from tpms_ros.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
 
 H0, H_VIB, H_RAD = 0.5, 0.8, 0.7
 

@@ -22,18 +22,17 @@ import numpy as np
 import pytest
 import scipy.signal as sig
 
-from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.road_scenario import ScenarioEvent, load_scenario
-from tpms_ros.road_simulator import RoadSimulationResult, simulate_scenario
-from tpms_ros.stiffness_observer import (
+from tpms_ros.core.block_least_squares import batch_least_squares
+from tpms_ros.core.stiffness_observer import (
     PressureRelation,
     StiffnessObserverParams,
     TireStiffnessObserver,
-    ToothErrorCorrector,
-    batch_least_squares,
-    design_observer,
-    extended_system,
 )
+from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.tooth_correction import ToothErrorCorrector
+from tpms_ros.core.torsional_observer import design_observer, extended_system
+from tpms_ros.simulation.road_scenario import ScenarioEvent, load_scenario
+from tpms_ros.simulation.road_simulator import RoadSimulationResult, simulate_scenario
 
 FS = 1000.0
 BLOCK = 250
@@ -437,7 +436,7 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
 # --------------------------------------------------------------------------------------------
 # On the road simulator (SPEC §8 targets, issue 5 checks)
 
-SCENARIOS = Path(__file__).resolve().parents[2] / 'src' / 'tpms_ros' / 'scenarios'
+SCENARIOS = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros' / 'scenarios'
 CALIBRATION_S = 30.0
 STEP_AT_S = 35.0
 STEADY_S = 15.0

@@ -1,6 +1,6 @@
 """``tire_stiffness_observer``: TPMS by tire stiffness (Umeno 1997) on the ROS graph.
 
-Wraps :class:`tpms_ros.stiffness_observer.TireStiffnessObserver` (SPEC §2).
+Wraps :class:`tpms_ros.core.stiffness_observer.TireStiffnessObserver` (SPEC §2).
 
 Topics (relative, so a namespace moves them):
 
@@ -51,14 +51,14 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication
 
-from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.stiffness_observer import (
+from tpms_ros.core.stiffness_observer import (
     PressureRelation,
     StiffnessEstimate,
     StiffnessObserverParams,
     TireStiffnessObserver,
 )
-from tpms_ros.wheel_speed_input import subscribe_wheel_speeds
+from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (

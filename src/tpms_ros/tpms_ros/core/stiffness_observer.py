@@ -84,10 +84,24 @@ import numpy as np
 import scipy.signal as sig
 from scipy.special import ndtr
 
+from tpms_ros.core.block_least_squares import (
+    BlockLeastSquares,
+    LsFamily,
+    ls_families,
+    solve_normal,
+)
 from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.tires import N_TIRES
+from tpms_ros.core.tooth_correction import ToothErrorCorrector
+from tpms_ros.core.torsional_observer import (
+    ConsistencyMap,
+    ObserverDesign,
+    consistency_map,
+    design_observer,
+)
 from vehicle_monitor_common.validation import require_positive
 
-N_WHEELS = 4
+N_WHEELS = N_TIRES  # the wheel axis of every array here
 AXLES: dict[str, tuple[int, int]] = {'front': (0, 1), 'rear': (2, 3)}
 CALIBRATION_VERSION = 1
 
@@ -368,421 +382,6 @@ class StiffnessEstimate:
     calibrating: bool
 
 
-# --------------------------------------------------------------------------------------------
-# Observer design
-
-
-@dataclass(frozen=True)
-class ObserverDesign:
-    """Continuous and discrete reduced-order disturbance observer for one tire model.
-
-    Attributes:
-        gain: observer gain G, (3,) for z = [w2, th, w].
-        error_matrix: ``A'22 - G A'12`` (eq. 8); its eigenvalues are the observer poles.
-        numerators: (3, n+1) discrete numerators for the outputs [th, th_dot, w] from w1.
-        denominator: (n+1,) common discrete denominator.
-    """
-
-    gain: np.ndarray
-    error_matrix: np.ndarray
-    numerators: np.ndarray
-    denominator: np.ndarray
-
-
-def extended_system(tire: TorsionalTire) -> tuple[np.ndarray, np.ndarray]:
-    """Extended system of eq. 7: state [w1, w2, th, w], w constant, acting like -T_d.
-
-    Returns:
-        (A_ext (4, 4), B_ext (4, 1)) with the rim torque as the only input (eq. 7's B').
-    """
-    a, b = tire.state_space()
-    a_ext = np.zeros((4, 4))
-    a_ext[:3, :3] = a
-    # w = dK th + dD th_dot - T_d enters where -T_d does: minus the road-torque input column.
-    a_ext[:3, 3] = -b[:, 1]
-    b_ext = np.zeros((4, 1))
-    b_ext[:3, 0] = b[:, 0]
-    return a_ext, b_ext
-
-
-def design_observer(tire: TorsionalTire, pole_factor: float,
-                    sample_rate_hz: float) -> ObserverDesign:
-    """Gopinath observer for z = [w2, th, w] from w1, discretised by the bilinear transform.
-
-    Args:
-        tire: the estimator's nominal model.
-        pole_factor: observer pole radius as a multiple of the model resonance.
-        sample_rate_hz: sample rate of the discrete filters.
-
-    Returns:
-        The design; outputs are ordered [th, th_dot = w1 - w2_hat, w].
-    """
-    radius = 2.0 * np.pi * pole_factor * tire.resonance_hz
-    if not radius < np.pi * sample_rate_hz:
-        raise ValueError(f'observer_pole_factor {pole_factor} puts the observer poles at '
-                         f'{radius / 2 / np.pi:.1f} Hz, above the Nyquist frequency '
-                         f'{sample_rate_hz / 2} Hz')
-    a_ext, _ = extended_system(tire)
-    a11 = a_ext[:1, :1]
-    a12 = a_ext[:1, 1:]
-    a21 = a_ext[1:, :1]
-    a22 = a_ext[1:, 1:]
-    # Third-order Butterworth pattern: distinct poles (place_poles needs them distinct for a
-    # single measured output) with 50 % damping for the complex pair, so no ringing.
-    poles = radius * np.array([-1.0, np.exp(1j * 2 * np.pi / 3), np.exp(-1j * 2 * np.pi / 3)])
-    placed = sig.place_poles(a22.T, a12.T, poles)
-    gain = placed.gain_matrix.T  # (3, 1): duality, eig(A22 - G A12) = eig(A22^T - A12^T G^T)
-    error_matrix = a22 - gain @ a12
-    input_matrix = error_matrix @ gain + a21 - gain @ a11
-    # z_hat = v + G w1; outputs th = z[1], th_dot = w1 - z[0], w = z[2].
-    select = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    c_out = select
-    d_out = select @ gain + np.array([[0.0], [1.0], [0.0]])
-    ad, bd, cd, dd, _ = sig.cont2discrete((error_matrix, input_matrix, c_out, d_out),
-                                          1.0 / sample_rate_hz, method='bilinear')
-    numerators, denominator = sig.ss2tf(ad, bd, cd, dd)
-    return ObserverDesign(gain[:, 0], error_matrix, np.asarray(numerators),
-                          np.asarray(denominator))
-
-
-@dataclass(frozen=True)
-class ConsistencyMap:
-    """Expected raw LS coefficients vs true stiffness for one model and filter design.
-
-    Attributes:
-        stiffness: (M,) true K grid, increasing, N m/rad.
-        raw_dk: (M,) expected raw dK coefficient at each K (increasing over the grid).
-        raw_dd: (M,) expected raw dD coefficient at each K (model damping).
-    """
-
-    stiffness: np.ndarray
-    raw_dk: np.ndarray
-    raw_dd: np.ndarray
-
-    def stiffness_from_raw(self, raw_dk: np.ndarray) -> np.ndarray:
-        """Invert the map (clipped to the grid); NaN stays NaN."""
-        return np.interp(raw_dk, self.raw_dk, self.stiffness)
-
-    def expected_raw_dd(self, stiffness: np.ndarray) -> np.ndarray:
-        """Expected raw dD coefficient at the given K with the model damping."""
-        return np.interp(stiffness, self.stiffness, self.raw_dd)
-
-
-def consistency_map(tire: TorsionalTire, design: ObserverDesign, band_sos: np.ndarray,
-                    sample_rate_hz: float, n_freq: int = 16384) -> ConsistencyMap:
-    """Expected LS coefficients under white road torque for true K over 0.25..3 x K_model.
-
-    All regressors and the target are filters of the same wheel speed, so their covariances
-    are ``integral |P_K|^2 |BP|^2 Re(O_i conj O_j)`` over frequency, with P_K the road-torque to
-    wheel-speed response of a tire with stiffness K, BP the band-pass and O the observer.
-    Only |P_K| matters (phase cancels), so the continuous response is used.
-    """
-    omega_d = np.linspace(0.0, np.pi, n_freq)[1:]
-    _, band_resp = sig.sosfreqz(band_sos, worN=omega_d)
-    obs_resp = np.stack([sig.freqz(num, design.denominator, worN=omega_d)[1]
-                         for num in design.numerators], axis=1)  # (F, 3)
-    filt = band_resp[:, None] * obs_resp
-    cross = np.real(filt.conj()[:, :, None] * filt[:, None, :]).reshape(len(omega_d), 9)
-    stiffness = tire.k * np.geomspace(0.25, 3.0, 161)
-    weights = np.empty((stiffness.size, omega_d.size))
-    for i, k in enumerate(stiffness):
-        a, b = TorsionalTire(tire.j1, tire.j2, float(k), tire.d).state_space()
-        num, den = sig.ss2tf(a, b[:, 1:2], np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 1)))
-        _, resp = sig.freqs(num[0], den, worN=omega_d * sample_rate_hz)
-        weights[i] = np.abs(resp) ** 2
-    gram = (weights @ cross).reshape(stiffness.size, 3, 3)
-    coef = np.linalg.solve(gram[:, :2, :2], gram[:, :2, 2:3])[:, :, 0]
-    raw_dk, raw_dd = coef[:, 0], coef[:, 1]
-    # Keep the monotone branch through the model stiffness so the inverse is unique.
-    increasing = np.diff(raw_dk) > 0
-    centre = int(np.argmin(np.abs(stiffness - tire.k)))
-    lo = centre
-    while lo > 0 and increasing[lo - 1]:
-        lo -= 1
-    hi = centre
-    while hi < increasing.size and increasing[hi]:
-        hi += 1
-    keep = slice(lo, hi + 1)
-    return ConsistencyMap(stiffness[keep], raw_dk[keep], raw_dd[keep])
-
-
-# --------------------------------------------------------------------------------------------
-# Encoder tooth-error correction
-
-
-class ToothErrorCorrector:
-    """Learns and removes the tooth-spacing error of ABS encoder rings, streaming, per wheel.
-
-    An ABS ECU reports ``pitch / period`` of the last tooth, held until the next edge. A tooth
-    ``k`` whose edges are off by ``e_k`` spans ``pitch + e_(k+1) - e_k``, so its reported speed is
-    off by the fixed factor ``pitch / (pitch + e_(k+1) - e_k)``, the same on every revolution:
-    lines at the wheel's rotation harmonics, several of them inside the 25-60 Hz band. They are
-    not road excitation and pull the LS coefficient toward a flat spectrum (a 0.1 %-of-pitch
-    ring made the uncorrected estimator read a third of a pressure drop). They are removed the
-    way production indirect TPMS do, with a per-tooth correction learned online:
-
-    * **Tooth count.** The held speed changes value exactly at tooth edges. The tooth phase
-      ``x = integral(speed) / pitch`` at those changes sits at an integer plus an offset (the
-      hold delay and the sub-sample edge timing, less than one tooth while the edge rate is
-      below the sample rate); the offset is tracked as the circular mean of ``x`` at the
-      changes (``tooth_phase_s`` memory, unwrapped), so the count ``round(x - offset)`` of each
-      change is exact even when two consecutive periods read the same value, and it does not
-      drift. Each sample belongs to the tooth of the last change.
-    * **Pattern.** Per tooth, the exponentially weighted mean (``learning_s`` memory) of
-      ``log(speed / low-passed speed)`` over valid samples; the torsional vibration is not
-      synchronous with the ring and averages out, the pattern is made zero-mean over the ring
-      (the spacing errors close the circle). Speed is corrected as ``speed * exp(-pattern[k])``.
-    * **Chunk invariance.** The pattern applied to a sample is the one of the last refresh, on
-      a fixed clock of ``refresh_samples`` processed samples, and the learning sums forget per
-      sample, so chunking a stream differently cannot change the output.
-
-    A :meth:`reset` (gap, rate change, resumed after bad data) loses the ring angle, so that
-    wheel's count and pattern start over.
-
-    Args:
-        n_wheels: number of wheels (columns).
-        teeth: teeth per ring.
-        sample_rate_hz: sample rate of the speeds.
-        learning_s: memory time constant of the pattern learning, s.
-        phase_s: memory time constant of the tooth-phase tracker, s.
-        refresh_samples: the applied pattern is refreshed every this many samples.
-    """
-
-    def __init__(self, n_wheels: int, teeth: int, sample_rate_hz: float, learning_s: float,
-                 phase_s: float, refresh_samples: int) -> None:
-        self.teeth = teeth
-        self._cycle = 1.0 / (2.0 * np.pi / teeth * sample_rate_hz)  # teeth per (rad/s) sample
-        self._learn_decay = math.exp(-1.0 / (learning_s * sample_rate_hz))
-        self._phase_decay = math.exp(-1.0 / (phase_s * sample_rate_hz))
-        self._refresh = refresh_samples
-        self._count = 0
-        self._phase = np.zeros(n_wheels)               # tooth phase x at the last sample
-        self._phasor = np.zeros(n_wheels, complex)     # running sum of exp(2 pi i x) at changes
-        self._offset = np.zeros(n_wheels)              # unwrapped edge offset, teeth
-        self._tooth = np.zeros(n_wheels, dtype=np.int64)
-        self._previous = np.full(n_wheels, np.nan)
-        self._sum = np.zeros((n_wheels, teeth))
-        self._weight = np.zeros((n_wheels, teeth))
-        self._pattern = np.zeros((n_wheels, teeth))
-
-    @property
-    def pattern(self) -> np.ndarray:
-        """(wheels, teeth) learned log speed error per tooth, in tooth-count order (a copy)."""
-        return self._pattern.copy()
-
-    def reset(self, wheels: np.ndarray) -> None:
-        """Forget the ring angle and pattern of ``wheels``."""
-        for array in (self._phase, self._phasor, self._offset, self._tooth, self._sum,
-                      self._weight, self._pattern):
-            array[wheels] = 0
-        self._previous[wheels] = np.nan
-
-    def process(self, speed: np.ndarray, reference: np.ndarray,
-                learn: np.ndarray) -> np.ndarray:
-        """Correct a segment of held tooth speeds (n, wheels) and learn from it.
-
-        Args:
-            speed: reported wheel speeds, rad/s (finite; bad samples already held).
-            reference: the same speeds low-passed well below the rotation frequency.
-            learn: samples that may be learned from (valid sensor data).
-
-        Returns:
-            (n, wheels) corrected speeds.
-        """
-        out = np.empty_like(speed)
-        start = 0
-        while start < speed.shape[0]:
-            stop = min(speed.shape[0], start + self._refresh - self._count % self._refresh)
-            out[start:stop] = self._segment(speed[start:stop], reference[start:stop],
-                                            learn[start:stop])
-            self._count += stop - start
-            if self._count % self._refresh == 0:
-                self._refresh_pattern()
-            start = stop
-        return out
-
-    def _segment(self, speed: np.ndarray, reference: np.ndarray,
-                 learn: np.ndarray) -> np.ndarray:
-        n, n_wheels = speed.shape
-        phase = self._phase + np.cumsum(speed, axis=0) * self._cycle
-        previous = np.concatenate((self._previous[None], speed[:-1]))
-        change = speed != previous
-        unit = np.where(change, np.exp(2j * np.pi * phase), 0.0)
-        decay = self._phase_decay
-        phasor, _ = sig.lfilter([1.0], [1.0, -decay], unit, axis=0,
-                                zi=decay * self._phasor[None])
-        wrapped = np.angle(phasor) / (2.0 * np.pi)
-        step = np.diff(np.concatenate((self._offset[None], wrapped)), axis=0)
-        offset = self._offset + np.cumsum(step - np.round(step), axis=0)
-        counted = np.round(phase - offset).astype(np.int64)
-        rows = np.arange(n)[:, None]
-        last = np.maximum.accumulate(np.where(change, rows, -1), axis=0)
-        tooth = np.where(last >= 0, np.take_along_axis(counted, np.maximum(last, 0), axis=0),
-                         self._tooth[None])
-        index = tooth % self.teeth
-        corrected = speed * np.exp(-np.take_along_axis(self._pattern, index.T, axis=1).T)
-
-        # Learn: per-sample exponential forgetting, scattered into the teeth by bincount.
-        usable = learn & (speed > 0.0) & (reference > 0.0)
-        ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
-        weight = (self._learn_decay ** (n - 1 - rows)) * usable
-        slot = (index + self.teeth * np.arange(n_wheels)[None]).ravel()
-        size = n_wheels * self.teeth
-        fade = self._learn_decay ** n
-        self._sum = fade * self._sum + np.bincount(
-            slot, (weight * ratio).ravel(), size).reshape(n_wheels, self.teeth)
-        self._weight = fade * self._weight + np.bincount(
-            slot, weight.ravel(), size).reshape(n_wheels, self.teeth)
-
-        # Carry the state; shift phase and offset together by whole rings (keeps them small).
-        ring = np.floor(offset[-1] / self.teeth) * self.teeth
-        self._phase = phase[-1] - ring
-        self._offset = offset[-1] - ring
-        self._phasor = phasor[-1]
-        self._tooth = tooth[-1] - ring.astype(np.int64)
-        self._previous = speed[-1].copy()
-        return corrected
-
-    def _refresh_pattern(self) -> None:
-        seen = self._weight > 0.0
-        mean = np.where(seen, self._sum / np.where(seen, self._weight, 1.0), 0.0)
-        count = seen.sum(axis=1, keepdims=True)
-        centre = mean.sum(axis=1, keepdims=True) / np.maximum(count, 1)
-        self._pattern = np.where(seen, mean - centre, 0.0)
-
-
-# --------------------------------------------------------------------------------------------
-# Least squares
-
-
-def batch_least_squares(regressors: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Batch LS of eq. 10: ``(sum zeta zeta^T)^-1 sum w zeta``, vectorised over problems.
-
-    Args:
-        regressors: (N, ..., p) regressor rows zeta.
-        target: (N, ...) disturbance w.
-
-    Returns:
-        (..., p) coefficients (NaN where the normal matrix is singular).
-    """
-    gram = np.einsum('n...p,n...q->...pq', regressors, regressors)
-    rhs = np.einsum('n...p,n...->...p', regressors, target)
-    return _solve_normal(gram, rhs)
-
-
-def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve batched normal equations with Jacobi scaling (th and th_dot differ ~300x)."""
-    diag = np.einsum('...ii->...i', gram)
-    ok = np.all(diag > 0, axis=-1)
-    scale = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 0.0)
-    scaled = gram * scale[..., :, None] * scale[..., None, :]
-    eye = np.eye(gram.shape[-1])
-    scaled = np.where(ok[..., None, None], scaled, eye)
-    ok &= np.linalg.cond(scaled) < 1e10
-    solution = np.linalg.solve(np.where(ok[..., None, None], scaled, eye),
-                               (rhs * scale)[..., None])[..., 0] * scale
-    return np.where(ok[..., None], solution, np.nan)
-
-
-class _BlockLeastSquares:
-    """Block sums of zeta zeta^T and w zeta for several LS problems, with RLS and batch.
-
-    Problems are independent (wheels or axles) and share the block clock.
-    """
-
-    def __init__(self, n_problems: int, n_params: int, params: StiffnessObserverParams) -> None:
-        self.n_params = n_params
-        self._rho = params.forgetting_factor
-        self._window = params.batch_window_blocks
-        self._min_count = params.min_block_fraction * params.block_samples
-        shape = (n_problems, n_params)
-        self.info = np.zeros(shape + (n_params,))
-        self.rhs = np.zeros(shape)
-        self.n_eff = np.zeros(n_problems)
-        self.window_gram = np.zeros((self._window, n_problems, n_params, n_params))
-        self.window_rhs = np.zeros((self._window, n_problems, n_params))
-        self.window_fill = np.zeros(n_problems, dtype=int)
-        self._window_pos = np.zeros(n_problems, dtype=int)
-
-    def block_sums(self, regressors: np.ndarray, target: np.ndarray,
-                   mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sums over the sample axis 1 of (B, L, n, p) arrays: gram, rhs, valid count."""
-        weighted = regressors * mask[..., None]
-        gram = np.einsum('blnp,blnq->bnpq', weighted, regressors, optimize=True)
-        rhs = np.einsum('blnp,bln->bnp', weighted, target, optimize=True)
-        return gram, rhs, mask.sum(axis=1)
-
-    def update(self, gram: np.ndarray, rhs: np.ndarray, good: np.ndarray) -> None:
-        """One update per block (axis 0); a bad block is skipped (estimate held, no forgetting)."""
-        rho = self._rho
-        for b in range(gram.shape[0]):
-            g = good[b]
-            self.info[g] = rho * self.info[g] + gram[b, g]
-            self.rhs[g] = rho * self.rhs[g] + rhs[b, g]
-            self.n_eff[g] = rho * self.n_eff[g] + 1.0
-            idx = np.flatnonzero(g)
-            pos = self._window_pos[idx]
-            self.window_gram[pos, idx] = gram[b, idx]
-            self.window_rhs[pos, idx] = rhs[b, idx]
-            self._window_pos[idx] = (pos + 1) % self._window
-            self.window_fill[idx] = np.minimum(self.window_fill[idx] + 1, self._window)
-
-    def good_blocks(self, count: np.ndarray) -> np.ndarray:
-        """Blocks with enough valid samples."""
-        return count >= self._min_count
-
-    def rls(self) -> np.ndarray:
-        """Current RLS coefficients (n, p)."""
-        return _solve_normal(self.info, self.rhs)
-
-    def batch(self) -> np.ndarray:
-        """Batch LS coefficients over the window (n, p)."""
-        return _solve_normal(self.window_gram.sum(axis=0), self.window_rhs.sum(axis=0))
-
-
-@dataclass(frozen=True)
-class _LsFamily:
-    """Independent LS problems of one layout, solved together (vectorised).
-
-    Problem p estimates the wheels ``wheels[p]``; wheel j of a problem takes the solution
-    entries ``coef_index[j]`` (its raw [dK, dD]) times ``coef_sign[j]``.
-
-    Kinds: 'wheel' (one wheel, regressors ``[th, th_dot]``), 'difference' (a driven axle, the
-    paper's eq. 12-14) and 'partner' (a driven wheel, with its partner's lagged speed as
-    nuisance regressors); see :class:`StiffnessObserverParams`.
-    """
-
-    kind: Literal['wheel', 'difference', 'partner']
-    wheels: np.ndarray         # (P, q)
-    coef_index: np.ndarray     # (q, 2)
-    coef_sign: np.ndarray      # (q,)
-    n_params: int
-
-    def to_wheels(self, coef: np.ndarray, out: np.ndarray) -> None:
-        """Write each wheel's raw [dK, dD] from solutions (..., P, n) into out (..., 4, 2)."""
-        for j in range(self.wheels.shape[1]):
-            out[..., self.wheels[:, j], :] = self.coef_sign[j] * coef[..., self.coef_index[j]]
-
-
-def _ls_families(axles: Sequence[tuple[int, int]], compensation: str,
-                 n_lags: int) -> tuple[_LsFamily, ...]:
-    """The LS problems of the four wheels: every wheel in exactly one problem."""
-    driven = [w for axle in axles for w in axle]
-    plain = [[w] for w in range(N_WHEELS) if w not in driven]
-    families = []
-    if plain:
-        families.append(_LsFamily('wheel', np.array(plain), np.array([[0, 1]]),
-                                  np.array([1.0]), 2))
-    if driven and compensation == 'difference':
-        families.append(_LsFamily('difference', np.array(axles), np.array([[0, 2], [1, 3]]),
-                                  np.array([1.0, -1.0]), 4))
-    elif driven:
-        families.append(_LsFamily('partner', np.array([[w] for w in driven]),
-                                  np.array([[0, 1]]), np.array([1.0]), 2 + n_lags))
-    return tuple(families)
-
-
-# --------------------------------------------------------------------------------------------
 # Streaming estimator
 
 
@@ -851,7 +450,7 @@ class TireStiffnessObserver:
         # The partner lags as a window: every ``_lag_step``-th sample within +-``_lag_reach``.
         self._lag_reach = int(lags.max()) if lags.size else 0
         self._lag_step = int(lags[1] - lags[0]) if lags.size > 1 else 1
-        self._families = _ls_families(self._axles, p.drive_compensation, lags.size)
+        self._families = ls_families(self._axles, p.drive_compensation, lags.size)
         self._counters: dict[str, np.ndarray] = {}
         self._calibration: _Calibration | None = None
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
@@ -886,7 +485,9 @@ class TireStiffnessObserver:
         self._band_history = np.zeros((self._lag_reach, N_WHEELS))
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
-        self._ls = [_BlockLeastSquares(f.wheels.shape[0], f.n_params, p)
+        self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
+                                    p.batch_window_blocks,
+                                    p.min_block_fraction * p.block_samples)
                     for f in self._families]
         self._last_block_code = np.full(N_WHEELS, -1)
         self._stamp = math.nan
@@ -1028,7 +629,7 @@ class TireStiffnessObserver:
                 if cal.blocks[first] < cal.needed_blocks:
                     continue
                 solution = np.full((family.wheels.shape[0], family.n_params), np.nan)
-                solution[problem] = _solve_normal(cal.gram[f][problem], cal.rhs[f][problem])
+                solution[problem] = solve_normal(cal.gram[f][problem], cal.rhs[f][problem])
                 pooled = np.full((N_WHEELS, 2), np.nan)
                 family.to_wheels(solution, pooled)    # only this problem's wheels are read
                 k_pooled = self._stiffness_from_raw(pooled[:, 0])
@@ -1341,7 +942,7 @@ class TireStiffnessObserver:
             good[:, family.wheels] = problem_good[:, :, None]
             sums.append((gram, rhs))
             if self._calibration is not None:
-                family.to_wheels(_solve_normal(gram, rhs), block_raw)
+                family.to_wheels(solve_normal(gram, rhs), block_raw)
         if self._calibration is not None:
             self._collect_calibration(block_raw, good, sums)
         # Status follows each wheel's last block: 'ok' when it counted, else its most
@@ -1350,7 +951,7 @@ class TireStiffnessObserver:
         worst = np.where(last == OK, _NO_REASON, last).min(axis=0)
         self._last_block_code = np.where(good[-1] | (worst == _NO_REASON), OK, worst)
 
-    def _regressors(self, family: _LsFamily, out: np.ndarray, mask: np.ndarray,
+    def _regressors(self, family: LsFamily, out: np.ndarray, mask: np.ndarray,
                     band: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A family's (regressors (B, L, P, n), target (B, L, P), mask (B, L, P)).
 

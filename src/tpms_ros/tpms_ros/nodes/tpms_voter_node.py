@@ -4,7 +4,7 @@ Subscribes ``tpms/indication/<method>`` (TpmsIndication) for each name in the re
 ``methods`` parameter and publishes ``tpms/warning`` (TpmsWarning) on each accepted indication
 and at ``publish_rate_hz``, plus ``/diagnostics``. Per method ``<method>.enabled`` switches it
 on/off and ``<method>.threshold`` is its own h_i (> ``h0``); the rule, hold-off and hysteresis
-are the core's (:class:`tpms_ros.tpms_voting.TpmsVoter`).
+are the core's (:class:`tpms_ros.core.tpms_voting.TpmsVoter`).
 
 Time. The voter runs in *data time*, the stamps of the indications: an indication is voted at
 its own stamp, so hold-off, set-off and staleness are measured on the data and a replay at any
@@ -32,7 +32,7 @@ from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 from vehicle_monitor_msgs.msg import TpmsWarning
 
 from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
-from tpms_ros.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,

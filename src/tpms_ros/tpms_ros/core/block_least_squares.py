@@ -1,0 +1,150 @@
+"""Block least squares of the tire stiffness method (Umeno et al. 1997, eq. 9-14): normal
+equations summed per block, RLS in information form and a windowed batch LS, for several
+independent problems (wheels, driven axles) solved together. No ROS import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from tpms_ros.core.tires import N_TIRES
+
+
+def batch_least_squares(regressors: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Batch LS of eq. 10: ``(sum zeta zeta^T)^-1 sum w zeta``, vectorised over problems.
+
+    Args:
+        regressors: (N, ..., p) regressor rows zeta.
+        target: (N, ...) disturbance w.
+
+    Returns:
+        (..., p) coefficients (NaN where the normal matrix is singular).
+    """
+    gram = np.einsum('n...p,n...q->...pq', regressors, regressors)
+    rhs = np.einsum('n...p,n...->...p', regressors, target)
+    return solve_normal(gram, rhs)
+
+
+def solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve batched normal equations with Jacobi scaling (th and th_dot differ ~300x)."""
+    diag = np.einsum('...ii->...i', gram)
+    ok = np.all(diag > 0, axis=-1)
+    scale = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 0.0)
+    scaled = gram * scale[..., :, None] * scale[..., None, :]
+    eye = np.eye(gram.shape[-1])
+    scaled = np.where(ok[..., None, None], scaled, eye)
+    ok &= np.linalg.cond(scaled) < 1e10
+    solution = np.linalg.solve(np.where(ok[..., None, None], scaled, eye),
+                               (rhs * scale)[..., None])[..., 0] * scale
+    return np.where(ok[..., None], solution, np.nan)
+
+
+class BlockLeastSquares:
+    """Block sums of zeta zeta^T and w zeta for several LS problems, with RLS and batch.
+
+    Problems are independent (wheels or axles) and share the block clock.
+
+    Args:
+        n_problems: number of independent problems.
+        n_params: regressors per problem.
+        forgetting_factor: RLS forgetting factor rho per block.
+        window_blocks: window of the batch LS, in valid blocks.
+        min_count: valid samples a block needs to count.
+    """
+
+    def __init__(self, n_problems: int, n_params: int, forgetting_factor: float,
+                 window_blocks: int, min_count: float) -> None:
+        self.n_params = n_params
+        self._rho = forgetting_factor
+        self._window = window_blocks
+        self._min_count = min_count
+        shape = (n_problems, n_params)
+        self.info = np.zeros(shape + (n_params,))
+        self.rhs = np.zeros(shape)
+        self.n_eff = np.zeros(n_problems)
+        self.window_gram = np.zeros((self._window, n_problems, n_params, n_params))
+        self.window_rhs = np.zeros((self._window, n_problems, n_params))
+        self.window_fill = np.zeros(n_problems, dtype=int)
+        self._window_pos = np.zeros(n_problems, dtype=int)
+
+    def block_sums(self, regressors: np.ndarray, target: np.ndarray,
+                   mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sums over the sample axis 1 of (B, L, n, p) arrays: gram, rhs, valid count."""
+        weighted = regressors * mask[..., None]
+        gram = np.einsum('blnp,blnq->bnpq', weighted, regressors, optimize=True)
+        rhs = np.einsum('blnp,bln->bnp', weighted, target, optimize=True)
+        return gram, rhs, mask.sum(axis=1)
+
+    def update(self, gram: np.ndarray, rhs: np.ndarray, good: np.ndarray) -> None:
+        """One update per block (axis 0); a bad block is skipped (estimate held, no forgetting)."""
+        rho = self._rho
+        for b in range(gram.shape[0]):
+            g = good[b]
+            self.info[g] = rho * self.info[g] + gram[b, g]
+            self.rhs[g] = rho * self.rhs[g] + rhs[b, g]
+            self.n_eff[g] = rho * self.n_eff[g] + 1.0
+            idx = np.flatnonzero(g)
+            pos = self._window_pos[idx]
+            self.window_gram[pos, idx] = gram[b, idx]
+            self.window_rhs[pos, idx] = rhs[b, idx]
+            self._window_pos[idx] = (pos + 1) % self._window
+            self.window_fill[idx] = np.minimum(self.window_fill[idx] + 1, self._window)
+
+    def good_blocks(self, count: np.ndarray) -> np.ndarray:
+        """Blocks with enough valid samples."""
+        return count >= self._min_count
+
+    def rls(self) -> np.ndarray:
+        """Current RLS coefficients (n, p)."""
+        return solve_normal(self.info, self.rhs)
+
+    def batch(self) -> np.ndarray:
+        """Batch LS coefficients over the window (n, p)."""
+        return solve_normal(self.window_gram.sum(axis=0), self.window_rhs.sum(axis=0))
+
+
+@dataclass(frozen=True)
+class LsFamily:
+    """Independent LS problems of one layout, solved together (vectorised).
+
+    Problem p estimates the wheels ``wheels[p]``; wheel j of a problem takes the solution
+    entries ``coef_index[j]`` (its raw [dK, dD]) times ``coef_sign[j]``.
+
+    Kinds: 'wheel' (one wheel, regressors ``[th, th_dot]``), 'difference' (a driven axle, the
+    paper's eq. 12-14) and 'partner' (a driven wheel, with its partner's lagged speed as
+    nuisance regressors); see :class:`~tpms_ros.core.stiffness_observer.StiffnessObserverParams`.
+    """
+
+    kind: Literal['wheel', 'difference', 'partner']
+    wheels: np.ndarray         # (P, q)
+    coef_index: np.ndarray     # (q, 2)
+    coef_sign: np.ndarray      # (q,)
+    n_params: int
+
+    def to_wheels(self, coef: np.ndarray, out: np.ndarray) -> None:
+        """Write each wheel's raw [dK, dD] from solutions (..., P, n) into out (..., 4, 2)."""
+        for j in range(self.wheels.shape[1]):
+            out[..., self.wheels[:, j], :] = self.coef_sign[j] * coef[..., self.coef_index[j]]
+
+
+def ls_families(axles: Sequence[tuple[int, int]], compensation: str,
+                 n_lags: int) -> tuple[LsFamily, ...]:
+    """The LS problems of the four wheels: every wheel in exactly one problem."""
+    driven = [w for axle in axles for w in axle]
+    plain = [[w] for w in range(N_TIRES) if w not in driven]
+    families = []
+    if plain:
+        families.append(LsFamily('wheel', np.array(plain), np.array([[0, 1]]),
+                                  np.array([1.0]), 2))
+    if driven and compensation == 'difference':
+        families.append(LsFamily('difference', np.array(axles), np.array([[0, 2], [1, 3]]),
+                                  np.array([1.0, -1.0]), 4))
+    elif driven:
+        families.append(LsFamily('partner', np.array([[w] for w in driven]),
+                                  np.array([[0, 1]]), np.array([1.0]), 2 + n_lags))
+    return tuple(families)
+
