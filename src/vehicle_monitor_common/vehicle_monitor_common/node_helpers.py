@@ -24,6 +24,7 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -273,16 +274,46 @@ def time_msg(ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
+def refuse_unknown_parameters(node: Node) -> None:
+    """Refuse the parameters given to a node (params file, ``-p``, a graph file) that it does
+    not declare: a typo or a file meant for another node would otherwise leave a default in
+    force without a word. ``qos_overrides.*`` are rclpy's own, declared per subscription.
+
+    Raises:
+        ConfigurationError: naming every unknown parameter.
+    """
+    unknown = sorted(name for name in node._parameter_overrides  # noqa: SLF001 (no public API)
+                     if name not in node._parameters  # noqa: SLF001
+                     and not name.startswith('qos_overrides.'))
+    if unknown:
+        raise ConfigurationError(
+            f'{node.get_fully_qualified_name()}: unknown parameter(s) {", ".join(unknown)} '
+            '(not declared by this node: see docs/parameters.md)')
+
+
+def ros_init_error(exc: Exception) -> str:
+    """rcl's error on bad command-line arguments (a malformed or missing params file, a bad
+    remapping) as one line, without rcl's source locations."""
+    text = str(exc).replace('failed to initialize rcl: ', '')
+    return text.split(', at /')[0].strip()
+
+
 def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
     """main() body shared by every executable (ros2/examples skeleton).
 
-    A ConfigurationError (bad parameter, missing file) prints one line and exits with 2; Ctrl-C
-    and external shutdown end quietly.
+    A ConfigurationError (bad or unknown parameter, missing file) or bad ROS arguments (a
+    malformed params file) print one line and exit with 2; Ctrl-C and external shutdown end
+    quietly.
     """
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RCLError as exc:
+        print(f'error: {ros_init_error(exc)}', file=sys.stderr)
+        return 2
     node = None
     try:
         node = factory()
+        refuse_unknown_parameters(node)
         rclpy.spin(node)
     except ConfigurationError as exc:
         print(f'error: {exc}', file=sys.stderr)

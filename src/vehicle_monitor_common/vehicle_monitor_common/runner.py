@@ -45,7 +45,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 import yaml
 
-from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.node_helpers import ConfigurationError, refuse_unknown_parameters
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
 
@@ -172,7 +172,13 @@ class Graph:
         }
         if node_spec.name:
             kwargs['node_name'] = node_spec.name
-        return cls(**{k: v for k, v in kwargs.items() if v is not None})
+        node = cls(**{k: v for k, v in kwargs.items() if v is not None})
+        try:
+            refuse_unknown_parameters(node)
+        except ConfigurationError:
+            node.destroy_node()
+            raise
+        return node
 
     def of_type(self, cls: type[Any]) -> list[Any]:
         """The graph's nodes that are instances of ``cls``."""
