@@ -2,8 +2,11 @@
 
 The typestore is ROS 2 Jazzy's with every ``msg_defs/msg/*.msg`` file registered from the files
 themselves, so the bags, rclpy and the offline tools agree on one definition. Bags are written
-with MCAP storage (sqlite3 on request) and carry their message definitions, so any reader
-(rosbags, ``ros2 bag``, the ``mcap`` tools, Foxglove) can decode them without this package.
+with MCAP storage (sqlite3 on request) whose chunks are zstd-compressed inside the file, as
+``ros2 bag record -s mcap`` with chunk compression writes them: a plain ``.mcap`` file carrying
+its message definitions, so any reader (rosbags, ``ros2 bag``, the ``mcap`` tools and library,
+Foxglove) opens and decodes it without this package. Bags written earlier as rosbag2
+file-compressed ``.mcap.zstd`` are still read.
 
 Writes are atomic: a bag is written under a temporary name beside its destination and moved into
 place only when complete, so a failed run never leaves a half-written bag behind.
@@ -19,7 +22,7 @@ import os
 from pathlib import Path
 import shutil
 import tempfile
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from rosbags.interfaces import Connection, Nodetype
@@ -223,19 +226,22 @@ class BagWriter:
 
     Use as a context manager; the bag appears at ``path`` only when the ``with`` block exits
     without an exception. An existing bag at ``path`` is replaced only if ``overwrite``.
-    ``compress`` zstd-compresses the storage file (rosbag2 file compression, which ``ros2 bag``
-    and rosbags read; about 4x smaller for the shipped scenarios).
+    ``compress`` (default: on for MCAP, off for sqlite3) zstd-compresses the MCAP chunks (about
+    1 MiB of messages each) inside a plain ``.mcap`` file, which every MCAP reader opens
+    directly; sqlite3 storage has no compression of its own.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, storage: str = 'mcap',
-                 overwrite: bool = False, compress: bool = False) -> None:
+                 overwrite: bool = False, compress: bool | None = None) -> None:
         self.path = Path(path)
         if storage not in ('mcap', 'sqlite3'):
             raise BagError(f'storage must be mcap or sqlite3, got {storage!r}')
+        if compress and storage != 'mcap':
+            raise BagError(f'{storage} storage cannot be compressed (only mcap chunks can)')
         if self.path.exists() and not overwrite:
             raise BagError(f'{self.path} exists (pass overwrite=True to replace it)')
         self._storage = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-        self._compress = compress
+        self._compress = storage == 'mcap' if compress is None else compress
         self._store = typestore()
         self._connections: dict[str, Connection] = {}
         self._tmpdir: Path | None = None
@@ -248,7 +254,8 @@ class BagWriter:
         self._writer = Writer(self._tmpdir / self.path.name, version=9,
                               storage_plugin=self._storage)
         if self._compress:
-            self._writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+            # STORAGE: the MCAP storage plugin compresses each chunk (zstd), the file stays .mcap
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.open()
         return self
 
@@ -270,11 +277,6 @@ class BagWriter:
             raise BagError(f'topic {topic} already has type {connection.msgtype}, not {msgtype}')
         self._writer.write(connection, int(stamp_ns), data)
 
-    def write_series(self, topic: str, series: TopicSeries) -> None:
-        """Write every sample of a column-wise series."""
-        for stamp, msg in zip(series.stamps_ns, series_messages(series, self._store), strict=True):
-            self.write(topic, series.msgtype, int(stamp), msg)
-
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         assert self._writer is not None and self._tmpdir is not None
         try:
@@ -288,11 +290,13 @@ class BagWriter:
 
 
 def write_bag(path: str | os.PathLike[str], series: Mapping[str, TopicSeries], *,
-              storage: str = 'mcap', overwrite: bool = False, compress: bool = False) -> Path:
+              storage: str = 'mcap', overwrite: bool = False, compress: bool | None = None,
+              ) -> Path:
     """Write topics given as column-wise series to a bag, merged in time order.
 
     Ties in time keep the caller's topic order, so a replay publishes e.g. the inputs of an
-    instant before its ground truth.
+    instant before its ground truth. ``storage``, ``overwrite`` and ``compress`` are
+    ``BagWriter``'s.
     """
     store = typestore()
 
@@ -415,3 +419,114 @@ def read_series(path: str | os.PathLike[str],
         entry[2].append(msg)
     return {topic: messages_to_series(msgtype, stamps, msgs)
             for topic, (msgtype, stamps, msgs) in collected.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# Comparing
+
+#: Default tolerance of ``compare_bags``, relative to the largest magnitude a field takes over
+#: its topic in the expected bag. Far above the rounding differences of the simulators between
+#: BLAS builds (~2e-13 of the signal) and far below any change of content (a 1e-6 change fails).
+BAG_RTOL = 1e-9
+
+
+def _leaves(store: Typestore, msgtype: str, msg: Any, prefix: str,
+            out: dict[str, Any]) -> None:
+    """Every leaf field of a message under its dotted path; sequences of messages indexed."""
+    _, fields = store.fielddefs[msgtype]
+    for name, node in fields:
+        value = getattr(msg, name)
+        nodetype, detail = node[0], cast(Any, node[1])
+        if nodetype == Nodetype.NAME:
+            _leaves(store, detail, value, f'{prefix}{name}.', out)
+        elif (nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE)
+              and detail[0][0] == Nodetype.NAME):
+            out[f'{prefix}{name}.len'] = len(value)
+            for i, item in enumerate(value):
+                _leaves(store, detail[0][1], item, f'{prefix}{name}[{i}].', out)
+        else:
+            out[f'{prefix}{name}'] = value
+
+
+def _column_difference(topic: str, field: str, want: list[Any], got: list[Any],
+                       rtol: float) -> str | None:
+    """Why two columns of one field differ (None if they agree); floats to ``rtol`` of peak."""
+    shapes = [np.shape(v) for v in want]
+    for i, (shape, value) in enumerate(zip(shapes, got, strict=True)):
+        if np.shape(value) != shape:
+            return f'{topic} {field}: message {i} has shape {np.shape(value)}, expected {shape}'
+    flat_want = [np.ravel(np.asarray(v)) for v in want]
+    flat_got = [np.ravel(np.asarray(v)) for v in got]
+    index = np.repeat(np.arange(len(want)), [v.size for v in flat_want])
+    a = np.concatenate(flat_want) if flat_want else np.zeros(0)
+    b = np.concatenate(flat_got) if flat_got else np.zeros(0)
+    if a.dtype.kind == 'f' or b.dtype.kind == 'f':
+        if a.dtype.kind not in 'fiu' or b.dtype.kind not in 'fiu':
+            return f'{topic} {field}: {b.dtype} values where {a.dtype} expected'
+        a, b = a.astype(np.float64), b.astype(np.float64)
+        finite = np.isfinite(a)
+        peak = float(np.max(np.abs(a[finite]), initial=0.0))
+        tolerance = rtol * peak
+        with np.errstate(invalid='ignore'):
+            bad = ~((np.abs(a - b) <= tolerance) | (a == b) | (np.isnan(a) & np.isnan(b)))
+        if bad.any():
+            worst = int(np.argmax(np.where(bad, np.nan_to_num(np.abs(a - b), nan=np.inf), -1)))
+            return (f'{topic} {field}: message {index[worst]} has {float(b[worst])!r}, '
+                    f'expected {float(a[worst])!r} ({int(bad.sum())} values differ by more than '
+                    f'{rtol:g} of the peak {peak:.6g})')
+        return None
+    if a.dtype.kind != b.dtype.kind and not (a.dtype.kind in 'iub' and b.dtype.kind in 'iub'):
+        return f'{topic} {field}: {b.dtype} values where {a.dtype} expected'
+    differs = np.flatnonzero(a != b)  # same shapes: checked message by message above
+    if differs.size:
+        first = int(differs[0])
+        return (f'{topic} {field}: message {index[first]} has {b[first].item()!r}, expected '
+                f'{a[first].item()!r} ({differs.size} values differ)')
+    return None
+
+
+def compare_bags(expected: str | os.PathLike[str], actual: str | os.PathLike[str], *,
+                 rtol: float = BAG_RTOL) -> list[str]:
+    """What differs between the messages of two bags; an empty list when they agree.
+
+    Exact: the topics, their types and message counts, the order of the messages, their log
+    times, and every integer, boolean and string field (header stamps and frame ids included).
+    To a tolerance: every floating-point field, which may differ by ``rtol`` times the largest
+    magnitude that field (the same path, all array elements together) takes over its topic in
+    ``expected``: the scale of the signal, so a field that crosses zero is not held to a
+    relative error near zero. NaN matches NaN. Storage format, compression and chunking are not
+    compared: two bags agree when their messages decode to the same values, so this holds across
+    machines whose floating-point rounding (BLAS kernels) differs, where their bytes do not.
+
+    Returns one line per differing topic field (or the first difference in order or structure).
+    """
+    want_topics, got_topics = bag_topics(expected), bag_topics(actual)
+    if want_topics != got_topics:
+        for name in sorted(set(want_topics) | set(got_topics)):
+            if want_topics.get(name) != got_topics.get(name):
+                return [f'topic {name}: {got_topics.get(name)}, expected {want_topics.get(name)}']
+    store = typestore()
+    columns: dict[str, dict[str, tuple[list[Any], list[Any]]]] = {}
+    for i, (want, got) in enumerate(zip(iter_raw(expected), iter_raw(actual), strict=True)):
+        if want[:3] != got[:3]:
+            return [f'message {i}: {got[:3]}, expected {want[:3]} (topic, type, log time)']
+        topic, msgtype = want[0], want[1]
+        want_leaves: dict[str, Any] = {}
+        got_leaves: dict[str, Any] = {}
+        _leaves(store, msgtype, store.deserialize_cdr(want[3], msgtype), '', want_leaves)
+        _leaves(store, msgtype, store.deserialize_cdr(got[3], msgtype), '', got_leaves)
+        if want_leaves.keys() != got_leaves.keys():
+            return [f'message {i} on {topic}: fields {sorted(got_leaves)}, '
+                    f'expected {sorted(want_leaves)}']
+        topic_columns = columns.setdefault(topic, {})
+        for field, value in want_leaves.items():
+            pair = topic_columns.setdefault(field, ([], []))
+            pair[0].append(value)
+            pair[1].append(got_leaves[field])
+    problems = []
+    for topic, topic_columns in columns.items():
+        for field, (want_column, got_column) in topic_columns.items():
+            problem = _column_difference(topic, field, want_column, got_column, rtol)
+            if problem is not None:
+                problems.append(problem)
+    return problems
