@@ -26,6 +26,8 @@ from tpms_ros.core.lateral_force_observer import (
     LateralForceTrack,
     ObserverTuning,
     ObserverVehicleParams,
+)
+from tpms_ros.offline.lateral_force_tuning import (
     TuningCase,
     ZetaCalibration,
     calibrate_zeta,

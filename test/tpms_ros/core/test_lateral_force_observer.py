@@ -21,13 +21,15 @@ from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     ObserverTuning,
     ObserverVehicleParams,
+    differentiator_coefficients,
+    split_lateral,
+)
+from tpms_ros.offline.lateral_force_tuning import (
     TuningCase,
     calibrate_zeta,
-    differentiator_coefficients,
     fy_error_percent,
     plot_lateral_forces,
     plot_relation_check,
-    split_lateral,
     tune_gains,
 )
 
