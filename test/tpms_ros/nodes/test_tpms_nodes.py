@@ -35,9 +35,9 @@ import yaml
 
 from tpms_ros.core.vibration_analysis import VibrationCalibration
 from tpms_ros.core.wheel_radius_analysis import WheelRadiusAnalyzer, WheelRadiusCalibration
+from tpms_ros.nodes.tpms_voter_node import TpmsVoterNode
 from tpms_ros.nodes.vibration_analyzer_node import VibrationAnalyzerNode
 from tpms_ros.nodes.wheel_radius_analyzer_node import WheelRadiusAnalyzerNode
-from tpms_ros.nodes.tpms_voter_node import TpmsVoterNode
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 
@@ -174,11 +174,12 @@ def test_vibration_starts_with_defaults_and_shipped_config(make_node: Callable[.
                                                            tmp_path: Path) -> None:
     """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
     node = make_node(VibrationAnalyzerNode)
-    assert node.parameters.sample_rate_hz == 1000.0 and node.calibration_state == 'uncalibrated'
+    assert node.core_parameters.sample_rate_hz == 1000.0
+    assert node.calibration_state == 'uncalibrated'
     shipped = make_node(VibrationAnalyzerNode, node_name='vibration_shipped',
                         parameter_overrides=[*_shipped('vibration_analyzer'), Parameter(
                             'calibration_file', value=str(tmp_path / 'v.yaml'))])
-    assert shipped.parameters.mode_band_hz == (40.0, 50.0)
+    assert shipped.core_parameters.mode_band_hz == (40.0, 50.0)
     with pytest.raises(ConfigurationError, match='memory_s'):
         make_node(VibrationAnalyzerNode, node_name='bad1',
                   parameter_overrides=[Parameter('memory_s', value=-1.0)])

@@ -54,6 +54,7 @@ from scipy import signal
 
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
 TORSIONAL_MODE_HZ = (40.0, 50.0)
@@ -77,67 +78,71 @@ TOOTH_SMOOTH_HZ = 3.0
 
 @dataclass(frozen=True)
 class VibrationParams:
-    """Parameters of the vibration analysis.
+    """Parameters of the vibration analysis (each field is also the node's ROS parameter).
 
-    Attributes:
-        sample_rate_hz: input wheel-speed rate, Hz.
-        mode_band_hz: (low, high) band of the monitored mode at nominal pressure, Hz.
-        band_margin: relative widening of ``mode_band_hz`` for the band-pass, so that a 30 %
-            pressure loss (frequency about 10 % lower) stays well inside the passband and the
-            filter edges do not pull the AR(2) peak.
-        filter_order: Butterworth order of the band-pass (per edge).
-        analysis_rate_hz: rate of the AR(2) fit after decimation (integer factor, rounded
-            down), Hz. Lower means a better-conditioned AR(2) (pole angle far from 0) and fewer
-            samples; it must keep the passband below 0.45 of it.
-        memory_s: RLS memory (forgetting lambda = exp(-1 / (memory_s * analysis rate))), s.
-        rls_regularization: R_0 = P_0^-1 of the RLS, in (rad/s)^2; small, it only makes the
-            first solves well posed.
-        min_wheel_speed: below this wheel speed (rad/s) the road excitation is too weak and
-            the sample is not used.
-        max_wheel_speed: above this the sample is non-physical and rejected, rad/s.
-        stuck_s: a wheel speed repeated exactly for longer than this is a stuck sensor and
-            rejected, s (an ABS speed held between tooth edges repeats for milliseconds only).
-        guard_s: after a rejected or gated input sample, the band-pass output is disturbed
-            for about its impulse-response length; the regression skips this long, s.
-        min_valid_fraction: a tire is known only if this fraction of its RLS memory holds
-            valid samples.
-        calibration_settle_s: samples from the first part of a calibration window are
-            discarded so the nominal is not biased by the RLS start-up, s.
-        min_calibration_s: shortest accepted calibration (after settling, known samples), s.
-        z_flag: flag a tire when its frequency drop exceeds this many noise sigmas.
-        z_full: the drop (in sigmas) at which the confidence reaches 1.
-        rel_noise_floor: floor of the noise sigma relative to the nominal frequency: the
-            frequency also wanders with road, speed and temperature, which a short
-            calibration does not see.
-        driveline_compensation: driven axle whose common driveline vibration is removed,
-            'none', 'front' or 'rear' (VEHICLE-SPECIFIC). Driveline and suspension-member
-            modes (e.g. 25 and 52 Hz, frequencies moving with speed) reach both driven rims in
-            phase and pull each driven wheel's AR(2) by several Hz, a bias that a calibration
-            at one speed does not absorb. Their contribution to each wheel's covariances is
-            the left-right cross-covariance (the road excites the two tires independently),
-            so the regression sums of each driven wheel are taken less the symmetrised
-            left-right cross products, the covariance form of Umeno's left-right difference.
-            It needs both driven wheels: a bad sample on one leaves both out of the sums.
+    Read-only ones shape the filters at construction; the others are read at each call and may
+    change at runtime. Why some values are what they are:
+
+    - ``band_margin``: a 30 % pressure loss (frequency about 10 % lower) stays well inside the
+      passband and the filter edges do not pull the AR(2) peak.
+    - ``analysis_rate_hz`` (integer decimation, rounded down): lower means a better-conditioned
+      AR(2) (pole angle far from 0) and fewer samples; it must keep the passband below 0.45 of
+      it. The RLS forgetting is lambda = exp(-1 / (memory_s * analysis rate)).
+    - ``stuck_s``: an ABS speed held between tooth edges repeats for milliseconds only.
+    - ``guard_s``: after a rejected or gated input sample the band-pass output is disturbed for
+      about its impulse-response length.
+    - ``rel_noise_floor``: the frequency also wanders with road, speed and temperature, which a
+      short calibration does not see.
+    - ``driveline_compensation`` (VEHICLE-SPECIFIC): driveline and suspension-member modes
+      (e.g. 25 and 52 Hz, moving with speed) reach both driven rims in phase and pull each
+      driven wheel's AR(2) by several Hz, a bias a calibration at one speed does not absorb.
+      Their contribution to each wheel's covariances is the left-right cross-covariance (the
+      road excites the two tires independently), so the regression sums of each driven wheel
+      are taken less the symmetrised left-right cross products, the covariance form of Umeno's
+      left-right difference. It needs both driven wheels: a bad sample on one leaves both out.
     """
 
-    sample_rate_hz: float = 1000.0
-    mode_band_hz: tuple[float, float] = TORSIONAL_MODE_HZ
-    band_margin: float = 0.35
-    filter_order: int = 4
-    analysis_rate_hz: float = 200.0
-    memory_s: float = 5.0
-    rls_regularization: float = 1e-6
-    min_wheel_speed: float = 10.0
-    max_wheel_speed: float = 600.0
-    stuck_s: float = 0.1
-    guard_s: float = 0.05
-    min_valid_fraction: float = 0.5
-    calibration_settle_s: float = 15.0
-    min_calibration_s: float = 10.0
-    z_flag: float = 3.0
-    z_full: float = 8.0
-    rel_noise_floor: float = 0.005
-    driveline_compensation: str = 'none'
+    sample_rate_hz: float = param(1000.0, 'wheel-speed sample rate, Hz', low=50.0,
+                                  high=20000.0, read_only=True)
+    mode_band_hz: tuple[float, ...] = param(
+        TORSIONAL_MODE_HZ, '[low, high] band of the torsional tire mode at nominal '
+        'pressure, Hz', read_only=True)
+    band_margin: float = param(0.35, 'relative widening of mode_band_hz for the band-pass',
+                               low=0.01, high=0.99, read_only=True)
+    filter_order: int = param(4, 'Butterworth order of the band-pass', low=1, high=8,
+                              read_only=True)
+    analysis_rate_hz: float = param(200.0, 'rate of the AR(2) fit after decimation, Hz',
+                                    low=10.0, high=20000.0, read_only=True)
+    memory_s: float = param(5.0, 'RLS memory (forgetting), s', low=0.1, high=600.0,
+                            read_only=True)
+    rls_regularization: float = param(1e-6, 'RLS initial regularisation P0^-1, (rad/s)^2',
+                                      low=1e-15, high=1.0, read_only=True)
+    min_wheel_speed: float = param(10.0, 'below this wheel speed the road excitation is too '
+                                   'weak: samples are gated, rad/s', low=0.0, high=1000.0)
+    max_wheel_speed: float = param(600.0, 'wheel speeds above this are non-physical and '
+                                   'rejected, rad/s', low=1.0, high=5000.0)
+    stuck_s: float = param(0.1, 'an exactly repeated wheel speed for this long is a stuck '
+                           'sensor, s', low=1e-3, high=60.0, read_only=True)
+    guard_s: float = param(0.05, 'the regression skips this long after a bad sample (filter '
+                           'transient), s', low=0.0, high=5.0, read_only=True)
+    min_valid_fraction: float = param(0.5, 'a tire is known only if this fraction of the RLS '
+                                      'memory is valid', low=0.01, high=1.0)
+    calibration_settle_s: float = param(15.0, 'first part of a calibration window not used, s',
+                                        low=0.0, high=3600.0)
+    min_calibration_s: float = param(10.0, 'least seconds of known estimates per tire for a '
+                                     'calibration, s', low=0.1, high=3600.0)
+    calibration_duration_s: float = param(60.0, 'length of a calibration run, s of data',
+                                          low=0.1, high=36000.0)
+    z_flag: float = param(3.0, 'flag a tire when its frequency drop exceeds this many noise '
+                          'sigmas', low=0.1, high=100.0)
+    z_full: float = param(8.0, 'frequency drop in sigmas at which the confidence reaches 1',
+                          low=0.1, high=100.0)
+    rel_noise_floor: float = param(0.005, 'floor of the frequency noise relative to the '
+                                   'nominal frequency', low=1e-5, high=0.5)
+    driveline_compensation: str = param('none', 'driven axle whose common driveline '
+                                        'vibration is removed by the left-right '
+                                        'cross-covariance', choices=('none', 'front', 'rear'),
+                                        read_only=True)
 
     def __post_init__(self) -> None:
         positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
@@ -146,6 +151,9 @@ class VibrationParams:
         require_positive(self, positive)
         require_positive(self, ('min_wheel_speed', 'guard_s', 'calibration_settle_s'),
                          allow_zero=True)
+        if len(self.mode_band_hz) != 2:
+            raise ValueError(f'VibrationParams.mode_band_hz must be [low, high], got '
+                             f'{list(self.mode_band_hz)}')
         low, high = self.mode_band_hz
         if not (math.isfinite(low) and math.isfinite(high) and 0.0 < low < high):
             raise ValueError(f'VibrationParams.mode_band_hz must be 0 < low < high, got '
@@ -172,6 +180,11 @@ class VibrationParams:
             raise ValueError(
                 f'VibrationParams.analysis_rate_hz: the decimated rate {self.effective_rate_hz} '
                 f'Hz must exceed the passband top {self.passband_hz[1]:.1f} Hz / 0.45')
+        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
+            raise ValueError(
+                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
+                f'calibration_settle_s + min_calibration_s '
+                f'({self.calibration_settle_s + self.min_calibration_s:g})')
 
     @property
     def passband_hz(self) -> tuple[float, float]:

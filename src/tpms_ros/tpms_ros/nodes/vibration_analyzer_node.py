@@ -40,7 +40,6 @@ from vehicle_monitor_common.node_helpers import (
     OK,
     OUTPUT_QOS,
     WARN,
-    ConfigurationError,
     Diagnostics,
     ProcessAhead,
     TypedParameters,
@@ -50,62 +49,11 @@ from vehicle_monitor_common.node_helpers import (
     run_node,
 )
 
-_DEFAULTS = VibrationParams()
-# Core parameters the analyzer reads at each call (safe to change at runtime); the others shape
-# its filters at construction and are read-only.
-_RUNTIME_CORE = ('min_wheel_speed', 'max_wheel_speed', 'min_valid_fraction',
-                 'calibration_settle_s', 'min_calibration_s', 'z_flag', 'z_full',
-                 'rel_noise_floor')
-
 
 @dataclass(frozen=True)
-class VibrationAnalyzerParameters:
-    """Parameters of the vibration_analyzer node (core ones: see VibrationParams)."""
+class VibrationAnalyzerNodeParams:
+    """Node-only parameters of vibration_analyzer (the method's own: :class:`VibrationParams`)."""
 
-    sample_rate_hz: float = param(_DEFAULTS.sample_rate_hz, 'wheel-speed sample rate, Hz',
-                                  low=50.0, high=20000.0, read_only=True)
-    mode_band_hz: tuple[float, ...] = param(
-        _DEFAULTS.mode_band_hz, '[low, high] band of the torsional tire mode at nominal '
-        'pressure, Hz', read_only=True)
-    band_margin: float = param(_DEFAULTS.band_margin, 'relative widening of mode_band_hz for '
-                               'the band-pass', low=0.01, high=0.99, read_only=True)
-    filter_order: int = param(_DEFAULTS.filter_order, 'Butterworth order of the band-pass',
-                              low=1, high=8, read_only=True)
-    analysis_rate_hz: float = param(_DEFAULTS.analysis_rate_hz, 'rate of the AR(2) fit after '
-                                    'decimation, Hz', low=10.0, high=20000.0, read_only=True)
-    memory_s: float = param(_DEFAULTS.memory_s, 'RLS memory (forgetting), s', low=0.1,
-                            high=600.0, read_only=True)
-    rls_regularization: float = param(_DEFAULTS.rls_regularization, 'RLS initial '
-                                      'regularisation P0^-1, (rad/s)^2', low=1e-15, high=1.0,
-                                      read_only=True)
-    min_wheel_speed: float = param(_DEFAULTS.min_wheel_speed, 'below this wheel speed the '
-                                   'road excitation is too weak: samples are gated, rad/s',
-                                   low=0.0, high=1000.0)
-    max_wheel_speed: float = param(_DEFAULTS.max_wheel_speed, 'wheel speeds above this are '
-                                   'non-physical and rejected, rad/s', low=1.0, high=5000.0)
-    stuck_s: float = param(_DEFAULTS.stuck_s, 'an exactly repeated wheel speed for this long '
-                           'is a stuck sensor, s', low=1e-3, high=60.0, read_only=True)
-    guard_s: float = param(_DEFAULTS.guard_s, 'the regression skips this long after a bad '
-                           'sample (filter transient), s', low=0.0, high=5.0, read_only=True)
-    min_valid_fraction: float = param(_DEFAULTS.min_valid_fraction, 'a tire is known only if '
-                                      'this fraction of the RLS memory is valid', low=0.01,
-                                      high=1.0)
-    calibration_settle_s: float = param(_DEFAULTS.calibration_settle_s, 'first part of a '
-                                        'calibration window not used, s', low=0.0, high=3600.0)
-    min_calibration_s: float = param(_DEFAULTS.min_calibration_s, 'least seconds of known '
-                                     'estimates per tire for a calibration, s', low=0.1,
-                                     high=3600.0)
-    z_flag: float = param(_DEFAULTS.z_flag, 'flag a tire when its frequency drop exceeds this '
-                          'many noise sigmas', low=0.1, high=100.0)
-    z_full: float = param(_DEFAULTS.z_full, 'frequency drop in sigmas at which the confidence '
-                          'reaches 1', low=0.1, high=100.0)
-    rel_noise_floor: float = param(_DEFAULTS.rel_noise_floor, 'floor of the frequency noise '
-                                   'relative to the nominal frequency', low=1e-5, high=0.5)
-    driveline_compensation: str = param(_DEFAULTS.driveline_compensation, 'driven axle whose '
-                                        'common driveline vibration is removed by the left-'
-                                        'right cross-covariance', choices=('none', 'front',
-                                                                           'rear'),
-                                        read_only=True)
     block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
                            'duration at most, s (no effect on the result; shorter: more '
                            'per-call overhead)', low=0.005, high=5.0, read_only=True)
@@ -118,8 +66,6 @@ class VibrationAnalyzerParameters:
                               low=0.0, high=600.0)
     publish_rate_hz: float = param(10.0, 'highest output rate (in data time); outputs follow '
                                    'processed blocks, Hz', low=0.01, high=1000.0)
-    calibration_duration_s: float = param(60.0, 'length of a calibration run, s of data',
-                                          low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
                                      'if tire pressures are known to be nominal)')
     calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from '
@@ -127,38 +73,20 @@ class VibrationAnalyzerParameters:
     diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
                                         high=60.0, read_only=True)
 
-    def __post_init__(self) -> None:
-        self.core()      # the core's own cross-field rules (band, rates, z_flag < z_full)
-        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
-            raise ValueError(
-                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
-                f'calibration_settle_s + min_calibration_s '
-                f'({self.calibration_settle_s + self.min_calibration_s:g})')
-
-    def core(self) -> VibrationParams:
-        """The core's parameters."""
-        if len(self.mode_band_hz) != 2:
-            raise ValueError(f'mode_band_hz must be [low, high], got {list(self.mode_band_hz)}')
-        values: dict[str, Any] = {name: getattr(self, name)
-                                  for name in VibrationParams.__dataclass_fields__}
-        values['mode_band_hz'] = tuple(float(v) for v in self.mode_band_hz)
-        return VibrationParams(**values)
-
 
 class VibrationAnalyzerNode(Node):
     """Wraps :class:`VibrationAnalyzer` (four tires) with ROS topics, calibration, diagnostics."""
 
     def __init__(self, node_name: str = 'vibration_analyzer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, VibrationAnalyzerParameters,
+        self._core_params = TypedParameters(self, VibrationParams,
+                                            on_change=self._on_core_change)
+        self._typed = TypedParameters(self, VibrationAnalyzerNodeParams,
                                       on_change=self._on_change)
-        p = self._typed.value
-        try:
-            self._analyzer = VibrationAnalyzer(p.core())
-        except ValueError as exc:        # already checked by the dataclass; belt and braces
-            raise ConfigurationError(str(exc)) from None
-        self._period_ns = round(1e9 / p.sample_rate_hz)
-        self._block_len = max(1, round(p.block_s * p.sample_rate_hz))
+        core, p = self._core_params.value, self._typed.value
+        self._analyzer = VibrationAnalyzer(core)
+        self._period_ns = round(1e9 / core.sample_rate_hz)
+        self._block_len = max(1, round(p.block_s * core.sample_rate_hz))
         self._stamps = StampCheck(max_gap_s=p.max_gap_s)
         self._buffer: list[np.ndarray] = []
         self._buffer_first_ns = 0
@@ -181,7 +109,7 @@ class VibrationAnalyzerNode(Node):
         if self._calibration.state == 'file_corrupt':
             self.get_logger().warning(self._calibration.detail)
         if p.calibrate_on_start:
-            self._calibration.request(p.calibration_duration_s)
+            self._calibration.request(core.calibration_duration_s)
 
         self._resonance_pub = self.create_publisher(TireResonance, 'tpms/tire_resonance',
                                                     OUTPUT_QOS)
@@ -194,18 +122,25 @@ class VibrationAnalyzerNode(Node):
         self._update_diagnostics()
 
     @property
-    def parameters(self) -> VibrationAnalyzerParameters:
-        """The current, validated parameters."""
+    def parameters(self) -> VibrationAnalyzerNodeParams:
+        """The current, validated node-only parameters."""
         return self._typed.value
+
+    @property
+    def core_parameters(self) -> VibrationParams:
+        """The current, validated parameters of the method."""
+        return self._core_params.value
 
     @property
     def analyzer(self) -> VibrationAnalyzer:
         """The core estimator (read access for tests and tools)."""
         return self._analyzer
 
-    def _on_change(self, p: VibrationAnalyzerParameters) -> None:
+    def _on_core_change(self, core: VibrationParams) -> None:
         # only the parameters the core reads per call can change (the rest are read-only)
-        self._analyzer.params = p.core()
+        self._analyzer.params = core
+
+    def _on_change(self, p: VibrationAnalyzerNodeParams) -> None:
         self._stamps.max_gap_s = p.max_gap_s
 
     # -- input ---------------------------------------------------------------------------------
@@ -243,7 +178,8 @@ class VibrationAnalyzerNode(Node):
         if self._last_publish_s == -math.inf:
             # The first output answers one publish period of data (n samples, n intervals),
             # output_phase_s more.
-            self._last_publish_s = stamp * 1e-9 - 1.0 / p.sample_rate_hz + p.output_phase_s
+            self._last_publish_s = (stamp * 1e-9 - 1.0 / self.core_parameters.sample_rate_hz
+                                    + p.output_phase_s)
         to_output_s = self._last_publish_s + 1.0 / p.publish_rate_hz - stamp * 1e-9
         if (len(self._buffer) >= self._block_len or to_output_s <= 1e-9
                 or self._ahead.due(to_output_s, p.process_ahead_s)):
@@ -286,7 +222,7 @@ class VibrationAnalyzerNode(Node):
         resonance.frequency_hz = np.where(valid, frequency, np.nan).tolist()
         if cal is not None:
             sigma = np.maximum(cal.noise_hz,
-                               self.parameters.rel_noise_floor * cal.nominal_frequency_hz)
+                               self.core_parameters.rel_noise_floor * cal.nominal_frequency_hz)
             resonance.frequency_std_hz = np.where(valid, sigma, np.nan).tolist()
             resonance.nominal_frequency_hz = cal.nominal_frequency_hz.tolist()
         else:
@@ -312,7 +248,7 @@ class VibrationAnalyzerNode(Node):
 
     def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self._calibration.request(
-            self.parameters.calibration_duration_s)
+            self.core_parameters.calibration_duration_s)
         return response
 
     @property
