@@ -16,15 +16,20 @@ packages' setup.py (like rclcpp_components), or ``module:Class``. A graph file::
         namespace: /car1
         remappings: {/tpms/warning: /car1/tpms/warning}
 
-``run_graph GRAPH.yaml [-p NODE.PARAM:=VALUE ...] [--timeout S]`` runs it until every player has
-finished (or Ctrl-C / the timeout) and prints what the recorders received.
+A ROS 2 YAML launch file (``launch:`` with ``arg`` and ``node`` actions, see
+:mod:`vehicle_monitor_common.launch_yaml`) is read the same way, so one file serves
+``ros2 launch`` on a real install and this runner here.
+
+``run_graph FILE [NAME:=VALUE ...] [-p NODE.PARAM:=VALUE ...] [--timeout S]`` runs it (launch
+arguments as ``NAME:=VALUE``) until every player has finished (or Ctrl-C / the timeout; a graph
+without players runs until then) and prints what the recorders received.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 import importlib
 from importlib.metadata import entry_points
 import os
@@ -45,6 +50,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 import yaml
 
+from vehicle_monitor_common.launch_yaml import is_launch_file, parse_launch
 from vehicle_monitor_common.node_helpers import ConfigurationError, refuse_unknown_parameters
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
@@ -70,6 +76,7 @@ class NodeSpec:
     namespace: str = ''
     parameters: dict[str, Any] = field(default_factory=dict)
     remappings: dict[str, str] = field(default_factory=dict)
+    param_files: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -112,8 +119,9 @@ def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
                      use_sim_time=bool(data.get('use_sim_time', False)))
 
 
-def load_graph(path: str | os.PathLike[str]) -> GraphSpec:
-    """Read and validate a graph YAML file."""
+def load_graph(path: str | os.PathLike[str],
+               launch_args: Mapping[str, str] | None = None) -> GraphSpec:
+    """Read and validate a graph YAML file or a YAML launch file (with its arguments)."""
     try:
         with open(path, encoding='utf-8') as stream:
             data = yaml.safe_load(stream)
@@ -121,6 +129,14 @@ def load_graph(path: str | os.PathLike[str]) -> GraphSpec:
         raise ConfigurationError(f'cannot read graph file {path}: {exc.strerror}') from None
     except yaml.YAMLError as exc:
         raise ConfigurationError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    if is_launch_file(data):
+        nodes = parse_launch(data, launch_args or {}, str(path))
+        return GraphSpec(nodes=tuple(
+            NodeSpec(plugin=n['plugin'], name=n['name'], namespace=n['namespace'],
+                     parameters=n['parameters'], remappings=n['remappings'],
+                     param_files=tuple(n['param_files'])) for n in nodes))
+    if launch_args:
+        raise ConfigurationError(f'{path}: launch arguments given, but this is a graph file')
     return parse_graph(data, str(path))
 
 
@@ -162,6 +178,8 @@ class Graph:
         if self.spec.use_sim_time and not issubclass(cls, ScenarioPlayer):  # type: ignore[arg-type]
             parameters.setdefault('use_sim_time', True)
         cli_args = ['--ros-args']
+        for params_file in node_spec.param_files:
+            cli_args += ['--params-file', params_file]
         for source, target in node_spec.remappings.items():
             cli_args += ['-r', f'{source}:={target}']
         kwargs: dict[str, Any] = {
@@ -240,9 +258,8 @@ def _apply_overrides(spec: GraphSpec, overrides: list[str]) -> GraphSpec:
                 f'bad override {text!r}: expected NODE.PARAM:=VALUE with NODE one of '
                 f'{", ".join(sorted(by_name))}')
         original = by_name[node_name]
-        updated = NodeSpec(original.plugin, original.name, original.namespace,
-                           {**original.parameters, param_name: yaml.safe_load(raw)},
-                           original.remappings)
+        updated = replace(original, parameters={**original.parameters,
+                                                param_name: yaml.safe_load(raw)})
         nodes[nodes.index(original)] = updated
         by_name[node_name] = updated
     return GraphSpec(tuple(nodes), spec.executor, spec.use_sim_time)
@@ -251,7 +268,9 @@ def _apply_overrides(spec: GraphSpec, overrides: list[str]) -> GraphSpec:
 def main(argv: list[str] | None = None) -> int:
     """``run_graph``: run a graph file until its players finish; print what was recorded."""
     parser = argparse.ArgumentParser(prog='run_graph', description=__doc__.split('\n')[0])
-    parser.add_argument('graph', help='graph YAML file')
+    parser.add_argument('graph', help='graph YAML file or YAML launch file')
+    parser.add_argument('launch_args', nargs='*', metavar='NAME:=VALUE',
+                        help='launch arguments (launch files)')
     parser.add_argument('-p', '--param', action='append', default=[],
                         metavar='NODE.PARAM:=VALUE', help='override a node parameter')
     parser.add_argument('--timeout', type=float, default=None,
@@ -261,7 +280,13 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     graph = None
     try:
-        spec = _apply_overrides(load_graph(args.graph), args.param)
+        launch_args = {}
+        for text in args.launch_args:
+            name, sep, value = text.partition(':=')
+            if not sep or not name:
+                raise ConfigurationError(f'launch argument {text!r}: expected NAME:=VALUE')
+            launch_args[name] = value
+        spec = _apply_overrides(load_graph(args.graph, launch_args), args.param)
         graph = Graph(spec)
         started = time.monotonic()
         has_players = bool(graph.of_type(ScenarioPlayer))
