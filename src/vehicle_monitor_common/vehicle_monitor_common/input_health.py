@@ -15,28 +15,62 @@ import numpy as np
 
 @dataclass
 class StampCheck:
-    """Classifies each incoming header stamp of one input stream.
+    """Classifies each incoming header stamp of one input stream, and follows time jumps.
 
     Out-of-order and repeated stamps are rejected (the filters assume increasing time); a gap
     longer than ``max_gap_s`` is accepted but flagged so the caller can restart its filters.
+
+    A stamp more than ``jump_horizon_s`` ahead of the last one, or behind it, is never adopted
+    as the new "now" on its own: a single far-future stamp (a corrupt message) is dropped and
+    counted, and the stream goes on. Only when ``confirm_samples`` stamps in a row continue the
+    new time line (each after the previous by at most ``jump_horizon_s``) is the jump real (a
+    looped or repeated replay, a reset or step of the clock): the last of them is returned as
+    ``'jump'``, and the caller restarts its filters from there (calibration is kept), as
+    robot_localization does on a time jump. Until then those stamps are rejected as
+    ``'future_stamp'`` or ``'out_of_order'``.
     """
 
     max_gap_s: float
+    jump_horizon_s: float = 10.0
+    confirm_samples: int = 5
     last_ns: int | None = None
     rejected: dict[str, int] = dataclasses.field(default_factory=dict)
+    jumps: int = 0
+    last_jump_s: float = 0.0
+    _candidate_ns: int | None = None
+    _candidate_count: int = 0
 
     def check(self, stamp_ns: int) -> str:
-        """'ok', 'gap' (accepted, filters should restart), 'repeated' or 'out_of_order'."""
-        if self.last_ns is not None:
-            if stamp_ns == self.last_ns:
-                return self._reject('repeated')
-            if stamp_ns < self.last_ns:
-                return self._reject('out_of_order')
-            gap = (stamp_ns - self.last_ns) * 1e-9 > self.max_gap_s
+        """'ok', 'gap' (accepted, filters should restart), 'jump' (accepted: a confirmed jump
+        of ``last_jump_s``, filters must restart), or a rejection: 'repeated', 'out_of_order',
+        'future_stamp'."""
+        if self.last_ns is None:
             self.last_ns = stamp_ns
-            return 'gap' if gap else 'ok'
-        self.last_ns = stamp_ns
-        return 'ok'
+            return 'ok'
+        step_ns = stamp_ns - self.last_ns
+        if 0 < step_ns <= self.jump_horizon_s * 1e9:
+            self._candidate_ns, self._candidate_count = None, 0
+            self.last_ns = stamp_ns
+            return 'gap' if step_ns * 1e-9 > self.max_gap_s else 'ok'
+        if step_ns == 0:
+            return self._reject('repeated')
+        if self._continues_candidate(stamp_ns):
+            self._candidate_count += 1
+        else:
+            self._candidate_count = 1
+        self._candidate_ns = stamp_ns
+        if self._candidate_count >= self.confirm_samples:
+            self.jumps += 1
+            self.last_jump_s = step_ns * 1e-9
+            self.last_ns, self._candidate_ns, self._candidate_count = stamp_ns, None, 0
+            return 'jump'
+        return self._reject('future_stamp' if step_ns > 0 else 'out_of_order')
+
+    def _continues_candidate(self, stamp_ns: int) -> bool:
+        if self._candidate_ns is None:
+            return False
+        step_ns = stamp_ns - self._candidate_ns
+        return 0 < step_ns <= self.jump_horizon_s * 1e9
 
     def _reject(self, reason: str) -> str:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
