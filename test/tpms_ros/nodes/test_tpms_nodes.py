@@ -440,11 +440,11 @@ def test_wheel_radius_starts_with_defaults_and_shipped_config(
         make_node: Callable[..., Any], tmp_path: Path) -> None:
     """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
     node = make_node(WheelRadiusAnalyzerNode)
-    assert node.parameters.driven_axle == 'front'
+    assert node.core_parameters.driven_axle == 'front'
     shipped = make_node(WheelRadiusAnalyzerNode, node_name='radius_shipped',
                         parameter_overrides=[*_shipped('wheel_radius_analyzer'), Parameter(
                             'calibration_file', value=str(tmp_path / 'r.yaml'))])
-    assert shipped.parameters.static_load_n == (4200.0, 4200.0, 3300.0, 3300.0)
+    assert shipped.core_parameters.static_load_n == (4200.0, 4200.0, 3300.0, 3300.0)
     with pytest.raises(ConfigurationError, match='static_load_n'):
         make_node(WheelRadiusAnalyzerNode, node_name='bad1', parameter_overrides=[
             Parameter('static_load_n', value=[4000.0, 4000.0, 3000.0])])

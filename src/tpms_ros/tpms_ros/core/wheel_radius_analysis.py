@@ -68,6 +68,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
 CALIBRATION_VERSION = 3
@@ -88,6 +89,9 @@ PAIR_TIRES = tuple(tuple(int(i) for i in np.flatnonzero(row)) for row in PAIR_SE
 @dataclass(frozen=True)
 class WheelRadiusParams:
     """Parameters of the wheel radius analysis (vehicle data, gating, noise, decision).
+
+    Each field is also the node's ROS parameter (description, unit, range in its param()).
+    Why some values are what they are:
 
     Attributes:
         nominal_radius_m: nominal rolling radius r_n, m.
@@ -177,47 +181,96 @@ class WheelRadiusParams:
         z_full: radius drop in sigmas at which the confidence reaches 1.
     """
 
-    nominal_radius_m: float = 0.31
-    track_front_m: float = 1.55
-    track_rear_m: float = 1.55
-    static_load_n: tuple[float, float, float, float] = (4200.0, 4200.0, 3300.0, 3300.0)
-    driven_axle: str = 'front'
-    sample_rate_hz: float = 100.0
-    max_gap_s: float = 0.1
-    max_wheel_speed: float = 600.0
-    min_speed_mps: float = 8.0
-    max_speed_mps: float = 45.0
-    mu_max: float = 0.15
-    slip_max: float = 0.03
-    brake_torque_nm: float = 20.0
-    ay_max_longitudinal: float = 2.0
-    ay_max_lateral: float = 4.0
-    accel_max_longitudinal: float = 0.8
-    accel_max_lateral: float = 1.0
-    accel_filter_hz: float = 2.0
-    wheel_inertia_kgm2: float = 1.0
-    cg_height_m: float = 0.55
-    wheelbase_m: float = 2.7
-    gyro_stuck_s: float = 0.5
-    wheel_recover_s: float = 1.0
-    wheel_speed_noise_mps: float = 0.0177
-    inv_stiffness_rw: float = 1e-4
-    delta_rw: float = 1e-5
-    inv_stiffness0_std: float = 0.05
-    delta0_std: float = 0.01
-    yaw_jerk_std: float = 2.0
-    gyro_noise_std: float = 0.01
-    wheel_yaw_noise_std: float = 0.02
-    gyro_offset_rw: float = 2e-5
-    gyro_offset0_std: float = 0.03
-    calibration_settle_s: float = 20.0
-    min_calibration_s: float = 20.0
-    noise_block_s: float = 2.0
-    radius_noise_floor: float = 2.5e-4
-    informative_std: float = 2e-3
-    z_keep: float = 1.0
-    z_flag: float = 3.0
-    z_full: float = 8.0
+    nominal_radius_m: float = param(0.31, 'nominal rolling radius r_n, m',
+                                    low=0.1, high=2.0, read_only=True)
+    track_front_m: float = param(1.55, 'front track width, m', low=0.5, high=4.0,
+                                 read_only=True)
+    track_rear_m: float = param(1.55, 'rear track width, m', low=0.5, high=4.0,
+                                read_only=True)
+    static_load_n: tuple[float, ...] = param((4200.0, 4200.0, 3300.0, 3300.0),
+                                             'static wheel loads FL, FR, RL, RR, N',
+                                             read_only=True)
+    driven_axle: str = param('front', 'driven axle', choices=('front', 'rear'),
+                             read_only=True)
+    sample_rate_hz: float = param(100.0, 'analysis rate: wheel speeds are '
+                                  'averaged into bins of 1 / this, Hz', low=10.0, high=1000.0,
+                                  read_only=True)
+    max_gap_s: float = param(0.1, 'a larger gap between bins restarts the yaw '
+                             'states, s', low=1e-3, high=10.0)
+    max_wheel_speed: float = param(600.0, 'wheel speeds above this are rejected, '
+                                   'rad/s', low=1.0, high=5000.0)
+    min_speed_mps: float = param(8.0, 'lower end of the speed band, m/s',
+                                 low=0.0, high=100.0)
+    max_speed_mps: float = param(45.0, 'upper end of the speed band, m/s',
+                                 low=0.1, high=150.0)
+    mu_max: float = param(0.15, 'traction limit |Fx/Fz| of the linear slip model',
+                          low=1e-3, high=2.0)
+    slip_max: float = param(0.03, '|slip| above this is spin/lock', low=1e-4, high=1.0)
+    brake_torque_nm: float = param(20.0, 'any wheel torque below -this is '
+                                   'braking: the longitudinal model pauses, N m', low=0.0,
+                                   high=1e5)
+    ay_max_longitudinal: float = param(2.0, 'cornering limit of the '
+                                       'longitudinal model, m/s^2', low=0.01, high=20.0)
+    ay_max_lateral: float = param(4.0, 'cornering limit of the lateral model, '
+                                  'm/s^2', low=0.01, high=20.0)
+    accel_max_longitudinal: float = param(0.8, 'longitudinal '
+                                          'acceleration limit |ax| of the longitudinal model, '
+                                          'm/s^2', low=0.01, high=20.0)
+    accel_max_lateral: float = param(1.0, 'longitudinal acceleration limit '
+                                     '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
+    accel_filter_hz: float = param(2.0, 'low-pass corner before '
+                                   'differentiating the wheel speeds, Hz', low=0.01, high=40.0,
+                                   read_only=True)
+    wheel_inertia_kgm2: float = param(1.0, 'spin inertia of a driven wheel '
+                                      '(0: ignored), kg m^2', low=0.0, high=100.0,
+                                      read_only=True)
+    cg_height_m: float = param(0.55, 'centre-of-gravity height for the load transfer '
+                               '(0: ignored), m', low=0.0, high=5.0, read_only=True)
+    wheelbase_m: float = param(2.7, 'wheelbase, m', low=0.5, high=10.0,
+                               read_only=True)
+    gyro_stuck_s: float = param(0.5, 'a yaw rate repeated this long is a stopped '
+                                'gyro: the lateral filter pauses, s', low=0.01, high=60.0)
+    wheel_recover_s: float = param(1.0, 'a tire stays unknown this long after '
+                                   'its last bad wheel speed, s', low=0.0, high=600.0)
+    wheel_speed_noise_mps: float = param(0.0177, 'noise of one wheel\'s '
+                                         'speed per sample (slip noise sqrt(2) x this / '
+                                         'speed), m/s', low=1e-7, high=10.0)
+    inv_stiffness_rw: float = param(1e-4, 'random walk of 1/k, per sqrt(s)',
+                                    low=0.0, high=1.0)
+    delta_rw: float = param(1e-5, 'random walk of the radius offsets, per sqrt(s)',
+                            low=0.0, high=1.0)
+    inv_stiffness0_std: float = param(0.05, 'initial std of 1/k', low=1e-6,
+                                      high=10.0, read_only=True)
+    delta0_std: float = param(0.01, 'initial std of the offsets', low=1e-6, high=1.0,
+                              read_only=True)
+    yaw_jerk_std: float = param(2.0, 'yaw jerk process noise, rad/s^3', low=1e-4,
+                                high=1000.0)
+    gyro_noise_std: float = param(0.01, 'gyro noise per sample, rad/s', low=1e-6,
+                                  high=1.0)
+    wheel_yaw_noise_std: float = param(0.02, 'noise of the wheel-speed yaw '
+                                       'rates per sample, rad/s', low=1e-6, high=1.0)
+    gyro_offset_rw: float = param(2e-5, 'random walk of the gyro offset, rad/s '
+                                  'per sqrt(s)', low=0.0, high=1.0)
+    gyro_offset0_std: float = param(0.03, 'initial std of the gyro offset, '
+                                    'rad/s', low=1e-6, high=1.0, read_only=True)
+    calibration_settle_s: float = param(20.0, 'first part of a calibration '
+                                        'window not used, s', low=0.0, high=3600.0)
+    min_calibration_s: float = param(20.0, 'least seconds of valid updates '
+                                     'per pair for a calibration, s', low=0.1, high=3600.0)
+    noise_block_s: float = param(2.0, 'block length of the calibration\'s '
+                                 'coloured-noise check, s', low=0.01, high=600.0)
+    radius_noise_floor: float = param(2.5e-4, 'floor of the per-tire relative '
+                                      'radius noise', low=1e-7, high=0.1)
+    informative_std: float = param(2e-3, 'a pair whose posterior std exceeds '
+                                   'this carries no information', low=1e-6, high=1.0)
+    z_keep: float = param(1.0, 'a tire whose radius drop is below this many sigmas is '
+                          'taken out of the localisation fit (noise)', low=0.0, high=100.0)
+    z_flag: float = param(3.0, 'flag a tire whose radius drop exceeds this many sigmas',
+                          low=0.1, high=100.0)
+    z_full: float = param(8.0, 'radius drop in sigmas at which the confidence reaches 1',
+                          low=0.1, high=100.0)
+    calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
+                                          low=0.1, high=36000.0)
 
     def __post_init__(self) -> None:
         positive = ('nominal_radius_m', 'track_front_m', 'track_rear_m', 'sample_rate_hz',
@@ -250,6 +303,11 @@ class WheelRadiusParams:
         if not self.accel_filter_hz < 0.5 * self.sample_rate_hz:
             raise ValueError(f'WheelRadiusParams.accel_filter_hz must be below half the sample '
                              f'rate, got {self.accel_filter_hz}')
+        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
+            raise ValueError(
+                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
+                f'calibration_settle_s + min_calibration_s '
+                f'({self.calibration_settle_s + self.min_calibration_s:g})')
 
 
 @dataclass(frozen=True)

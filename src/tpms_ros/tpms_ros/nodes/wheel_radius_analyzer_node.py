@@ -61,7 +61,6 @@ from vehicle_monitor_common.node_helpers import (
     stamp_ns,
 )
 
-_D = WheelRadiusParams()
 # core order delta_13, delta_24, delta_34, delta_12 -> message order delta_13, delta_24,
 # delta_12, delta_34
 _MSG_ORDER = [0, 1, 3, 2]
@@ -70,96 +69,9 @@ _WHEEL_HORIZON_NS = 2_000_000_000
 
 
 @dataclass(frozen=True)
-class WheelRadiusAnalyzerParameters:
-    """Parameters of the wheel_radius_analyzer node (core ones: see WheelRadiusParams)."""
+class WheelRadiusAnalyzerNodeParams:
+    """Node-only parameters of wheel_radius_analyzer (the method's own: WheelRadiusParams)."""
 
-    nominal_radius_m: float = param(_D.nominal_radius_m, 'nominal rolling radius r_n, m',
-                                    low=0.1, high=2.0, read_only=True)
-    track_front_m: float = param(_D.track_front_m, 'front track width, m', low=0.5, high=4.0,
-                                 read_only=True)
-    track_rear_m: float = param(_D.track_rear_m, 'rear track width, m', low=0.5, high=4.0,
-                                read_only=True)
-    static_load_n: tuple[float, ...] = param(_D.static_load_n, 'static wheel loads FL, FR, '
-                                             'RL, RR, N', read_only=True)
-    driven_axle: str = param(_D.driven_axle, 'driven axle', choices=('front', 'rear'),
-                             read_only=True)
-    sample_rate_hz: float = param(_D.sample_rate_hz, 'analysis rate: wheel speeds are '
-                                  'averaged into bins of 1 / this, Hz', low=10.0, high=1000.0,
-                                  read_only=True)
-    max_gap_s: float = param(_D.max_gap_s, 'a larger gap between bins restarts the yaw '
-                             'states, s', low=1e-3, high=10.0)
-    max_wheel_speed: float = param(_D.max_wheel_speed, 'wheel speeds above this are rejected, '
-                                   'rad/s', low=1.0, high=5000.0)
-    min_speed_mps: float = param(_D.min_speed_mps, 'lower end of the speed band, m/s',
-                                 low=0.0, high=100.0)
-    max_speed_mps: float = param(_D.max_speed_mps, 'upper end of the speed band, m/s',
-                                 low=0.1, high=150.0)
-    mu_max: float = param(_D.mu_max, 'traction limit |Fx/Fz| of the linear slip model',
-                          low=1e-3, high=2.0)
-    slip_max: float = param(_D.slip_max, '|slip| above this is spin/lock', low=1e-4, high=1.0)
-    brake_torque_nm: float = param(_D.brake_torque_nm, 'any wheel torque below -this is '
-                                   'braking: the longitudinal model pauses, N m', low=0.0,
-                                   high=1e5)
-    ay_max_longitudinal: float = param(_D.ay_max_longitudinal, 'cornering limit of the '
-                                       'longitudinal model, m/s^2', low=0.01, high=20.0)
-    ay_max_lateral: float = param(_D.ay_max_lateral, 'cornering limit of the lateral model, '
-                                  'm/s^2', low=0.01, high=20.0)
-    accel_max_longitudinal: float = param(_D.accel_max_longitudinal, 'longitudinal '
-                                          'acceleration limit |ax| of the longitudinal model, '
-                                          'm/s^2', low=0.01, high=20.0)
-    accel_max_lateral: float = param(_D.accel_max_lateral, 'longitudinal acceleration limit '
-                                     '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
-    accel_filter_hz: float = param(_D.accel_filter_hz, 'low-pass corner before '
-                                   'differentiating the wheel speeds, Hz', low=0.01, high=40.0,
-                                   read_only=True)
-    wheel_inertia_kgm2: float = param(_D.wheel_inertia_kgm2, 'spin inertia of a driven wheel '
-                                      '(0: ignored), kg m^2', low=0.0, high=100.0,
-                                      read_only=True)
-    cg_height_m: float = param(_D.cg_height_m, 'centre-of-gravity height for the load transfer '
-                               '(0: ignored), m', low=0.0, high=5.0, read_only=True)
-    wheelbase_m: float = param(_D.wheelbase_m, 'wheelbase, m', low=0.5, high=10.0,
-                               read_only=True)
-    gyro_stuck_s: float = param(_D.gyro_stuck_s, 'a yaw rate repeated this long is a stopped '
-                                'gyro: the lateral filter pauses, s', low=0.01, high=60.0)
-    wheel_recover_s: float = param(_D.wheel_recover_s, 'a tire stays unknown this long after '
-                                   'its last bad wheel speed, s', low=0.0, high=600.0)
-    wheel_speed_noise_mps: float = param(_D.wheel_speed_noise_mps, 'noise of one wheel\'s '
-                                         'speed per sample (slip noise sqrt(2) x this / '
-                                         'speed), m/s', low=1e-7, high=10.0)
-    inv_stiffness_rw: float = param(_D.inv_stiffness_rw, 'random walk of 1/k, per sqrt(s)',
-                                    low=0.0, high=1.0)
-    delta_rw: float = param(_D.delta_rw, 'random walk of the radius offsets, per sqrt(s)',
-                            low=0.0, high=1.0)
-    inv_stiffness0_std: float = param(_D.inv_stiffness0_std, 'initial std of 1/k', low=1e-6,
-                                      high=10.0, read_only=True)
-    delta0_std: float = param(_D.delta0_std, 'initial std of the offsets', low=1e-6, high=1.0,
-                              read_only=True)
-    yaw_jerk_std: float = param(_D.yaw_jerk_std, 'yaw jerk process noise, rad/s^3', low=1e-4,
-                                high=1000.0)
-    gyro_noise_std: float = param(_D.gyro_noise_std, 'gyro noise per sample, rad/s', low=1e-6,
-                                  high=1.0)
-    wheel_yaw_noise_std: float = param(_D.wheel_yaw_noise_std, 'noise of the wheel-speed yaw '
-                                       'rates per sample, rad/s', low=1e-6, high=1.0)
-    gyro_offset_rw: float = param(_D.gyro_offset_rw, 'random walk of the gyro offset, rad/s '
-                                  'per sqrt(s)', low=0.0, high=1.0)
-    gyro_offset0_std: float = param(_D.gyro_offset0_std, 'initial std of the gyro offset, '
-                                    'rad/s', low=1e-6, high=1.0, read_only=True)
-    calibration_settle_s: float = param(_D.calibration_settle_s, 'first part of a calibration '
-                                        'window not used, s', low=0.0, high=3600.0)
-    min_calibration_s: float = param(_D.min_calibration_s, 'least seconds of valid updates '
-                                     'per pair for a calibration, s', low=0.1, high=3600.0)
-    noise_block_s: float = param(_D.noise_block_s, 'block length of the calibration\'s '
-                                 'coloured-noise check, s', low=0.01, high=600.0)
-    radius_noise_floor: float = param(_D.radius_noise_floor, 'floor of the per-tire relative '
-                                      'radius noise', low=1e-7, high=0.1)
-    informative_std: float = param(_D.informative_std, 'a pair whose posterior std exceeds '
-                                   'this carries no information', low=1e-6, high=1.0)
-    z_keep: float = param(_D.z_keep, 'a tire whose radius drop is below this many sigmas is '
-                          'taken out of the localisation fit (noise)', low=0.0, high=100.0)
-    z_flag: float = param(_D.z_flag, 'flag a tire whose radius drop exceeds this many sigmas',
-                          low=0.1, high=100.0)
-    z_full: float = param(_D.z_full, 'radius drop in sigmas at which the confidence reaches 1',
-                          low=0.1, high=100.0)
     max_latency_s: float = param(0.2, 'an IMU sample waits at most this long (IMU time) for '
                                  'the wheel speeds of its bin, s', low=0.0, high=10.0)
     max_input_age_s: float = param(0.1, 'a driver input older than this at a bin is stale, s',
@@ -174,8 +86,6 @@ class WheelRadiusAnalyzerParameters:
                                     high=10.0)
     process_ahead_s: float = process_ahead_param()
     output_phase_s: float = output_phase_param()
-    calibration_duration_s: float = param(120.0, 'length of a calibration run, s of data',
-                                          low=0.1, high=36000.0)
     calibrate_on_start: bool = param(False, 'start a calibration with the first data (only '
                                      'if tire pressures are known to be nominal)')
     calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from '
@@ -183,33 +93,18 @@ class WheelRadiusAnalyzerParameters:
     diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
                                         high=60.0, read_only=True)
 
-    def __post_init__(self) -> None:
-        self.core()      # the core's cross-field rules (loads, speed band, z thresholds)
-        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
-            raise ValueError(
-                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
-                f'calibration_settle_s + min_calibration_s '
-                f'({self.calibration_settle_s + self.min_calibration_s:g})')
-
-    def core(self) -> WheelRadiusParams:
-        """The core's parameters."""
-        if len(self.static_load_n) != N_TIRES:
-            raise ValueError(f'static_load_n must hold 4 loads, got {list(self.static_load_n)}')
-        values = {name: getattr(self, name) for name in WheelRadiusParams.__dataclass_fields__}
-        values['static_load_n'] = tuple(float(v) for v in self.static_load_n)
-        return WheelRadiusParams(**values)
-
 
 class WheelRadiusAnalyzerNode(Node):
     """Wraps :class:`WheelRadiusAnalyzer` with input alignment, calibration and diagnostics."""
 
     def __init__(self, node_name: str = 'wheel_radius_analyzer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, WheelRadiusAnalyzerParameters,
-                                      on_change=self._on_change)
-        p = self._typed.value
-        self._analyzer = WheelRadiusAnalyzer(p.core())
-        self._bin_ns = round(1e9 / p.sample_rate_hz)
+        self._core_params = TypedParameters(self, WheelRadiusParams,
+                                            on_change=self._on_core_change)
+        self._typed = TypedParameters(self, WheelRadiusAnalyzerNodeParams)
+        core, p = self._core_params.value, self._typed.value
+        self._analyzer = WheelRadiusAnalyzer(core)
+        self._bin_ns = round(1e9 / core.sample_rate_hz)
         # stream checks: only order matters here (the core handles gaps between bins)
         self._checks = {topic: StampCheck(max_gap_s=math.inf)
                         for topic in ('wheel_speeds', 'imu', 'driver_inputs')}
@@ -241,7 +136,7 @@ class WheelRadiusAnalyzerNode(Node):
         if self._calibration.state == 'file_corrupt':
             self.get_logger().warning(self._calibration.detail)
         if p.calibrate_on_start:
-            self._calibration.request(p.calibration_duration_s)
+            self._calibration.request(core.calibration_duration_s)
 
         self._radius_pub = self.create_publisher(WheelRadiusOffsets, 'tpms/wheel_radius',
                                                  OUTPUT_QOS)
@@ -256,9 +151,14 @@ class WheelRadiusAnalyzerNode(Node):
         self._update_diagnostics()
 
     @property
-    def parameters(self) -> WheelRadiusAnalyzerParameters:
-        """The current, validated parameters."""
+    def parameters(self) -> WheelRadiusAnalyzerNodeParams:
+        """The current, validated node-only parameters."""
         return self._typed.value
+
+    @property
+    def core_parameters(self) -> WheelRadiusParams:
+        """The current, validated parameters of the method."""
+        return self._core_params.value
 
     @property
     def analyzer(self) -> WheelRadiusAnalyzer:
@@ -270,9 +170,9 @@ class WheelRadiusAnalyzerNode(Node):
         """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
         return self._calibration.state
 
-    def _on_change(self, p: WheelRadiusAnalyzerParameters) -> None:
+    def _on_core_change(self, core: WheelRadiusParams) -> None:
         # the read-only parameters are the ones the core captures at construction
-        self._analyzer.params = p.core()
+        self._analyzer.params = core
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -364,7 +264,8 @@ class WheelRadiusAnalyzerNode(Node):
             return np.full(N_TIRES, np.nan)
         block = np.vstack(samples)
         with np.errstate(invalid='ignore'):
-            bad = ~np.isfinite(block) | (block < 0.0) | (block > self.parameters.max_wheel_speed)
+            limit = self.core_parameters.max_wheel_speed
+            bad = ~np.isfinite(block) | (block < 0.0) | (block > limit)
         return np.where(bad.any(axis=0), np.nan, block.mean(axis=0))
 
     def _driver_at(self, t_k: int) -> tuple[float, np.ndarray]:
@@ -449,7 +350,7 @@ class WheelRadiusAnalyzerNode(Node):
 
     def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self._calibration.request(
-            self.parameters.calibration_duration_s)
+            self.core_parameters.calibration_duration_s)
         return response
 
     def _update_diagnostics(self) -> None:
