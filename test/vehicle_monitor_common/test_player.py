@@ -1,4 +1,5 @@
-"""Scenario player: every message in order with its stamps, bag time on /clock, bad input."""
+"""Scenario player: every message in order with its stamps, bag time on /clock, bad input; what
+the graph recorder writes of a replay (the bag format)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import subprocess
 from typing import Any
 
 from builtin_interfaces.msg import Time
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rclpy.node import Node
@@ -16,8 +19,10 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import TpmsWarning, WheelSpeeds
 
+from vehicle_monitor_common.bag_io import read_series
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 from vehicle_monitor_common.player import ScenarioPlayer
+from vehicle_monitor_common.recorder import GraphRecorder
 from vehicle_monitor_common.series import TopicSeries
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
@@ -203,3 +208,36 @@ def test_executable_replays_and_exits_zero(
 def test_stamp_helper() -> None:
     """stamp_ns converts builtin_interfaces/Time exactly."""
     assert stamp_ns(Time(sec=3, nanosec=7)) == 3_000_000_007
+
+
+def test_recorder_writes_plain_mcap_that_both_readers_read(
+        small_bag: tuple[Path, dict[str, TopicSeries]], ros_context: Any, executor: Any,
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """A recorded replay is one .mcap with zstd chunks; rosbags and mcap decode the same data."""
+    path, series = small_bag
+    target = tmp_path / 'recorded'
+    recorder = GraphRecorder(context=ros_context, parameter_overrides=[
+        Parameter('bag', value=str(target)), Parameter('topics', value=list(TYPES))])
+    executor.add_node(recorder)
+    try:
+        make_node(ScenarioPlayer, parameter_overrides=[
+            Parameter('bag', value=str(path)), Parameter('wait_for_subscribers', value=1),
+            Parameter('as_fast_as_possible', value=True)])
+        expected = {topic: len(s) for topic, s in series.items()}
+        assert spin_until(lambda: {t: s.count for t, s in recorder.stats.items()} == expected,
+                          timeout_s=20.0), {t: s.count for t, s in recorder.stats.items()}
+    finally:
+        executor.remove_node(recorder)
+        recorder.destroy_node()
+    assert sorted(f.name for f in target.iterdir()) == ['metadata.yaml', 'recorded.mcap']
+    omega = series['/vehicle/wheel_speeds'].fields['omega']
+    np.testing.assert_array_equal(
+        read_series(target)['/vehicle/wheel_speeds'].fields['omega'], omega)
+    with open(target / 'recorded.mcap', 'rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None
+        assert {chunk.compression for chunk in summary.chunk_indexes} == {'zstd'}
+        wheels = [msg.omega for _, channel, _, msg in reader.iter_decoded_messages(
+            log_time_order=True) if channel.topic == '/vehicle/wheel_speeds']
+    np.testing.assert_array_equal(np.array(wheels), omega)

@@ -2,7 +2,8 @@
 
 How the main job and the evaluation tools capture what a graph published. Subscriptions are
 raw (the CDR bytes go to the bag untouched), reliable and deep, so a replay paced by the player
-loses nothing here either.
+loses nothing here either. The bag is written as the shipped ones are (``BagWriter``'s default):
+one plain ``.mcap`` file with zstd-compressed chunks, which every MCAP tool opens.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vehicle_monitor_common.bag_io import BagWriter
-from vehicle_monitor_common.node_helpers import TypedParameters, param
+from vehicle_monitor_common.node_helpers import TypedParameters
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.player import message_class
 
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
