@@ -25,6 +25,14 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 
+@pytest.fixture(autouse=True)
+def private_ros_home(tmp_path_factory: pytest.TempPathFactory,
+                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test has its own ROS_HOME, so default calibration files (and logs) of one test are
+    never found by another, nor written into the user's ~/.ros."""
+    monkeypatch.setenv('ROS_HOME', str(tmp_path_factory.mktemp('ros_home')))
+
+
 @pytest.fixture
 def ros_context() -> Iterator[Any]:
     """A fresh, initialised rclpy Context for one test."""

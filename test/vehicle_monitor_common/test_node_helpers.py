@@ -51,3 +51,20 @@ def test_unknown_parameter_in_a_graph_is_refused(ros_context: Any) -> None:
                                    'name': 'rec', 'parameters': {'bag_typo': 'x'}}]})
     with pytest.raises(ConfigurationError, match=r'/rec: unknown parameter\(s\) bag_typo'):
         Graph(spec, ros_context)
+
+
+def test_calibration_path_is_per_node_and_namespace(make_node: Any, tmp_path: Path) -> None:
+    """Empty: the default under $ROS_HOME, one file per node and namespace; 'none': not
+    persisted; a path: that path, expanded."""
+    import os
+
+    from vehicle_monitor_common.node_helpers import calibration_path
+
+    car1 = make_node('stiffness', namespace='/car1')
+    car2 = make_node('stiffness', namespace='/car2')
+    home = Path(os.environ['ROS_HOME'])
+    assert calibration_path(car1, '') == str(
+        home / 'vehicle_monitor' / 'calibration' / 'car1' / 'stiffness.yaml')
+    assert calibration_path(car2, '') != calibration_path(car1, '')
+    assert calibration_path(car1, 'none') == ''
+    assert calibration_path(car1, '$ROS_HOME/x.yaml') == str(home / 'x.yaml')

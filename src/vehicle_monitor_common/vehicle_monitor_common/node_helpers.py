@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import math
+import os
 import sys
 from typing import Any, Generic, TypeVar
 
@@ -261,6 +262,27 @@ def output_phase_param() -> Any:
                  'every later one with it (the period stays): nodes composed in one process '
                  'take different phases so that the work of their outputs does not coincide, s',
                  low=0.0, high=10.0)
+
+
+NOT_PERSISTED = 'none'
+
+
+def calibration_path(node: Node, configured: str) -> str:
+    """Where a calibrating node keeps its calibration (one scheme for every such node).
+
+    ``configured`` is the node's ``calibration_file`` parameter: a path (``~`` and environment
+    variables expanded), ``'none'`` for not persisted (returns ``''``), or empty for the
+    default: ``$ROS_HOME/vehicle_monitor/calibration/<namespace>/<node>.yaml`` (``ROS_HOME``
+    defaults to ``~/.ros``, as for every ROS 2 tool), so each node of each vehicle on one
+    computer has its own file and a restart finds what was learned.
+    """
+    if configured == NOT_PERSISTED:
+        return ''
+    if configured:
+        return os.path.expandvars(os.path.expanduser(configured))
+    ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
+    relative = node.get_fully_qualified_name().lstrip('/')
+    return os.path.join(ros_home, 'vehicle_monitor', 'calibration', relative + '.yaml')
 
 
 def stamp_ns(stamp: Any) -> int:
