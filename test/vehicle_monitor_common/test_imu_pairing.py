@@ -63,12 +63,15 @@ def test_dead_body_imu_times_out() -> None:
     assert pairer.pending == 5
 
 
+@pytest.mark.parametrize('stream', ['bogie', 'body'])
 @pytest.mark.parametrize('stamps, reason', [([0, 0], 'repeated'), ([PERIOD, 0], 'out_of_order')])
-def test_repeated_and_out_of_order_samples_are_refused(stamps: list[int], reason: str) -> None:
-    """A stamp not newer than the previous one of its stream is refused and counted."""
+def test_repeated_and_out_of_order_samples_are_refused(stream: str, stamps: list[int],
+                                                       reason: str) -> None:
+    """A stamp not newer than the previous one of its stream is refused and counted by
+    stream and reason."""
     pairer = ImuPairer(tolerance_s=1e-3, timeout_s=0.1)
-    _feed(pairer, [('bogie', s) for s in stamps])
-    assert pairer.rejected == {reason: 1}
+    _feed(pairer, [(stream, s) for s in stamps])
+    assert pairer.rejected == {f'{stream}_{reason}': 1}
     assert pairer.pending == 1
 
 

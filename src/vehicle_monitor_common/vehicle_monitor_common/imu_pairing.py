@@ -12,7 +12,7 @@ samples of both streams as they arrive and gives back the pairs in stamp order:
   is more than ``timeout_s`` ahead (a dead body IMU). A body sample without a partner is
   dropped the same way. Both are counted in :attr:`ImuPairer.unpaired`.
 * A sample not newer than the previous one of its stream is refused and counted in
-  :attr:`ImuPairer.rejected` (``repeated``, ``out_of_order``).
+  :attr:`ImuPairer.rejected` by stream and reason (``bogie_repeated``, ``body_out_of_order``).
 
 The values are opaque to the pairer (numbers or arrays: whatever the node read from each
 message).
@@ -79,7 +79,7 @@ class ImuPairer:
             raise ValueError(f'stream must be one of {STREAMS}, got {stream!r}')
         latest = self._latest[stream]
         if latest is not None and stamp_ns <= latest:
-            reason = 'repeated' if stamp_ns == latest else 'out_of_order'
+            reason = f"{stream}_{'repeated' if stamp_ns == latest else 'out_of_order'}"
             self.rejected[reason] = self.rejected.get(reason, 0) + 1
             return []
         self._latest[stream] = stamp_ns
