@@ -139,7 +139,7 @@ def test_params_validation_names_parameter():
     with pytest.raises(ValueError, match='forgetting_factor'):
         StiffnessObserverParams(forgetting_factor=1.0)
     with pytest.raises(ValueError, match='band_hz'):
-        StiffnessObserverParams(band_hz=(60.0, 25.0))
+        StiffnessObserverParams(band_low_hz=60.0, band_high_hz=25.0)
     with pytest.raises(ValueError, match='driven_axle'):
         StiffnessObserverParams(driven_axle='middle')  # type: ignore[arg-type]
     with pytest.raises(ValueError, match='drive_compensation'):

@@ -6,7 +6,7 @@ stepped 200 -> 140 kPa at 7 s), published by a test node in bursts the node's qu
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 import dataclasses
 from pathlib import Path
 from typing import Any
@@ -26,6 +26,7 @@ from tpms_ros.nodes.tire_stiffness_observer_node import TireStiffnessObserverNod
 from tpms_ros.simulation.road_scenario import ScenarioEvent, load_scenario
 from tpms_ros.simulation.road_simulator import RoadSimulationResult, simulate_scenario
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
+from vehicle_monitor_common.parameters import flatten
 
 PKG = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros'
 CONFIG = PKG / 'config' / 'tire_stiffness_observer.yaml'
@@ -44,6 +45,15 @@ def drive() -> RoadSimulationResult:
     scenario = dataclasses.replace(scenario, duration_s=16.0, events=(
         ScenarioEvent('pressure_step', 7.0, (1,), to_kpa=140.0, duration_s=1.0),))
     return simulate_scenario(scenario)
+
+
+def _dotted(mapping: dict[str, Any], prefix: str = '') -> Iterator[tuple[str, Any]]:
+    """A nested params-file mapping as (dotted name, value) pairs."""
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            yield from _dotted(value, f'{prefix}{key}.')
+        else:
+            yield f'{prefix}{key}', value
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter]:
@@ -96,11 +106,12 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     assert default.calibration_state == 'uncalibrated'
     node = make_node(TireStiffnessObserverNode, node_name='tire_stiffness_observer',
                      cli_args=['--ros-args', '--params-file', str(CONFIG)])
-    shipped = yaml.safe_load(CONFIG.read_text())['tire_stiffness_observer']['ros__parameters']
-    declared = {f.name for f in dataclasses.fields(node.parameters)}
-    assert set(shipped) == declared
+    shipped = dict(_dotted(
+        yaml.safe_load(CONFIG.read_text())['tire_stiffness_observer']['ros__parameters']))
+    declared = {**flatten(node.parameters), **flatten(node.node_parameters)}
+    assert set(shipped) == set(declared)
     for name, value in shipped.items():
-        got = getattr(node.parameters, name)
+        got = declared[name]
         assert (list(got) if isinstance(got, tuple) else got) == value, name
 
 
@@ -111,7 +122,7 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     ({'driven_axle': 'middle'}, 'driven_axle'),
     ({'drive_compensation': 'sum'}, 'drive_compensation'),
     ({'partner_lag_step_s': 1e-4}, 'partner_lag_step_s'),
-    ({'k': -5.0}, 'parameter k'),
+    ({'tire.k': -5.0}, 'parameter tire.k'),
     ({'nominal_pressure_kpa': [200.0, 200.0]}, 'nominal_pressure_kpa'),
 ])
 def test_invalid_parameters_refused_at_start(make_node: Callable[..., Any],

@@ -76,7 +76,7 @@ Wheel order FL, FR, RL, RR. No ROS import.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import math
 from typing import Any, Literal
 
@@ -99,6 +99,7 @@ from tpms_ros.core.torsional_observer import (
     consistency_map,
     design_observer,
 )
+from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
 N_WHEELS = N_TIRES  # the wheel axis of every array here
@@ -126,7 +127,8 @@ class PressureRelation:
     Inverted: ``p = p0 (1 - (1 - K / K0) / slope)``.
     """
 
-    slope: float = 0.234375 / 0.4
+    slope: float = param(0.234375 / 0.4, 'relative stiffness change per relative pressure change '
+                         '(K/K0 = 1 - slope (1 - p/p0))', low=0.01, high=10.0)
 
     def __post_init__(self) -> None:
         require_positive(self, ('slope',))
@@ -142,109 +144,139 @@ class PressureRelation:
 
 @dataclass(frozen=True)
 class StiffnessObserverParams:
-    """Parameters of :class:`TireStiffnessObserver` (defaults from the paper and SPEC §2).
+    """Parameters of :class:`TireStiffnessObserver`, each its ROS parameter of the same name.
 
-    Attributes:
-        sample_rate_hz: nominal wheel-speed sample rate; the discrete filters are built for it.
-        band_hz: pre-filter pass band around the torsional resonance (paper: 25-60 Hz).
-        band_order: Butterworth order of each band edge (the band-pass has twice this order).
-        observer_pole_factor: observer pole radius as a multiple of the model resonance.
-        block_s: least-squares block length; one RLS update per block.
-        forgetting_factor: RLS forgetting factor rho per update (paper: 0.95-0.99).
-        ls_mode: 'rls' (eq. 11) or 'batch' (eq. 10 over the last ``batch_window_blocks``).
-        batch_window_blocks: window of the batch LS, in valid blocks.
-        min_block_fraction: fraction of valid samples a block needs to count for a wheel.
-        driven_axle: axle(s) that get drive-wheel compensation: 'front', 'rear', 'none', 'all'.
-        drive_compensation: how a compensated axle's common driveline torque is kept out of
-            its estimates (see the module notes). 'partner' (default): each driven wheel's
-            ``w`` is regressed on its own ``[th, th_dot]`` together with the partner wheel's
-            band-passed speed at lags within +-``partner_lag_s``; the lags absorb what the
-            two wheels share (the driveline torque: the road torques are independent) and
-            the ``[th, th_dot]`` coefficients are the partial regression, as on an undriven
-            wheel. 'difference': the paper's eq. 12-14, one LS per axle of ``wL - wR`` on
-            ``[thL, thR, th_dotL, th_dotR]``.
-        partner_lag_s: half-width of the partner lag window ('partner'); two-sided, so the
-            estimates wait this long for the partner's later samples.
-        partner_lag_step_s: spacing of the partner lags: the band-passed speed carries
-            nothing much faster, and closer lags are nearly collinear.
-        consistency_correction: map the raw LS coefficient to K through the model (see module).
-        calibration_s: valid-data time per tire needed to finish a calibration.
-        nominal_pressure_kpa: placard pressure of each tire (the p0 of the relation).
-        pressure_relation: K <-> pressure relation.
-        warning_pressure_ratio: a tire is flagged when its estimated p / p0 is below this.
-        rolling_radius_m: nominal rolling radius, for the speed and acceleration gates.
-        speed_band_kmh: (min, max) vehicle speed where the estimate is updated.
-        max_accel_mps2: |wheel acceleration| above this (hard braking/traction) masks samples.
-        max_slip: |wheel speed / median wheel speed - 1| above this masks the wheel.
-        max_wheel_torque_nm: |drive/brake torque| above this masks the wheel (if torque given).
-        max_lateral_accel_mps2: kinematic lateral acceleration v^2 tan(delta) / wheelbase
-            above this masks every wheel (if the steering angle is given): sustained cornering
-            moves the estimates (measured on the road simulator: turns of 2.5 m/s^2 kinematic,
-            1.5 m/s^2 actual, at 104 km/h read all four tires 10-30 kPa low and raised a false
-            warning). 2 m/s^2 lets gentle weaving through: masking at 1 m/s^2 left 35 % of
-            the shipped puncture drive and pushed the calibration past the puncture.
-        wheelbase_m: wheelbase for the kinematic lateral acceleration v^2 tan(delta) / L
-            (vehicle-specific; an understeering car corners with less, so the gate errs on
-            the safe side).
-        gate_lowpass_hz: low-pass corner of the speed used by the speed/accel/slip gates.
-        max_omega_rad_s: wheel speeds above this are non-physical and rejected.
-        dead_omega_rad_s: a wheel below this while another wheel is in the speed band is dead.
-        stuck_s: a wheel reading exactly the same value for this long is a stuck sensor.
-        settle_s: time after a filter reset during which samples are not used.
-        timing_tolerance: relative deviation of a sample interval from 1/sample_rate beyond
-            which the sample breaks continuity (gap or rate change): filters are reset.
-        tooth_correction: learn and remove each encoder ring's tooth-spacing error (see
-            :class:`ToothErrorCorrector`); needs the ECU's held tooth-period speed as input.
-        encoder_teeth: teeth per encoder ring (paper: 48).
-        tooth_learning_s: memory time constant of the per-tooth error learning.
-        tooth_warmup_s: after a (re)start of a wheel's tooth tracking its samples are not used
-            for this long, while the tooth pattern is learned (every sample lands on some
-            tooth, so a tooth gets fs / teeth samples per second at any speed: after 1 s the
-            simulated rings' patterns were learned to a correlation of 0.91-0.98; the learning
-            goes on while the samples are used).
-        tooth_phase_s: memory time constant of the tooth-edge phase tracker.
-        max_tooth_rate_fraction: tooth-edge rate (speed x teeth / 2 pi) above this fraction of
-            the sample rate masks the wheel ('speed_band'): edges can then fall between samples
-            and the tooth count is lost (with 48 teeth at 1 kHz and 0.9: 113 rad/s).
+    Defaults from the paper and SPEC §2. The ``tire`` group is the estimator's nominal model
+    (``tire.j1`` ...), ``pressure_relation`` the K <-> pressure line (``pressure_relation.slope``).
     """
 
-    sample_rate_hz: float = 1000.0
-    band_hz: tuple[float, float] = (25.0, 60.0)
-    band_order: int = 2
-    observer_pole_factor: float = 3.0
-    block_s: float = 0.25
-    forgetting_factor: float = 0.98
-    ls_mode: Literal['rls', 'batch'] = 'rls'
-    batch_window_blocks: int = 100
-    min_block_fraction: float = 0.9
-    driven_axle: Literal['front', 'rear', 'none', 'all'] = 'none'
-    drive_compensation: Literal['partner', 'difference'] = 'partner'
-    partner_lag_s: float = 0.048
-    partner_lag_step_s: float = 0.004
-    consistency_correction: bool = True
-    calibration_s: float = 60.0
-    nominal_pressure_kpa: tuple[float, float, float, float] = (200.0, 200.0, 200.0, 200.0)
-    pressure_relation: PressureRelation = field(default_factory=PressureRelation)
-    warning_pressure_ratio: float = 0.9
-    rolling_radius_m: float = 0.3
-    speed_band_kmh: tuple[float, float] = (30.0, 160.0)
-    max_accel_mps2: float = 2.5
-    max_slip: float = 0.05
-    max_wheel_torque_nm: float = 1000.0
-    max_lateral_accel_mps2: float = 2.0
-    wheelbase_m: float = 2.7
-    gate_lowpass_hz: float = 2.0
-    max_omega_rad_s: float = 400.0
-    dead_omega_rad_s: float = 1.0
-    stuck_s: float = 0.05
-    settle_s: float = 0.2
-    timing_tolerance: float = 0.25
-    tooth_correction: bool = True
-    encoder_teeth: int = 48
-    tooth_learning_s: float = 30.0
-    tooth_warmup_s: float = 1.0
-    tooth_phase_s: float = 0.5
-    max_tooth_rate_fraction: float = 0.9
+    # --- input and the estimator's model ---
+    sample_rate_hz: float = param(
+        1000.0, 'wheel-speed sample rate the filters are built for, Hz (a change rebuilds the '
+        'estimator, keeping its calibration)', low=50.0, high=20000.0)
+    tire: TorsionalTire = group(
+        TorsionalTire, "the estimator's nominal tire model, all wheels (a change of tire.k "
+        'invalidates the calibration)')
+    # --- pre-filter and observer ---
+    band_low_hz: float = param(25.0, 'pre-filter pass band around the torsional resonance, '
+                               'lower edge, Hz (paper: 25-60 Hz)', low=0.1, high=10000.0)
+    band_high_hz: float = param(60.0, 'pre-filter pass band, upper edge, Hz', low=0.1,
+                                high=10000.0)
+    band_order: int = param(2, 'Butterworth order of each band edge (the band-pass has twice '
+                            'this order)', low=1, high=8)
+    observer_pole_factor: float = param(
+        3.0, 'observer pole radius as a multiple of the model resonance', low=1.0, high=50.0)
+    # --- least squares ---
+    block_s: float = param(0.25, 'least-squares block length (one RLS update), s', low=0.01,
+                           high=10.0)
+    forgetting_factor: float = param(
+        0.98, 'RLS forgetting factor rho per LS block (paper: 0.95-0.99; memory '
+        'block_s / (1 - rho))', low=0.5, high=0.9999)
+    ls_mode: Literal['rls', 'batch'] = param(
+        'rls', "least squares: 'rls' (eq. 11, recursive with forgetting) or 'batch' (eq. 10 over "
+        'the last batch_window_blocks)', choices=('rls', 'batch'))
+    batch_window_blocks: int = param(100, 'batch LS window, valid blocks', low=2, high=100000)
+    min_block_fraction: float = param(
+        0.9, 'fraction of valid samples a block needs to count for a wheel', low=0.01, high=1.0)
+    # --- drive-wheel compensation (see the module notes) ---
+    driven_axle: Literal['front', 'rear', 'none', 'all'] = param(
+        'none', 'axle(s) with drive-wheel compensation', choices=('front', 'rear', 'none', 'all'))
+    # 'partner': each driven wheel's w is regressed on its own [th, th_dot] together with the
+    # partner wheel's band-passed speed at lags within +-partner_lag_s; the lags absorb what the
+    # two wheels share (the driveline torque: the road torques are independent) and the
+    # [th, th_dot] coefficients are the partial regression, as on an undriven wheel.
+    # 'difference': the paper's eq. 12-14, one LS per axle of wL - wR on
+    # [thL, thR, th_dotL, th_dotR].
+    drive_compensation: Literal['partner', 'difference'] = param(
+        'partner', "driven-axle compensation: 'partner' (the partner wheel's lagged speed as "
+        "nuisance regressors) or 'difference' (the paper's wL - wR regression)",
+        choices=('partner', 'difference'))
+    # Two-sided, so the estimates wait this long for the partner's later samples.
+    partner_lag_s: float = param(
+        0.048, 'partner compensation: half-width of the two-sided lag window (output delay), s',
+        low=0.0, high=1.0)
+    # The band-passed speed carries nothing much faster, and closer lags are nearly collinear.
+    partner_lag_step_s: float = param(
+        0.004, 'partner compensation: lag spacing, s (>= one sample)', low=1e-5, high=0.1)
+    consistency_correction: bool = param(
+        True, 'map the raw LS coefficient to K through the model (see the method notes)')
+    # --- calibration, pressure and warning ---
+    calibration_s: float = param(60.0, 'valid data per tire a calibration collects, s',
+                                 low=1.0, high=3600.0)
+    nominal_pressure_kpa: tuple[float, float, float, float] = param(
+        (200.0, 200.0, 200.0, 200.0), 'placard pressure of each tire FL, FR, RL, RR, kPa '
+        '(gauge); the p0 of the pressure relation and the pressure at calibration')
+    pressure_relation: PressureRelation = group(PressureRelation, 'K <-> pressure relation')
+    warning_pressure_ratio: float = param(
+        0.9, 'a tire is flagged when its estimated p / p0 is below this', low=0.01, high=0.999)
+    # --- validity gates (the data are fine, the method is not valid there) ---
+    rolling_radius_m: float = param(
+        0.3, 'nominal rolling radius, for the speed and acceleration gates, m', low=0.05,
+        high=2.0)
+    speed_min_kmh: float = param(
+        30.0, 'lower edge of the vehicle speed band where the estimate is updated, km/h',
+        low=0.0, high=500.0)
+    speed_max_kmh: float = param(
+        160.0, 'upper edge of the valid speed band, km/h', low=0.0, high=500.0)
+    max_accel_mps2: float = param(
+        2.5, '|wheel acceleration| above this (hard braking/traction) masks samples, m/s^2',
+        low=0.01, high=50.0)
+    max_slip: float = param(
+        0.05, '|wheel speed / median wheel speed - 1| above this masks the wheel', low=1e-3,
+        high=1.0)
+    max_wheel_torque_nm: float = param(
+        1000.0, '|drive/brake torque| above this masks the wheel (if torque given), N m',
+        low=1.0, high=1e5)
+    # Sustained cornering moves the estimates (measured on the road simulator: turns of
+    # 2.5 m/s^2 kinematic, 1.5 m/s^2 actual, at 104 km/h read all four tires 10-30 kPa low and
+    # raised a false warning). 2 m/s^2 lets gentle weaving through: masking at 1 m/s^2 left
+    # 35 % of the shipped puncture drive and pushed the calibration past the puncture.
+    max_lateral_accel_mps2: float = param(
+        2.0, 'kinematic lateral acceleration v^2 tan(delta) / wheelbase above this masks every '
+        'wheel (if the steering angle is given), m/s^2', low=0.01, high=50.0)
+    # Vehicle-specific; an understeering car corners with less, so the gate errs on the safe
+    # side.
+    wheelbase_m: float = param(
+        2.7, 'wheelbase for the kinematic lateral acceleration, m', low=0.5, high=20.0)
+    gate_lowpass_hz: float = param(
+        2.0, 'low-pass corner of the speed used by the speed/accel/slip gates, Hz', low=0.01,
+        high=100.0)
+    # --- sensor faults and timing ---
+    max_omega_rad_s: float = param(
+        400.0, 'wheel speeds above this are non-physical and rejected, rad/s', low=1.0,
+        high=10000.0)
+    dead_omega_rad_s: float = param(
+        1.0, 'a wheel below this while another wheel is in the speed band is dead, rad/s',
+        low=1e-3, high=100.0)
+    stuck_s: float = param(
+        0.05, 'a wheel reading exactly the same value for this long is a stuck sensor, s',
+        low=1e-3, high=10.0)
+    settle_s: float = param(
+        0.2, 'time after a filter reset during which samples are not used, s', low=1e-3,
+        high=60.0)
+    timing_tolerance: float = param(
+        0.25, 'relative deviation of a sample interval from 1 / sample_rate_hz beyond which the '
+        'sample breaks continuity (gap or rate change): filters are reset', low=1e-3, high=1.0)
+    # --- encoder tooth-error correction (see tooth_correction.ToothErrorCorrector) ---
+    tooth_correction: bool = param(
+        True, "learn and remove each encoder ring's tooth-spacing error (needs the ECU's held "
+        'tooth-period speed as input)')
+    encoder_teeth: int = param(48, 'teeth per encoder ring (paper: 48)', low=2, high=1000)
+    tooth_learning_s: float = param(
+        30.0, 'memory time constant of the per-tooth error learning, s', low=0.1, high=3600.0)
+    # Every sample lands on some tooth, so a tooth gets fs / teeth samples per second at any
+    # speed: after 1 s the simulated rings' patterns were learned to a correlation of
+    # 0.91-0.98; the learning goes on while the samples are used.
+    tooth_warmup_s: float = param(
+        1.0, "after a (re)start of a wheel's tooth tracking its samples are not used for this "
+        'long, s', low=1e-3, high=60.0)
+    tooth_phase_s: float = param(
+        0.5, 'memory time constant of the tooth-edge phase tracker, s', low=1e-3, high=60.0)
+    # With 48 teeth at 1 kHz and 0.9: 113 rad/s.
+    max_tooth_rate_fraction: float = param(
+        0.9, 'tooth-edge rate (speed x teeth / 2 pi) above this fraction of the sample rate '
+        "masks the wheel ('speed_band'): edges can then fall between samples", low=0.01,
+        high=1.0)
 
     def __post_init__(self) -> None:
         require_positive(self, (
@@ -262,8 +294,9 @@ class StiffnessObserverParams:
         nyquist = 0.5 * self.sample_rate_hz
         low, high = self.band_hz
         if not (0.0 < low < high < nyquist):
-            raise ValueError(f'StiffnessObserverParams.band_hz must satisfy 0 < low < high < '
-                             f'{nyquist} Hz (Nyquist), got {self.band_hz}')
+            raise ValueError(f'StiffnessObserverParams.band_hz (band_low_hz, band_high_hz) must '
+                             f'satisfy 0 < low < high < {nyquist} Hz (Nyquist), got '
+                             f'{self.band_hz}')
         if not (isinstance(self.band_order, int) and 1 <= self.band_order <= 8):
             raise ValueError(f'StiffnessObserverParams.band_order must be an int in 1..8, '
                              f'got {self.band_order!r}')
@@ -300,8 +333,15 @@ class StiffnessObserverParams:
                              f'got {self.warning_pressure_ratio}')
         vmin, vmax = self.speed_band_kmh
         if not 0.0 <= vmin < vmax:
-            raise ValueError('StiffnessObserverParams.speed_band_kmh must satisfy '
-                             f'0 <= min < max, got {self.speed_band_kmh}')
+            raise ValueError('StiffnessObserverParams.speed_band_kmh (speed_min_kmh, '
+                             f'speed_max_kmh) must satisfy 0 <= min < max, got '
+                             f'{self.speed_band_kmh}')
+        pole_hz = self.observer_pole_factor * self.tire.resonance_hz
+        if not pole_hz < 0.5 * self.sample_rate_hz:
+            raise ValueError(f'StiffnessObserverParams.observer_pole_factor '
+                             f'{self.observer_pole_factor:g} puts the observer poles at '
+                             f'{pole_hz:.0f} Hz, above the Nyquist frequency '
+                             f'{0.5 * self.sample_rate_hz:g} Hz')
         if self.block_samples < 10:
             raise ValueError('StiffnessObserverParams.block_s must hold >= 10 samples, '
                              f'got {self.block_s} s at {self.sample_rate_hz} Hz')
@@ -322,9 +362,14 @@ class StiffnessObserverParams:
         return step * np.arange(-half, half + 1)
 
     @property
-    def time_constant_s(self) -> float:
-        """Memory time constant of the RLS, ``block_s / (1 - rho)``."""
-        return self.block_s / (1.0 - self.forgetting_factor)
+    def band_hz(self) -> tuple[float, float]:
+        """Pre-filter pass band (low, high), Hz."""
+        return (self.band_low_hz, self.band_high_hz)
+
+    @property
+    def speed_band_kmh(self) -> tuple[float, float]:
+        """(min, max) vehicle speed where the estimate is updated, km/h."""
+        return (self.speed_min_kmh, self.speed_max_kmh)
 
     @property
     def effective_blocks(self) -> float:
@@ -417,14 +462,15 @@ class TireStiffnessObserver:
 
     Args:
         params: estimator parameters.
-        tires: the estimator's nominal model, one for all wheels or one per wheel (FL..RR).
+        tires: the estimator's nominal model per wheel (FL..RR), or one for all wheels;
+            default ``params.tire``.
     """
 
     def __init__(self, params: StiffnessObserverParams | None = None,
                  tires: TorsionalTire | Sequence[TorsionalTire] | None = None) -> None:
         self.params = params if params is not None else StiffnessObserverParams()
         if tires is None:
-            tires = TorsionalTire()
+            tires = self.params.tire
         if isinstance(tires, TorsionalTire):
             tires = (tires,) * N_WHEELS
         if len(tires) != N_WHEELS or not all(isinstance(t, TorsionalTire) for t in tires):

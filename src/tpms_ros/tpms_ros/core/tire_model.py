@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vehicle_monitor_common.parameters import param
+
 
 @dataclass(frozen=True)
 class TorsionalTire:
@@ -25,10 +27,12 @@ class TorsionalTire:
     Defaults give a 40 Hz rim/belt resonance, as the paper's car at 200 kPa.
     """
 
-    j1: float = 0.8         # rim-side inertia, kg m^2
-    j2: float = 0.6         # belt-side inertia, kg m^2
-    k: float = 21656.0      # torsional stiffness, N m/rad
-    d: float = 8.0          # torsional damping, N m s/rad
+    # The paper's symbols (J1, J2, K, D) name the fields; the units are in the descriptions.
+    j1: float = param(0.8, 'rim-side inertia J1, kg m^2', low=1e-3, high=100.0)
+    j2: float = param(0.6, 'belt-side inertia J2, kg m^2', low=1e-3, high=100.0)
+    k: float = param(21656.0, 'torsional stiffness K at nominal pressure, N m/rad (21656 with '
+                     'the inertias above: 40 Hz)', low=1.0, high=1e7)
+    d: float = param(8.0, 'torsional damping D, N m s/rad', low=0.0, high=1e4)
 
     def __post_init__(self) -> None:
         for name in ('j1', 'j2', 'k'):

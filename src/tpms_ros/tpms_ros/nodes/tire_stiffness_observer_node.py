@@ -45,19 +45,19 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from builtin_interfaces.msg import Time
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication
 
 from tpms_ros.core.stiffness_observer import (
-    PressureRelation,
     StiffnessEstimate,
     StiffnessObserverParams,
     TireStiffnessObserver,
 )
-from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.tires import TIRE_NAMES
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.input_health import StampCheck
@@ -67,25 +67,21 @@ from vehicle_monitor_common.node_helpers import (
     OUTPUT_QOS,
     STALE,
     WARN,
+    ConfigurationError,
     Diagnostics,
     ProcessAhead,
     TypedParameters,
     output_phase_param,
-    param,
     process_ahead_param,
     run_node,
     sensor_subscription,
     stamp_ns,
+    time_msg,
 )
+from vehicle_monitor_common.parameters import param
 
-WHEELS = ('FL', 'FR', 'RL', 'RR')
 # Core reasons that mean the sensor data are bad (ERROR), not that the method is paused.
 SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
-# Defaults of the core and of its nominal tire: the node's defaults are these, not copies.
-_D = StiffnessObserverParams()
-_TIRE = TorsionalTire()
-# Relative input-rate deviation reported as a mismatch (the core's timing tolerance).
-RATE_TOLERANCE = _D.timing_tolerance
 
 
 def _to_go_s(first_ns: int, last_ns: int, count: int, rate_hz: float,
@@ -99,84 +95,23 @@ def _to_go_s(first_ns: int, last_ns: int, count: int, rate_hz: float,
     return 0.999 / rate_hz - spanned_s
 
 
-@dataclass(frozen=True)
-class StiffnessNodeParameters:
-    """Parameters of the ``tire_stiffness_observer`` node (defaults: paper and SPEC §2)."""
+def _chunk_problem(process_period_s: float, sample_rate_hz: float) -> str:
+    """Why a chunk period does not fit the sample rate ('' when it does)."""
+    if process_period_s * sample_rate_hz < 1.0:
+        return (f'process_period_s {process_period_s:g} is shorter than one sample at '
+                f'sample_rate_hz {sample_rate_hz:g}')
+    return ''
 
-    sample_rate_hz: float = param(
-        _D.sample_rate_hz, 'wheel-speed sample rate the filters are built for, Hz (a change '
-        'rebuilds the estimator, keeping its calibration)', low=50.0, high=20000.0)
-    j1: float = param(_TIRE.j1, 'model rim-side inertia J1, kg m^2', low=1e-3, high=100.0)
-    j2: float = param(_TIRE.j2, 'model belt-side inertia J2, kg m^2', low=1e-3, high=100.0)
-    k: float = param(_TIRE.k, 'model torsional stiffness K at nominal pressure, N m/rad '
-                     '(a change invalidates the calibration)', low=1.0, high=1e7)
-    d: float = param(_TIRE.d, 'model torsional damping D, N m s/rad', low=0.0, high=1e4)
-    observer_pole_factor: float = param(
-        _D.observer_pole_factor, 'observer pole radius as a multiple of the model resonance',
-        low=1.0, high=50.0)
-    band_low_hz: float = param(_D.band_hz[0], 'pre-filter pass band lower edge, Hz', low=0.1,
-                               high=10000.0)
-    band_high_hz: float = param(_D.band_hz[1], 'pre-filter pass band upper edge, Hz', low=0.1,
-                                high=10000.0)
-    band_order: int = param(_D.band_order, 'Butterworth order of each band edge', low=1, high=8)
-    forgetting_factor: float = param(
-        _D.forgetting_factor, 'RLS forgetting factor rho per LS block (memory '
-        'block_s / (1 - rho))', low=0.5, high=0.9999)
-    block_s: float = param(_D.block_s, 'least-squares block length (one RLS update), s', low=0.01,
-                           high=10.0)
-    ls_mode: str = param(_D.ls_mode, 'least squares: recursive with forgetting or batch over a '
-                         'window', choices=('rls', 'batch'))
-    batch_window_blocks: int = param(
-        _D.batch_window_blocks, 'batch LS window, blocks', low=2, high=100000)
-    driven_axle: str = param(_D.driven_axle, 'axle(s) with drive-wheel compensation',
-                             choices=('front', 'rear', 'none', 'all'))
-    drive_compensation: str = param(
-        _D.drive_compensation, "driven-axle compensation: 'partner' (the partner wheel's lagged "
-        "speed as nuisance regressors) or 'difference' (the paper's wL - wR regression)",
-        choices=('partner', 'difference'))
-    partner_lag_s: float = param(
-        _D.partner_lag_s, 'partner compensation: half-width of the two-sided lag window (output '
-        'delay), s', low=0.0, high=1.0)
-    partner_lag_step_s: float = param(
-        _D.partner_lag_step_s, 'partner compensation: lag spacing, s (>= one sample)',
-        low=1e-5, high=0.1)
-    nominal_pressure_kpa: tuple[float, ...] = param(
-        _D.nominal_pressure_kpa, 'placard pressure of each tire FL, FR, RL, RR, kPa '
-        '(gauge); the pressure at calibration')
-    pressure_slope: float = param(
-        _D.pressure_relation.slope, 'K <-> pressure relation: relative stiffness change per '
-        'relative pressure change (K/K0 = 1 - slope (1 - p/p0))', low=0.01, high=10.0)
-    warning_pressure_ratio: float = param(
-        _D.warning_pressure_ratio, 'a tire is flagged below this fraction of its nominal pressure',
-        low=0.01, high=0.999)
-    rolling_radius_m: float = param(
-        _D.rolling_radius_m, 'nominal rolling radius for the speed gates, m', low=0.05, high=2.0)
-    speed_min_kmh: float = param(
-        _D.speed_band_kmh[0], 'lower edge of the speed band where the method is valid, km/h',
-        low=0.0, high=500.0)
-    speed_max_kmh: float = param(
-        _D.speed_band_kmh[1], 'upper edge of the valid speed band, km/h', low=0.0, high=500.0)
-    max_accel_mps2: float = param(
-        _D.max_accel_mps2, '|acceleration| above this (hard braking/traction) pauses the '
-        'estimate, m/s^2', low=0.01, high=50.0)
-    max_slip: float = param(
-        _D.max_slip, '|wheel speed / median wheel speed - 1| above this pauses the wheel',
-        low=1e-3, high=1.0)
-    max_wheel_torque_nm: float = param(
-        _D.max_wheel_torque_nm, '|wheel torque| above this pauses the wheel, N m',
-        low=1.0, high=1e5)
-    max_lateral_accel_mps2: float = param(
-        _D.max_lateral_accel_mps2, 'lateral acceleration (from steering and speed) above this '
-        'pauses the estimate, m/s^2', low=0.01, high=50.0)
-    wheelbase_m: float = param(
-        _D.wheelbase_m, 'wheelbase for the lateral acceleration, m', low=0.5, high=20.0)
+
+@dataclass(frozen=True)
+class TireStiffnessObserverNodeParams:
+    """The node's own parameters (the method's are :class:`StiffnessObserverParams`)."""
+
     use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
                                     'cornering gates', read_only=True)
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
                                            'stale (torque and cornering gates skipped), s',
                                            low=1e-3, high=10.0)
-    calibration_s: float = param(_D.calibration_s, 'valid data per tire a calibration collects, s',
-                                 low=1.0, high=3600.0)
     calibrate_on_start: bool = param(False, 'start a calibration at start when no usable '
                                      'calibration file was loaded', read_only=True)
     calibration_file: str = param('', 'YAML file the calibration is saved to and loaded '
@@ -189,61 +124,21 @@ class StiffnessNodeParameters:
     process_ahead_s: float = process_ahead_param()
     output_phase_s: float = output_phase_param()
 
-    def __post_init__(self) -> None:
-        if self.process_period_s * self.sample_rate_hz < 1.0:
-            raise ValueError(f'process_period_s {self.process_period_s:g} is shorter than one '
-                             f'sample at sample_rate_hz {self.sample_rate_hz:g}')
-        if len(self.nominal_pressure_kpa) != 4:
-            raise ValueError('nominal_pressure_kpa must hold 4 values (FL, FR, RL, RR), got '
-                             f'{len(self.nominal_pressure_kpa)}')
-        tire = self.tire()  # validates J1, J2, K, D
-        pole_hz = self.observer_pole_factor * tire.resonance_hz
-        if not pole_hz < 0.5 * self.sample_rate_hz:
-            raise ValueError(f'observer_pole_factor {self.observer_pole_factor:g} puts the '
-                             f'observer poles at {pole_hz:.0f} Hz, above the Nyquist frequency '
-                             f'{0.5 * self.sample_rate_hz:g} Hz')
-        self.estimator_params()  # the core's own checks, with its reasons
-
-    def tire(self) -> TorsionalTire:
-        """The estimator's nominal tire model."""
-        return TorsionalTire(self.j1, self.j2, self.k, self.d)
-
-    def estimator_params(self) -> StiffnessObserverParams:
-        """The core's parameters."""
-        return StiffnessObserverParams(
-            sample_rate_hz=self.sample_rate_hz,
-            band_hz=(self.band_low_hz, self.band_high_hz), band_order=self.band_order,
-            observer_pole_factor=self.observer_pole_factor, block_s=self.block_s,
-            forgetting_factor=self.forgetting_factor,
-            ls_mode=self.ls_mode,  # type: ignore[arg-type]
-            batch_window_blocks=self.batch_window_blocks,
-            driven_axle=self.driven_axle,  # type: ignore[arg-type]
-            drive_compensation=self.drive_compensation,  # type: ignore[arg-type]
-            partner_lag_s=self.partner_lag_s, partner_lag_step_s=self.partner_lag_step_s,
-            calibration_s=self.calibration_s,
-            nominal_pressure_kpa=tuple(float(v) for v in self.nominal_pressure_kpa),  # type: ignore[arg-type]
-            pressure_relation=PressureRelation(self.pressure_slope),
-            warning_pressure_ratio=self.warning_pressure_ratio,
-            rolling_radius_m=self.rolling_radius_m,
-            speed_band_kmh=(self.speed_min_kmh, self.speed_max_kmh),
-            max_accel_mps2=self.max_accel_mps2, max_slip=self.max_slip,
-            max_wheel_torque_nm=self.max_wheel_torque_nm,
-            max_lateral_accel_mps2=self.max_lateral_accel_mps2, wheelbase_m=self.wheelbase_m)
-
-
-def _time_msg(ns: int) -> Time:
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
-
 
 class TireStiffnessObserverNode(Node):
     """The ``tire_stiffness_observer`` node (see the module docstring)."""
 
     def __init__(self, node_name: str = 'tire_stiffness_observer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, StiffnessNodeParameters, on_change=self._on_change)
-        p = self._typed.value
-        self._observer = TireStiffnessObserver(p.estimator_params(), p.tire())
+        # The method's parameters are the core's own; the node's are topics, rates and files.
+        self._method = TypedParameters(self, StiffnessObserverParams, on_change=self._on_change)
+        self._node = TypedParameters(self, TireStiffnessObserverNodeParams)
+        p, n = self._method.value, self._node.value
+        problem = _chunk_problem(n.process_period_s, p.sample_rate_hz)
+        if problem:
+            raise ConfigurationError(f'invalid parameters: {problem}')
+        self.add_on_set_parameters_callback(self._validate_chunk)
+        self._observer = TireStiffnessObserver(p)
         self._stamps = StampCheck(max_gap_s=math.inf)
         self.rejected: dict[str, int] = {'malformed': 0, 'repeated': 0, 'out_of_order': 0}
         self.received = 0
@@ -266,7 +161,7 @@ class TireStiffnessObserverNode(Node):
         # Why the calibration file was unusable; reported until a calibration is saved.
         self.calibration_file_problem = ''
         self._load_calibration_file()
-        if p.calibrate_on_start and self.calibration_state != 'loaded':
+        if n.calibrate_on_start and self.calibration_state != 'loaded':
             self._start_calibration()
 
         self._stiffness_pub = self.create_publisher(TireStiffness, 'tpms/tire_stiffness',
@@ -274,7 +169,7 @@ class TireStiffnessObserverNode(Node):
         self._indication_pub = self.create_publisher(TpmsIndication, 'tpms/indication/stiffness',
                                                      OUTPUT_QOS)
         subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
-        if p.use_driver_inputs:
+        if n.use_driver_inputs:
             sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs',
                                 self._on_driver_inputs)
         self.create_service(Trigger, '~/calibrate', self._on_calibrate)
@@ -287,23 +182,35 @@ class TireStiffnessObserverNode(Node):
     # -- parameters and calibration ----------------------------------------------------------
 
     @property
-    def parameters(self) -> StiffnessNodeParameters:
-        """The current, validated parameters."""
-        return self._typed.value
+    def parameters(self) -> StiffnessObserverParams:
+        """The method's current, validated parameters (the core's)."""
+        return self._method.value
+
+    @property
+    def node_parameters(self) -> TireStiffnessObserverNodeParams:
+        """The node's own current, validated parameters."""
+        return self._node.value
 
     @property
     def observer(self) -> TireStiffnessObserver:
         """The estimator core in use."""
         return self._observer
 
-    def _on_change(self, p: StiffnessNodeParameters) -> None:
-        new_params, new_tire = p.estimator_params(), p.tire()
-        if new_params == self._observer.params and new_tire == self._observer.tires[0]:
+    def _validate_chunk(self, parameters: list[Parameter]) -> SetParametersResult:
+        # The one rule across the two parameter classes: a chunk holds at least one sample.
+        values = {prm.name: prm.value for prm in parameters}
+        problem = _chunk_problem(
+            float(values.get('process_period_s', self.node_parameters.process_period_s)),
+            float(values.get('sample_rate_hz', self.parameters.sample_rate_hz)))
+        return SetParametersResult(successful=not problem, reason=problem)
+
+    def _on_change(self, p: StiffnessObserverParams) -> None:
+        if p == self._observer.params:
             return
         # The filters are designed for these values: build a new estimator and carry the
         # calibration over (the core refuses it when the model K changed).
         old = self._observer
-        self._observer = TireStiffnessObserver(new_params, new_tire)
+        self._observer = TireStiffnessObserver(p)
         if self.calibration_state == 'calibrating':
             self._start_calibration()
         elif self.calibration_state in ('loaded', 'calibrated'):
@@ -317,7 +224,7 @@ class TireStiffnessObserverNode(Node):
         self._update_diagnostics()
 
     def _load_calibration_file(self) -> None:
-        path = self.parameters.calibration_file
+        path = self.node_parameters.calibration_file
         if not path:
             return
         loaded = load_calibration(path)
@@ -341,7 +248,7 @@ class TireStiffnessObserverNode(Node):
         self.get_logger().warning(self.calibration_detail)
 
     def _start_calibration(self) -> None:
-        self._observer.start_calibration(self.parameters.calibration_s)
+        self._observer.start_calibration()
         self.calibration_state = 'calibrating'
         self.calibration_detail = (f'calibrating over {self.parameters.calibration_s:g} s of '
                                    'valid data per tire (tires must be at nominal pressure)')
@@ -362,7 +269,7 @@ class TireStiffnessObserverNode(Node):
             return
         state = self._observer.calibration_state()
         self.calibration_state = 'calibrated'
-        path = self.parameters.calibration_file
+        path = self.node_parameters.calibration_file
         if not path:
             self.calibration_detail = 'calibrated (not persisted: calibration_file is empty)'
             return
@@ -398,14 +305,14 @@ class TireStiffnessObserverNode(Node):
         if not self._window_count:
             self._window_first_ns = stamp
         self._window_count += 1
-        p = self.parameters
+        p, n = self.parameters, self.node_parameters
         # output_phase_s delays the first output (and so every later one)
         to_output_s = _to_go_s(self._window_first_ns, stamp, self._window_count,
-                               p.publish_rate_hz, p.sample_rate_hz) + (
-            0.0 if self.published else p.output_phase_s)
-        if (to_output_s <= 0.0 or self._ahead.due(to_output_s, p.process_ahead_s)
+                               n.publish_rate_hz, p.sample_rate_hz) + (
+            0.0 if self.published else n.output_phase_s)
+        if (to_output_s <= 0.0 or self._ahead.due(to_output_s, n.process_ahead_s)
                 or _to_go_s(self._buffer_ns[0], stamp, len(self._buffer_ns),
-                            1.0 / p.process_period_s, p.sample_rate_hz) <= 0.0):
+                            1.0 / n.process_period_s, p.sample_rate_hz) <= 0.0):
             self._process(publish=to_output_s <= 0.0)
 
     def _driver_inputs_for(self, stamps: np.ndarray,
@@ -418,7 +325,7 @@ class TireStiffnessObserverNode(Node):
         torque = np.array([d[1] for d in self._driver])
         steering = np.array([d[2] for d in self._driver])
         index = np.searchsorted(driver_ns, stamps, side='right') - 1
-        max_age_ns = self.parameters.driver_inputs_max_age_s * 1e9
+        max_age_ns = self.node_parameters.driver_inputs_max_age_s * 1e9
         fresh = (index >= 0) & (stamps - driver_ns[np.maximum(index, 0)] <= max_age_ns)
         # Keep the last message used (it may hold the next chunk's first samples).
         for _ in range(max(int(index[-1]), 0)):
@@ -454,7 +361,7 @@ class TireStiffnessObserverNode(Node):
 
     def _publish(self, est: StiffnessEstimate, stamp: int) -> None:
         stiffness = TireStiffness()
-        stiffness.header.stamp = _time_msg(stamp)
+        stiffness.header.stamp = time_msg(stamp)
         stiffness.header.frame_id = 'base_link'
         stiffness.delta_k = est.delta_k.tolist()
         stiffness.delta_d = est.delta_d.tolist()
@@ -488,7 +395,7 @@ class TireStiffnessObserverNode(Node):
         values: dict[str, Any] = {
             'calibration_state': self.calibration_state,
             'calibration_detail': self.calibration_detail,
-            'calibration_file': p.calibration_file or '(none)',
+            'calibration_file': self.node_parameters.calibration_file or '(none)',
             'samples_received': self.received,
             'samples_processed': self.processed,
             'outputs_published': self.published,
@@ -513,7 +420,8 @@ class TireStiffnessObserverNode(Node):
             message = '; '.join(problems) or 'waiting for wheel speeds'
             self._diagnostics.set(WARN if problems else STALE, message, values)
             return
-        if abs(self._input_rate_hz / p.sample_rate_hz - 1.0) > RATE_TOLERANCE:
+        # A mismatch beyond the core's own timing tolerance breaks its filters' continuity.
+        if abs(self._input_rate_hz / p.sample_rate_hz - 1.0) > p.timing_tolerance:
             problems.append(f'input rate {self._input_rate_hz:.4g} Hz does not match '
                             f'sample_rate_hz {p.sample_rate_hz:g}: set sample_rate_hz')
         values['tire_status'] = list(est.status)
@@ -524,11 +432,11 @@ class TireStiffnessObserverNode(Node):
         values['confidence'] = est.confidence.tolist()
         for name, counts in self._observer.counters.items():
             values[f'core_{name}'] = list(counts)
-        faults = [f'{w}: {s}' for w, s in zip(WHEELS, est.status, strict=True)
+        faults = [f'{w}: {s}' for w, s in zip(TIRE_NAMES, est.status, strict=True)
                   if s in SENSOR_FAULTS]
-        paused = [f'{w}: {s}' for w, s in zip(WHEELS, est.status, strict=True)
+        paused = [f'{w}: {s}' for w, s in zip(TIRE_NAMES, est.status, strict=True)
                   if s != 'ok' and s not in SENSOR_FAULTS]
-        low = [w for w, flag in zip(WHEELS, est.underinflated, strict=True) if flag]
+        low = [w for w, flag in zip(TIRE_NAMES, est.underinflated, strict=True) if flag]
         if faults:
             level = ERROR
             problems.insert(0, 'unknown (bad sensor data) ' + ', '.join(faults))
