@@ -14,7 +14,8 @@ place only when complete, so a failed run never leaves a half-written bag behind
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Generator, Iterable, Iterator, Mapping
+from contextlib import closing
 from dataclasses import dataclass
 import functools
 import heapq
@@ -378,7 +379,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, TopicInfo]:
 
 
 def iter_raw(path: str | os.PathLike[str], topics: Iterable[str] | None = None,
-             start_ns: int | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+             start_ns: int | None = None) -> Generator[tuple[str, str, int, bytes]]:
     """(topic, msgtype, log time ns, CDR bytes) in log-time order, optionally filtered."""
     reader = open_reader(path)
     try:
@@ -507,22 +508,13 @@ def compare_bags(expected: str | os.PathLike[str], actual: str | os.PathLike[str
                 return [f'topic {name}: {got_topics.get(name)}, expected {want_topics.get(name)}']
     store = typestore()
     columns: dict[str, dict[str, tuple[list[Any], list[Any]]]] = {}
-    for i, (want, got) in enumerate(zip(iter_raw(expected), iter_raw(actual), strict=True)):
-        if want[:3] != got[:3]:
-            return [f'message {i}: {got[:3]}, expected {want[:3]} (topic, type, log time)']
-        topic, msgtype = want[0], want[1]
-        want_leaves: dict[str, Any] = {}
-        got_leaves: dict[str, Any] = {}
-        _leaves(store, msgtype, store.deserialize_cdr(want[3], msgtype), '', want_leaves)
-        _leaves(store, msgtype, store.deserialize_cdr(got[3], msgtype), '', got_leaves)
-        if want_leaves.keys() != got_leaves.keys():
-            return [f'message {i} on {topic}: fields {sorted(got_leaves)}, '
-                    f'expected {sorted(want_leaves)}']
-        topic_columns = columns.setdefault(topic, {})
-        for field, value in want_leaves.items():
-            pair = topic_columns.setdefault(field, ([], []))
-            pair[0].append(value)
-            pair[1].append(got_leaves[field])
+    with closing(iter_raw(expected)) as wanted, closing(iter_raw(actual)) as gotten:
+        for i, (want, got) in enumerate(zip(wanted, gotten, strict=True)):
+            if want[:3] != got[:3]:
+                return [f'message {i}: {got[:3]}, expected {want[:3]} (topic, type, log time)']
+            problem = _collect(store, want, got, columns)
+            if problem is not None:
+                return [f'message {i} on {want[0]}: {problem}']
     problems = []
     for topic, topic_columns in columns.items():
         for field, (want_column, got_column) in topic_columns.items():
@@ -530,3 +522,24 @@ def compare_bags(expected: str | os.PathLike[str], actual: str | os.PathLike[str
             if problem is not None:
                 problems.append(problem)
     return problems
+
+
+def _collect(store: Typestore, want: tuple[str, str, int, bytes],
+             got: tuple[str, str, int, bytes],
+             columns: dict[str, dict[str, tuple[list[Any], list[Any]]]]) -> str | None:
+    """Append the leaf values of two messages to their topic's columns (or say why not)."""
+    topic, msgtype = want[0], want[1]
+    if msgtype not in store.types:
+        return f'unknown message type {msgtype!r}'
+    want_leaves: dict[str, Any] = {}
+    got_leaves: dict[str, Any] = {}
+    _leaves(store, msgtype, store.deserialize_cdr(want[3], msgtype), '', want_leaves)
+    _leaves(store, msgtype, store.deserialize_cdr(got[3], msgtype), '', got_leaves)
+    if want_leaves.keys() != got_leaves.keys():
+        return f'fields {sorted(got_leaves)}, expected {sorted(want_leaves)}'
+    topic_columns = columns.setdefault(topic, {})
+    for field, value in want_leaves.items():
+        pair = topic_columns.setdefault(field, ([], []))
+        pair[0].append(value)
+        pair[1].append(got_leaves[field])
+    return None
