@@ -30,7 +30,7 @@ from rail_monitor_ros.core.rail_model import RailVehicleParams
 from rail_monitor_ros.core.suspension_imm import (
     _SHARED_DISCRETIZATIONS,
     SuspensionImm,
-    SuspensionImmConfig,
+    SuspensionImmParams,
 )
 from rail_monitor_ros.offline.imm_runs import (
     ImmRunResult,
@@ -68,7 +68,7 @@ def speed_comparison(n_steps: int = 3000, n_filterpy: int = 300,
 
     r = simulate(shipped_scenario('rail_imm_spring_damper_fault'))
     z = _imu(r)[:n_steps]
-    exact = SuspensionImm(SuspensionImmConfig(adaptive=False, probability_floor=0.0,
+    exact = SuspensionImm(SuspensionImmParams(adaptive=False, probability_floor=0.0,
                                               steady_state_gains=False))
     filters = []
     for j in range(exact.n_modes):
@@ -90,7 +90,7 @@ def speed_comparison(n_steps: int = 3000, n_filterpy: int = 300,
     exact_rate = len(z) / (time.perf_counter() - t0)
     # Steady-state cycle after its warm-up (exact cycles, measured above) and its Riccati
     # solves (measured below).
-    steady = SuspensionImm(SuspensionImmConfig(adaptive=False, warmup_time=0.005))
+    steady = SuspensionImm(SuspensionImmParams(adaptive=False, warmup_time_s=0.005))
     for sample in z[:10]:
         steady.advance(sample)
     t0 = time.perf_counter()
@@ -112,7 +112,7 @@ def speed_comparison(n_steps: int = 3000, n_filterpy: int = 300,
     t0 = time.perf_counter()
     run_suspension_imm(_imu(healthy), time=healthy.time)
     elapsed = time.perf_counter() - t0
-    warmup = SuspensionImmConfig().warmup_time
+    warmup = SuspensionImmParams().warmup_time_s
     print(f'full monitor (default: adaptive, steady-state after {warmup:.0f} s warm-up; offline '
           f'loop), {monitor_seconds:.0f} s healthy run from a cold cache: '
           f'{len(healthy.time) / elapsed:.0f} steps/s = real-time factor '
@@ -163,7 +163,7 @@ def paper_scenario(plots: Path | None) -> None:
     d = half_car_sensor_data(r.time, r.track_alignment[:, :2], r.track_alignment_rate[:, :2],
                              r.spring_ratio[:, 0], r.damper_ratio[:, 0], seed=1)
     res = run_suspension_imm(d.measurements, None,
-                             SuspensionImmConfig(estimation_model='half_car'), time=d.time,
+                             SuspensionImmParams(estimation_model='half_car'), time=d.time,
                              truth_spring_ratio=d.spring_ratio,
                              truth_damper_ratio=d.damper_ratio)
     print(f"{'half-car truth+model, noise':26s}: {_figures(res)}")
@@ -178,7 +178,7 @@ def healthy_long(minutes: float = 10.0) -> None:
     r = simulate(scenario)
     print(f'== healthy {minutes:.0f} min, full-car simulator (known inputs: first 2 min)')
     short = slice(0, int(120 * scenario.output_rate) + 1)
-    res_threshold = SuspensionImmConfig().fault_threshold
+    res_threshold = SuspensionImmParams().fault_threshold
     for label, u in (('track as process noise', None), ('known track, 4 wheelsets',
                                                         _known(r, 4)[short])):
         t0 = time.perf_counter()
@@ -188,7 +188,7 @@ def healthy_long(minutes: float = 10.0) -> None:
         non_normal = _non_normal(res)
         worst = non_normal.max()
         above = non_normal > res_threshold
-        # Longest stretch above the decision threshold (a fault needs hold_time).
+        # Longest stretch above the decision threshold (a fault needs hold_time_s).
         longest, run = 0, 0
         for flag in above:
             run = run + 1 if flag else 0

@@ -16,7 +16,7 @@ import pytest
 
 from rail_monitor_ros.core.fault_decision import FaultDecision
 from rail_monitor_ros.core.rail_model import RailVehicleParams
-from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmConfig
+from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmParams
 from rail_monitor_ros.core.suspension_modes import generate_mode_set, markov_transition_matrix
 from rail_monitor_ros.core.track_shaping import track_shaping_model
 from rail_monitor_ros.offline.imm_runs import (
@@ -42,7 +42,7 @@ def _paper_data(seed: int = 1) -> HalfCarSensorData:
                                 r.spring_ratio[:, 0], r.damper_ratio[:, 0], seed=seed)
 
 
-HALF_CAR = SuspensionImmConfig(estimation_model='half_car')
+HALF_CAR = SuspensionImmParams(estimation_model='half_car')
 
 
 def _imu(r: RailSimulationResult) -> np.ndarray:
@@ -98,18 +98,18 @@ def test_transition_matrix_rows_are_from_mode_and_sum_to_one(n: int, tau: float,
 
 
 @pytest.mark.parametrize('kwargs, match', [
-    ({'mean_sojourn_time': 0.001}, 'mean_sojourn_time'),
+    ({'mean_sojourn_time_s': 0.001}, 'mean_sojourn_time_s'),
     ({'spring_step': 0.0}, 'spring_step'),
     ({'damper_stop': -0.1}, 'damper_stop'),
     ({'fault_threshold': 1.5}, 'fault_threshold'),
-    ({'body_accel_noise': math.nan}, 'body_accel_noise'),
-    ({'model_accel_noise': (0.1, 0.1, 0.1)}, 'model_accel_noise'),
+    ({'body_accel_noise_mps2': math.nan}, 'body_accel_noise_mps2'),
+    ({'model_yaw_accel_noise_rad_s2': -0.1}, 'model_yaw_accel_noise_rad_s2'),
     ({'estimation_model': 'quarter_car'}, 'estimation_model'),
 ])
 def test_bad_configuration_is_refused(kwargs: dict[str, object], match: str) -> None:
     """Non-physical settings raise ValueError naming the parameter."""
     with pytest.raises(ValueError, match=match):
-        SuspensionImmConfig(**kwargs)  # type: ignore[arg-type]
+        SuspensionImmParams(**kwargs)  # type: ignore[arg-type]
 
 
 def test_batched_imm_matches_filterpy_imm_estimator() -> None:
@@ -123,7 +123,7 @@ def test_batched_imm_matches_filterpy_imm_estimator() -> None:
     from filterpy.kalman import IMMEstimator, KalmanFilter
 
     z = _imu(_simulation('rail_imm_spring_damper_fault'))[500:900]   # spans the fault at 3 s
-    config = SuspensionImmConfig(adaptive=False, probability_floor=0.0,
+    config = SuspensionImmParams(adaptive=False, probability_floor=0.0,
                                  steady_state_gains=False)
     imm = SuspensionImm(config)
     filters = []
@@ -253,7 +253,7 @@ def test_probabilities_and_covariances_stay_healthy_over_a_long_run() -> None:
     res = _healthy_run()
     np.testing.assert_allclose(res.probability.sum(axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(res.smoothed_probability.sum(axis=1), 1.0, atol=1e-9)
-    assert res.probability.min() >= 0.9 * SuspensionImmConfig().probability_floor
+    assert res.probability.min() >= 0.9 * SuspensionImmParams().probability_floor
     assert _semi_definite(res.covariance)
     np.testing.assert_allclose(res.covariance, res.covariance.transpose(0, 2, 1), atol=0.0)
 
@@ -269,7 +269,7 @@ def test_bank_covariances_spd_and_repair() -> None:
     """Exact cycle: every mode's covariance is semi-definite after a run; a corrupted one is
     detected and restarted from the prior, the others are left alone."""
     z = _imu(_simulation('rail_imm_spring_damper_fault'))
-    imm = SuspensionImm(SuspensionImmConfig(steady_state_gains=False))
+    imm = SuspensionImm(SuspensionImmParams(steady_state_gains=False))
     for sample in z[:400]:
         imm.step(sample)
     assert _semi_definite(imm.P)
@@ -313,7 +313,7 @@ def test_extreme_outlier_does_not_collapse_modes() -> None:
         imm.step(sample)
     out = imm.step(np.array([1e3, 10.0, -1e3]))
     assert np.all(np.isfinite(out.probability))
-    assert out.probability.min() >= 0.9 * imm.config.probability_floor
+    assert out.probability.min() >= 0.9 * imm.params.probability_floor
     assert abs(out.probability.sum() - 1.0) < 1e-12
 
 
@@ -332,7 +332,7 @@ def test_adaptive_step_moves_damper_modes_to_the_estimated_spring() -> None:
     assert np.all(res.mode_spring_ratio[res.time < 2.9][:, damper] < 1.05)
     z = _imu(_simulation('rail_imm_spring_damper_fault'))
     fixed = run_suspension_imm(z[:700], None,
-                               replace(SuspensionImmConfig(), adaptive=False))
+                               replace(SuspensionImmParams(), adaptive=False))
     assert np.all(fixed.mode_spring_ratio[:, damper] == 1.0)
 
 
@@ -373,11 +373,11 @@ def test_steady_state_cycle_agrees_with_the_exact_imm(wheelsets: int) -> None:
     with it measured (where the mixing spread term carries the damper detection)."""
     r = _simulation('rail_imm_spring_damper_fault')
     u = r.measured_track_alignment[:, :wheelsets] if wheelsets else None
-    runs = [run_suspension_imm(_imu(r), u, replace(SuspensionImmConfig(),
+    runs = [run_suspension_imm(_imu(r), u, replace(SuspensionImmParams(),
                                                    steady_state_gains=steady), time=r.time)
             for steady in (False, True)]
     exact, steady = runs
-    after_warmup = r.time >= SuspensionImmConfig().warmup_time
+    after_warmup = r.time >= SuspensionImmParams().warmup_time_s
     same_winner = (np.argmax(exact.smoothed_probability, axis=1)
                    == np.argmax(steady.smoothed_probability, axis=1))[after_warmup]
     assert same_winner.mean() > 0.97
@@ -391,7 +391,7 @@ def test_steady_state_cycle_agrees_with_the_exact_imm(wheelsets: int) -> None:
 
 def test_fault_decision_holds_and_clears_symmetrically() -> None:
     """Declared after the hold time above threshold; cleared the same way by normal."""
-    decision = FaultDecision(0.6, hold_time=0.05, dt=0.01)
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
     keys = [(1.0, 1.0), (1.5, 1.0)]
     fault = np.array([0.2, 0.8])
     normal = np.array([0.8, 0.2])

@@ -20,11 +20,16 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregularity
 import yaml
 
-from rail_monitor_ros.nodes.suspension_monitor_node import SuspensionMonitorNode
+from rail_monitor_ros.core.suspension_imm import SuspensionImmParams
+from rail_monitor_ros.nodes.suspension_monitor_node import (
+    SuspensionMonitorNode,
+    SuspensionMonitorNodeParams,
+)
 from rail_monitor_ros.simulation.rail_scenario import shipped_scenario
 from rail_monitor_ros.simulation.rail_simulator import simulate, to_topic_series
 from vehicle_monitor_common.bag_io import read_series, write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
+from vehicle_monitor_common.parameters import parameter_specs
 
 CONFIG = (Path(__file__).resolve().parents[3]
           / 'src/rail_monitor_ros/config/suspension_monitor.yaml')
@@ -60,9 +65,20 @@ def _imu_from_bag(path: Path) -> _ImuData:
     return _ImuData((stamps[first_5_s] - stamps[0]) * 1e-9, z[first_5_s])
 
 
+def _flatten(mapping: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    """A params file's nested mapping as dotted names (what --params-file declares)."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
+
+
 def _config_parameters(**overrides: Any) -> list[Parameter]:
     """The shipped YAML (what --params-file gives), reliable inputs, with overrides."""
-    data = yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters']
+    data = _flatten(yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters'])
     data.update(overrides)
     params = [Parameter(k, value=v) for k, v in data.items()]
     params += [Parameter(f'qos_overrides./{t}.subscription.reliability', value='reliable')
@@ -117,13 +133,16 @@ def _setup(make_node: Callable[..., Any], **overrides: Any) -> tuple[Any, _Feede
 
 
 def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) -> None:
-    """Every key of the shipped YAML is a declared parameter with the same default."""
-    data = yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters']
+    """Every key of the shipped YAML is a declared parameter with the same default, and every
+    declared parameter (the method's and the node's) is in it."""
+    data = _flatten(yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters'])
     node = make_node(SuspensionMonitorNode)
     for key, value in data.items():
         assert node.has_parameter(key), key
         assert node.get_parameter(key).value == pytest.approx(value), key
-    assert len(data) == len(node.parameters.__dataclass_fields__)
+    declared = {*parameter_specs(SuspensionImmParams), *parameter_specs(
+        SuspensionMonitorNodeParams)}
+    assert set(data) == {spec.name for spec in declared}
 
 
 def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
@@ -134,7 +153,7 @@ def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
     WARN/ERROR naming it."""
     data = _imu_from_bag(paper_bag)
     monitor, feeder, got, diagnostics = _setup(make_node, use_track_irregularity=False,
-                                               diagnostics_period=0.05)
+                                               diagnostics_period_s=0.05)
     stamps = START_NS + np.arange(len(data.time), dtype=np.int64) * DT_NS
     for k0 in range(0, len(stamps), 100):
         end = min(k0 + 100, len(stamps))
@@ -163,7 +182,7 @@ def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
     counted, outputs stay finite, no fault, and the diagnostic reports an input fault."""
     data = _imu_from_bag(paper_bag)
     monitor, feeder, got, diagnostics = _setup(make_node, frozen_samples=5,
-                                               diagnostics_period=0.05)
+                                               diagnostics_period_s=0.05)
     z = data.measurements
     s = [START_NS + k * DT_NS for k in range(200)]
     for k in range(50):
@@ -181,7 +200,8 @@ def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
     assert spin_until(lambda: stamp_ns(got[-1].header.stamp) == s[119] if got else False)
     counts = monitor.rejected
     assert counts['non_finite'] == 1 and counts['saturated'] == 1
-    assert counts['repeated'] == 1 and counts['out_of_order'] == 1
+    assert counts['bogie_repeated'] == 1 and counts['body_repeated'] == 1
+    assert counts['bogie_out_of_order'] == 1 and counts['body_out_of_order'] == 1
     assert counts['unpaired'] >= 1 and counts['frozen_sensor'] >= 3
     assert all(np.all(np.isfinite(m.probability)) for m in got)
     assert not any(m.fault_detected for m in got)
@@ -194,7 +214,7 @@ def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
 def test_known_inputs_used_when_fresh_and_stale_reported(
         make_node: Callable[..., Any], spin_until: Callable[..., bool],
         paper_bag: Path) -> None:
-    """Fresh track irregularity -> known-input model (held up to track_max_age = 20 ms, four
+    """Fresh track irregularity -> known-input model (held up to track_max_age_s = 20 ms, four
     samples); after that the process-noise model and a 'stale' diagnostic; a wrongly sized
     track message is counted."""
     data = _imu_from_bag(paper_bag)
@@ -245,15 +265,15 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
     depend on it)."""
     with pytest.raises(ConfigurationError, match='spring_stop|mean_sojourn'):
         make_node(SuspensionMonitorNode, parameter_overrides=[
-            Parameter('mean_sojourn_time', value=0.001)])
+            Parameter('mean_sojourn_time_s', value=0.001)])
     node = make_node(SuspensionMonitorNode)
     (result,) = node.set_parameters([Parameter('fault_threshold', value=1.5)])
     assert not result.successful and 'fault_threshold' in result.reason
     (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])
     assert result.successful and node.imm.decision.threshold == 0.8
     f_before = node.imm._f.copy()
-    (result,) = node.set_parameters([Parameter('speed', value=30.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.speed_mps', value=30.0)])
     assert result.successful and node.imm.vehicle.speed == 30.0
     assert not np.allclose(node.imm._f, f_before)
-    (result,) = node.set_parameters([Parameter('body_mass', value=9000.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.body_mass_kg', value=9000.0)])
     assert not result.successful

@@ -54,13 +54,13 @@ class FaultDecision:
     change from one fault hypothesis to another (spring -> spring+damper) too.
     """
 
-    def __init__(self, threshold: float, hold_time: float, dt: float) -> None:
+    def __init__(self, threshold: float, hold_time_s: float, dt: float) -> None:
         if not 0.0 < threshold < 1.0:
             raise ValueError(f'threshold must be in (0, 1), got {threshold}')
-        if not (math.isfinite(hold_time) and hold_time >= 0.0):
-            raise ValueError(f'hold_time must be finite and >= 0, got {hold_time}')
+        if not (math.isfinite(hold_time_s) and hold_time_s >= 0.0):
+            raise ValueError(f'hold_time_s must be finite and >= 0, got {hold_time_s}')
         self.threshold = threshold
-        self.hold_samples = int(round(hold_time / dt))
+        self.hold_samples = int(round(hold_time_s / dt))
         self.reset()
 
     def reset(self) -> None:

@@ -24,10 +24,10 @@ Beyond the paper:
   :func:`track_shaping_model`, the published alignment spectrum as a second-order
   Gauss-Markov process in distance (poles Omega_r v and Omega_c v: the time-domain bandwidth
   scales with speed), the other wheelsets seeing the same track delayed by their distance
-  over the speed (cascades of Pade sections, accurate down to ``delay_min_wavelength``; the
+  over the speed (cascades of Pade sections, accurate down to ``delay_min_wavelength_m``; the
   front-rear delay of 0.5 s matters: the rear bogie drives the body the sensors sit on). With
   ``/rail/track_irregularity`` the alignment under the wheelsets is measured directly (extra
-  measurement rows, noise ``known_track_std``). 'half_car' is the paper's model
+  measurement rows, noise ``known_track_std_m``). 'half_car' is the paper's model
   (:func:`reduced_bogie_body_model`, wheelset inputs as coloured noise or known from the
   track), right only for the paper's half-car truth.
 * The adaptive compound-fault step: the damper modes use the estimated spring ratio,
@@ -41,7 +41,7 @@ Beyond the paper:
 * Decision: modes are grouped into hypotheses by their current ratios snapped to the mode grid
   (with the adaptive step the damper-100 % mode *is* the spring-only hypothesis at the
   estimated spring ratio, and without it a duplicate of normal); a hypothesis is declared when
-  its smoothed probability stays above ``fault_threshold`` for ``hold_time``; normal is a
+  its smoothed probability stays above ``fault_threshold`` for ``hold_time_s``; normal is a
   hypothesis like the others, so a fault clears the same way.
 """
 
@@ -64,6 +64,7 @@ from rail_monitor_ros.core.imm_kernel import (
 )
 from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
+    MAX_SUSPENSION_RATIO,
     SENSOR_OUTPUT_NAMES,
     RailVehicleParams,
     StateSpace,
@@ -85,6 +86,7 @@ from rail_monitor_ros.core.track_shaping import (
     track_shaping_model,
 )
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from vehicle_monitor_common.parameters import group, param
 
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
 ESTIMATION_MODELS = ('full_car', 'half_car')
@@ -148,80 +150,149 @@ _SHARED_DISCRETIZATIONS_MAX = 512
 _SPD_TOLERANCE = 1e-9
 
 
+# The reference car of the rail model (Chonan & Tsunashima Table 1): the estimation model's
+# defaults are its values, not copies of them.
+_TABLE_1 = RailVehicleParams()
+
+
 @dataclass(frozen=True)
-class SuspensionImmConfig:
-    """Configuration of the IMM suspension monitor (defaults: paper, Table 1, SPEC §5).
+class SuspensionVehicleParams:
+    """The estimation model's vehicle, the quantities a user sets (per bogie; each pair of
+    left and right elements split evenly); the others are :class:`RailVehicleParams`'s.
+    Only ``speed_mps`` may change at run time (the full car is re-discretised)."""
+
+    body_mass_kg: float = param(_TABLE_1.body_mass, 'body mass carried by one bogie (half '
+                                'the body), kg', low=1.0, high=1e6, read_only=True)
+    body_yaw_inertia_kg_m2: float = param(_TABLE_1.body_yaw_inertia, 'body yaw inertia (full '
+                                          'car model), kg m^2', low=1.0, high=1e9,
+                                          read_only=True)
+    bogie_pivot_semi_spacing_m: float = param(_TABLE_1.bogie_pivot_semi_spacing, 'body centre '
+                                              'to bogie centre (full car model), m', low=0.1,
+                                              high=50.0, read_only=True)
+    bogie_mass_kg: float = param(_TABLE_1.bogie_mass, 'bogie mass, kg', low=1.0, high=1e5,
+                                 read_only=True)
+    bogie_yaw_inertia_kg_m2: float = param(_TABLE_1.bogie_yaw_inertia, 'bogie yaw inertia, '
+                                           'kg m^2', low=1.0, high=1e6, read_only=True)
+    primary_lateral_stiffness_n_m: float = param(_TABLE_1.primary_lateral_stiffness, 'primary '
+                                                 'lateral stiffness per wheelset, N/m',
+                                                 low=1.0, high=1e10, read_only=True)
+    primary_yaw_stiffness_nm_rad: float = param(_TABLE_1.primary_yaw_stiffness, 'primary yaw '
+                                                'stiffness per wheelset, N m/rad', low=1.0,
+                                                high=1e10, read_only=True)
+    secondary_lateral_stiffness_n_m: float = param(_TABLE_1.secondary_lateral_stiffness,
+                                                   'nominal secondary lateral stiffness (both '
+                                                   'sides), N/m', low=1.0, high=1e10,
+                                                   read_only=True)
+    secondary_lateral_damping_ns_m: float = param(_TABLE_1.secondary_lateral_damping,
+                                                  'nominal secondary lateral damping (both '
+                                                  'sides), N s/m', low=1.0, high=1e9,
+                                                  read_only=True)
+    anti_yaw_damping_nms_rad: float = param(_TABLE_1.anti_yaw_damping_left
+                                            + _TABLE_1.anti_yaw_damping_right, 'anti-yaw '
+                                            'damping (both sides), N m s/rad', low=0.0,
+                                            high=1e10, read_only=True)
+    semi_wheelbase_m: float = param(_TABLE_1.semi_wheelbase, 'semi-wheelbase a0, m', low=0.01,
+                                    high=10.0, read_only=True)
+    speed_mps: float = param(_TABLE_1.speed, 'forward speed (full car: creep forces, track '
+                             'bandwidth and delays, re-discretised on change; half car: known '
+                             'inputs), m/s', low=0.1, high=150.0)
+
+    def rail_vehicle(self) -> RailVehicleParams:
+        """The rail model's parameters: these values, sides split evenly, the rest Table 1."""
+        return replace(
+            _TABLE_1, body_mass=self.body_mass_kg, body_yaw_inertia=self.body_yaw_inertia_kg_m2,
+            bogie_pivot_semi_spacing=self.bogie_pivot_semi_spacing_m,
+            bogie_mass=self.bogie_mass_kg, bogie_yaw_inertia=self.bogie_yaw_inertia_kg_m2,
+            primary_lateral_stiffness=self.primary_lateral_stiffness_n_m,
+            primary_yaw_stiffness=self.primary_yaw_stiffness_nm_rad,
+            secondary_lateral_stiffness_left=0.5 * self.secondary_lateral_stiffness_n_m,
+            secondary_lateral_stiffness_right=0.5 * self.secondary_lateral_stiffness_n_m,
+            secondary_lateral_damping_left=0.5 * self.secondary_lateral_damping_ns_m,
+            secondary_lateral_damping_right=0.5 * self.secondary_lateral_damping_ns_m,
+            anti_yaw_damping_left=0.5 * self.anti_yaw_damping_nms_rad,
+            anti_yaw_damping_right=0.5 * self.anti_yaw_damping_nms_rad,
+            semi_wheelbase=self.semi_wheelbase_m, speed=self.speed_mps)
+
+
+@dataclass(frozen=True)
+class SuspensionImmParams:
+    """Parameters of the IMM suspension monitor (defaults: paper, Table 1, SPEC §5); each
+    field is also the node's ROS parameter of that name (``parameters.param``).
 
     Attributes:
-        sample_rate: IMU sample rate, Hz (the models are discretised at 1 / sample_rate).
+        sample_rate_hz: IMU sample rate, Hz (the models are discretised at 1 / sample_rate_hz).
         estimation_model: 'full_car' (the 14-DOF full car driven by the track, the body
             accelerometer above the front bogie; right for the sensors where a real car has
             them) or 'half_car' (the paper's :func:`reduced_bogie_body_model`, right only for
             the paper's half-car truth).
         spring_start, spring_stop, spring_step: spring-mode ratios (see generate_mode_set).
         damper_start, damper_stop, damper_step: damper-mode ratios.
-        mean_sojourn_time: expected time in a mode before a switch, s (sets Pi). Shorter
+        mean_sojourn_time_s: expected time in a mode before a switch, s (sets Pi). Shorter
             switches faster and false-alarms more.
         probability_floor: lower bound on every mode probability after each update (then
             renormalised), so a mode can come back within a bounded time; 0 disables it.
-        smoothing_window: moving-average window of the mode probabilities, s.
+        smoothing_window_s: moving-average window of the mode probabilities, s.
         adaptive: the paper's compound-fault step (damper modes take the estimated spring).
         adaptation_resolution: the damper modes' spring ratio moves in these quanta; a new
             discretisation is computed (and cached) when the quantised estimate changes.
-        track_roughness: full car: A_a of the lateral alignment spectrum
+        track_roughness_m_rad: full car: A_a of the lateral alignment spectrum
             S(Omega) = A_a Omega_c^2 / ((Omega^2 + Omega_r^2)(Omega^2 + Omega_c^2)), m rad.
             Default: the German high-speed "low interference" track (ORE B176), a published
             class, not the simulator's draw; the monitor does not know the track quality (the
             sweep runs it on "high interference" track too).
-        track_corner_wavenumber: Omega_c, rad/m (above it the alignment falls as Omega^-4).
-        track_long_wavenumber: Omega_r, rad/m.
-        delay_min_wavelength: full car: the wheelset-to-wheelset delays (distance / speed)
+        track_corner_wavenumber_rad_per_m: Omega_c, rad/m (above it the alignment falls as
+            Omega^-4).
+        track_long_wavenumber_rad_per_m: Omega_r, rad/m.
+        delay_min_wavelength_m: full car: the wheelset-to-wheelset delays (distance / speed)
             are Pade cascades accurate down to this track wavelength, m. Speed-independent
             state count; 5 m is below the spectrum's corner wavelength 2 pi / Omega_c = 7.6 m.
-        known_track_std: full car, known-input mode: std of the measured alignment under a
+        known_track_std_m: full car, known-input mode: std of the measured alignment under a
             wheelset, m (track recording accuracy).
         creep_resolution: full car: :meth:`SuspensionImm.set_creep_factor` snaps the creep
             factor to multiples of this and re-discretises the bank when the estimate is more
             than 3/4 of a step from the model's (hysteresis: a noisy estimate does not toggle;
             the grid lets the banks and their Riccati solutions be reused).
-        speed_resolution: full car: :meth:`SuspensionImm.set_speed` re-discretises the bank
+        speed_resolution_mps: full car: :meth:`SuspensionImm.set_speed` re-discretises the bank
             when the speed moved by at least this much, m/s.
-        wheelset_lateral_std: half car: stationary std of the wheelset lateral displacement,
+        wheelset_lateral_std_m: half car: stationary std of the wheelset lateral displacement,
             m (the bogie's mean wheelset lateral input).
-        wheelset_yaw_std: half car: stationary std of the wheelset yaw angle, rad. The bogie's
+        wheelset_yaw_std_rad: half car: stationary std of the wheelset yaw angle, rad. The bogie's
             equivalent yaw input (:func:`primary_input_combination`) gets
-            wheelset_yaw_std (1 + Ky a0^2 / Kp): wheelsets following the track have
+            wheelset_yaw_std_rad (1 + Ky a0^2 / Kp): wheelsets following the track have
             y_lead - y_trail = 2 a0 psi.
-        input_correlation_time: half car: slow pole of the wheelset motion model, s.
-        input_bandwidth: half car: fast pole of the wheelset motion model, Hz (-40 dB/decade
+        input_correlation_time_s: half car: slow pole of the wheelset motion model, s.
+        input_bandwidth_hz: half car: fast pole of the wheelset motion model, Hz (-40 dB/decade
             above it: the wheelset motion is smooth).
-        known_input_lateral_std: half car, known-input mode: std of the wheelset's lateral
+        known_input_lateral_std_m: half car, known-input mode: std of the wheelset's lateral
             deviation from the track alignment, m.
-        known_input_yaw_std: half car, known-input mode: std of the wheelset yaw deviation
+        known_input_yaw_std_rad: half car, known-input mode: std of the wheelset yaw deviation
             from alignment rate / speed, rad.
-        bogie_accel_noise: bogie lateral accelerometer noise std, m/s^2.
-        bogie_gyro_noise: bogie yaw-rate gyro noise std, rad/s.
-        body_accel_noise: body lateral accelerometer noise std, m/s^2.
-        model_accel_noise: (lateral m/s^2, yaw rad/s^2) std of unmodelled accelerations
-            (white, on every rate state of the model); 0 trusts the model's structure.
-        initial_displacement_std, initial_velocity_std: half car: initial lateral state std,
-            m, m/s (the full car starts from its stationary covariance on the modelled track).
-        initial_yaw_std, initial_yaw_rate_std: half car: initial yaw state std, rad, rad/s.
+        bogie_accel_noise_mps2: bogie lateral accelerometer noise std, m/s^2.
+        bogie_gyro_noise_rad_s: bogie yaw-rate gyro noise std, rad/s.
+        body_accel_noise_mps2: body lateral accelerometer noise std, m/s^2.
+        model_lateral_accel_noise_mps2, model_yaw_accel_noise_rad_s2: std of unmodelled
+            lateral and yaw accelerations (white, on every rate state of the model); 0 trusts
+            the model's structure.
+        initial_displacement_std_m, initial_velocity_std_mps: half car: initial lateral state
+            std, m, m/s (the full car starts from its stationary covariance on the modelled
+            track).
+        initial_yaw_std_rad, initial_yaw_rate_std_rad_s: half car: initial yaw state std, rad,
+            rad/s.
         estimate_min_probability: modes below this fraction of the largest smoothed
             probability do not vote in the spring and damper estimates (nor in the adaptive
             step): the Markov prior's background mass is not evidence.
         fault_threshold: smoothed hypothesis probability to declare (or clear) a fault.
-        hold_time: how long it must stay above the threshold, s.
+        hold_time_s: how long it must stay above the threshold, s.
         spd_check_interval: full eigenvalue check of the bank covariances every so many
             steps (the innovation covariances are checked every step).
-        steady_state_gains: after ``warmup_time`` of exact IMM cycles, every mode-matched
+        steady_state_gains: after ``warmup_time_s`` of exact IMM cycles, every mode-matched
             filter runs on its steady-state covariance (the discrete algebraic Riccati
             equation of its model, solved once per model and cached) plus the mixing's spread
             of means, kept exactly as a low-rank term (:meth:`SuspensionImm._steady_cycle`):
             the covariance propagation, nine tenths of a full-car cycle, goes away; mixing of
             the states, likelihoods, probabilities and the decision are unchanged. False: the
             exact IMM every step (the cycle of filterpy's IMMEstimator).
-        warmup_time: exact IMM cycles after every (re)start of the bank states and after
+        warmup_time_s: exact IMM cycles after every (re)start of the bank states and after
             every change of the bank to models not solved before (adaptive step, speed), s:
             the states start from the stationary prior, far from the steady-state covariance,
             and frozen gains would mis-weigh the first residuals; and while the adaptive step
@@ -229,54 +300,127 @@ class SuspensionImmConfig:
             during a fault) the Riccati equations are solved only for the bank it settles on;
             banks seen before use their cached solutions at once (measured: 0.5 s, 1 s and 3 s
             give the same detections on the paper's run).
+        max_gap_s: a gap in the data longer than this restarts the bank's states (mode
+            probabilities kept); a shorter one is bridged by
+            :meth:`SuspensionImm.predict_through_gap`.
+        vehicle: the estimation model's vehicle (:class:`SuspensionVehicleParams`).
     """
 
-    sample_rate: float = 200.0
-    estimation_model: str = 'full_car'
-    spring_start: float = 1.1
-    spring_stop: float = 1.7
-    spring_step: float = 0.1
-    damper_start: float = 1.0
-    damper_stop: float = 0.3
-    damper_step: float = 0.1
-    mean_sojourn_time: float = 10.0
-    probability_floor: float = 1e-9
-    smoothing_window: float = 0.1
-    adaptive: bool = True
-    adaptation_resolution: float = 0.02
-    track_roughness: float = TRACK_SPECTRA['german_low'].roughness
-    track_corner_wavenumber: float = TRACK_SPECTRA['german_low'].omega_c
-    track_long_wavenumber: float = TRACK_SPECTRA['german_low'].omega_r
-    delay_min_wavelength: float = 5.0
-    known_track_std: float = 5e-4
-    speed_resolution: float = 0.5
-    creep_resolution: float = 0.1
-    wheelset_lateral_std: float = 3e-3
-    wheelset_yaw_std: float = 2e-3
-    input_correlation_time: float = 1.0
-    input_bandwidth: float = 3.0
-    known_input_lateral_std: float = 1.5e-3
-    known_input_yaw_std: float = 1.5e-3
-    bogie_accel_noise: float = 0.02
-    bogie_gyro_noise: float = 1e-3
-    body_accel_noise: float = 0.02
-    model_accel_noise: tuple[float, float] = (0.0, 0.0)
-    initial_displacement_std: float = 5e-3
-    initial_velocity_std: float = 5e-2
-    initial_yaw_std: float = 2e-3
-    initial_yaw_rate_std: float = 2e-2
-    estimate_min_probability: float = 0.05
-    fault_threshold: float = 0.6
-    hold_time: float = 0.25
-    spd_check_interval: int = 200
-    steady_state_gains: bool = True
-    warmup_time: float = 1.0
+    sample_rate_hz: float = param(200.0, 'IMU sample rate (the models are discretised at its '
+                                  'period), Hz', low=1.0, high=10000.0, read_only=True)
+    estimation_model: str = param('full_car', 'IMM model: full_car (14-DOF car driven by the '
+                                  'track; body IMU above the front bogie) or half_car (the '
+                                  'paper)', choices=ESTIMATION_MODELS, read_only=True)
+    spring_start: float = param(1.1, 'first spring-mode ratio, 1', low=0.01,
+                                high=MAX_SUSPENSION_RATIO, read_only=True)
+    spring_stop: float = param(1.7, 'last spring-mode ratio, 1', low=0.01,
+                               high=MAX_SUSPENSION_RATIO, read_only=True)
+    spring_step: float = param(0.1, 'spring-mode ratio step, 1', low=0.001,
+                               high=MAX_SUSPENSION_RATIO, read_only=True)
+    damper_start: float = param(1.0, 'first damper-mode ratio, 1', low=0.01,
+                                high=MAX_SUSPENSION_RATIO, read_only=True)
+    damper_stop: float = param(0.3, 'last damper-mode ratio, 1', low=0.01,
+                               high=MAX_SUSPENSION_RATIO, read_only=True)
+    damper_step: float = param(0.1, 'damper-mode ratio step, 1', low=0.001,
+                               high=MAX_SUSPENSION_RATIO, read_only=True)
+    mean_sojourn_time_s: float = param(10.0, 'mean time in a mode (sets the Markov matrix), s',
+                                       low=0.01, high=1e6, read_only=True)
+    probability_floor: float = param(1e-9, 'lower bound of every mode probability, 1',
+                                     low=0.0, high=0.009, read_only=True)
+    smoothing_window_s: float = param(0.1, 'moving-average window of the probabilities (at '
+                                      'least one sample), s', low=1e-6, high=60.0,
+                                      read_only=True)
+    adaptive: bool = param(True, 'damper modes take the estimated spring ratio (compound '
+                           'faults)', read_only=True)
+    adaptation_resolution: float = param(0.02, 'quantum of the damper modes\' spring ratio '
+                                         '(adaptive step), 1', low=1e-4, high=1.0,
+                                         read_only=True)
+    track_roughness_m_rad: float = param(TRACK_SPECTRA['german_low'].roughness,
+                                         'full car: track alignment spectrum A_a (German '
+                                         '"low interference" track), m rad', low=1e-12,
+                                         high=1e-3, read_only=True)
+    track_corner_wavenumber_rad_per_m: float = param(TRACK_SPECTRA['german_low'].omega_c,
+                                                     'full car: alignment spectrum Omega_c, '
+                                                     'rad/m', low=1e-4, high=100.0,
+                                                     read_only=True)
+    track_long_wavenumber_rad_per_m: float = param(TRACK_SPECTRA['german_low'].omega_r,
+                                                   'full car: alignment spectrum Omega_r, rad/m',
+                                                   low=1e-5, high=100.0, read_only=True)
+    delay_min_wavelength_m: float = param(5.0, 'full car: wheelset-to-wheelset delays '
+                                          'accurate down to this track wavelength, m',
+                                          low=0.1, high=100.0, read_only=True)
+    known_track_std_m: float = param(5e-4, 'full car: measured track alignment std, m',
+                                     low=1e-9, high=1.0, read_only=True)
+    speed_resolution_mps: float = param(0.5, 'full car: a speed change re-discretises the '
+                                        'bank from this size, m/s', low=1e-3, high=50.0,
+                                        read_only=True)
+    creep_resolution: float = param(0.1, 'full car: the model\'s creep factor moves in these '
+                                    'steps (with 3/4-step hysteresis), 1', low=1e-3, high=1.0,
+                                    read_only=True)
+    wheelset_lateral_std_m: float = param(3e-3, 'half car: wheelset lateral std, m', low=1e-9,
+                                          high=1.0, read_only=True)
+    wheelset_yaw_std_rad: float = param(2e-3, 'half car: wheelset yaw std, rad', low=1e-9,
+                                        high=1.0, read_only=True)
+    input_correlation_time_s: float = param(1.0, 'half car: wheelset motion model slow pole '
+                                            '(time constant), s', low=1e-3, high=100.0,
+                                            read_only=True)
+    input_bandwidth_hz: float = param(3.0, 'half car: wheelset motion model fast pole, Hz',
+                                      low=0.01, high=100.0, read_only=True)
+    known_input_lateral_std_m: float = param(1.5e-3, 'half car: wheelset deviation from the '
+                                             'track alignment, m', low=1e-9, high=1.0,
+                                             read_only=True)
+    known_input_yaw_std_rad: float = param(1.5e-3, 'half car: wheelset yaw deviation from '
+                                           'alignment rate / speed, rad', low=1e-9, high=1.0,
+                                           read_only=True)
+    bogie_accel_noise_mps2: float = param(0.02, 'bogie lateral accelerometer noise std, m/s^2',
+                                          low=1e-9, high=100.0, read_only=True)
+    bogie_gyro_noise_rad_s: float = param(1e-3, 'bogie yaw-rate gyro noise std, rad/s',
+                                          low=1e-9, high=10.0, read_only=True)
+    body_accel_noise_mps2: float = param(0.02, 'body lateral accelerometer noise std, m/s^2',
+                                         low=1e-9, high=100.0, read_only=True)
+    model_lateral_accel_noise_mps2: float = param(0.0, 'std of unmodelled lateral '
+                                                  'accelerations (0: trust the model), m/s^2',
+                                                  low=0.0, high=100.0, read_only=True)
+    model_yaw_accel_noise_rad_s2: float = param(0.0, 'std of unmodelled yaw accelerations (0: '
+                                                'trust the model), rad/s^2', low=0.0,
+                                                high=100.0, read_only=True)
+    initial_displacement_std_m: float = param(5e-3, 'half car: initial lateral displacement '
+                                              'std, m', low=1e-9, high=1.0, read_only=True)
+    initial_velocity_std_mps: float = param(5e-2, 'half car: initial lateral velocity std, m/s',
+                                            low=1e-9, high=10.0, read_only=True)
+    initial_yaw_std_rad: float = param(2e-3, 'half car: initial yaw std, rad', low=1e-9,
+                                       high=1.0, read_only=True)
+    initial_yaw_rate_std_rad_s: float = param(2e-2, 'half car: initial yaw rate std, rad/s',
+                                              low=1e-9, high=10.0, read_only=True)
+    estimate_min_probability: float = param(0.05, 'modes below this fraction of the largest '
+                                            'smoothed probability do not vote in the ratio '
+                                            'estimates, 1', low=1e-6, high=1.0,
+                                            read_only=True)
+    fault_threshold: float = param(0.6, 'smoothed hypothesis probability to declare or clear '
+                                   'a fault, 1', low=0.01, high=0.99)
+    hold_time_s: float = param(0.25, 'time above the threshold before the decision changes, s',
+                               low=0.0, high=600.0)
+    spd_check_interval: int = param(200, 'full eigenvalue check of the bank covariances every '
+                                    'so many exact steps', low=1, high=1000000, read_only=True)
+    steady_state_gains: bool = param(True, 'after the warm-up, each mode runs on its '
+                                     'steady-state covariance plus the mixing spread (about 8x '
+                                     'faster on the full car); false: the exact IMM',
+                                     read_only=True)
+    warmup_time_s: float = param(1.0, 'exact IMM cycles after every start of the states, s',
+                                 low=0.005, high=600.0, read_only=True)
+    max_gap_s: float = param(0.5, 'a longer gap in the data restarts the filter states (a '
+                             'shorter one is bridged by prediction), s', low=1e-3, high=3600.0)
+    vehicle: SuspensionVehicleParams = group(SuspensionVehicleParams,
+                                             'the estimation model\'s vehicle (Table 1)')
 
-    _NON_NEGATIVE = frozenset({'probability_floor', 'model_accel_noise'})
+    _NON_NEGATIVE = frozenset({'probability_floor', 'model_lateral_accel_noise_mps2',
+                               'model_yaw_accel_noise_rad_s2'})
 
     def __post_init__(self) -> None:
         for spec in fields(self):
             value = getattr(self, spec.name)
+            if spec.name == 'vehicle':
+                continue
             if spec.name in ('adaptive', 'steady_state_gains'):
                 if not isinstance(value, bool):
                     raise ValueError(f'{spec.name} must be a bool, got {value!r}')
@@ -286,42 +430,38 @@ class SuspensionImmConfig:
                     raise ValueError(f'estimation_model must be one of {ESTIMATION_MODELS}, '
                                      f'got {value!r}')
                 continue
-            values = value if isinstance(value, tuple) else (value,)
-            if spec.name == 'model_accel_noise' and len(values) != 2:
-                raise ValueError(f'model_accel_noise must have 2 values, got {len(values)}')
-            for v in values:
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ValueError(f'{spec.name} must be a finite number, got {v!r}')
-                if spec.name in self._NON_NEGATIVE or spec.name.startswith(('spring_',
-                                                                             'damper_')):
-                    if v < 0.0:
-                        raise ValueError(f'{spec.name} must be >= 0, got {v}')
-                elif v <= 0.0:
-                    raise ValueError(f'{spec.name} must be > 0, got {v}')
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
+                    value):
+                raise ValueError(f'{spec.name} must be a finite number, got {value!r}')
+            if spec.name in self._NON_NEGATIVE or spec.name.startswith(('spring_', 'damper_')):
+                if value < 0.0:
+                    raise ValueError(f'{spec.name} must be >= 0, got {value}')
+            elif value <= 0.0:
+                raise ValueError(f'{spec.name} must be > 0, got {value}')
         if not 0.0 < self.fault_threshold < 1.0:
             raise ValueError(f'fault_threshold must be in (0, 1), got {self.fault_threshold}')
         if self.probability_floor >= 0.01:
             raise ValueError(f'probability_floor must be < 0.01, got {self.probability_floor}')
         # Validates the ratio grids and the sojourn time against the sample period.
         modes = self.modes()
-        markov_transition_matrix(len(modes), self.mean_sojourn_time, self.dt)
+        markov_transition_matrix(len(modes), self.mean_sojourn_time_s, self.dt)
         if self.smoothing_samples < 1:
-            raise ValueError('smoothing_window must be at least one sample')
+            raise ValueError('smoothing_window_s must be at least one sample')
 
     @property
     def dt(self) -> float:
         """Sample period, s."""
-        return 1.0 / self.sample_rate
+        return 1.0 / self.sample_rate_hz
 
     @property
     def warmup_samples(self) -> int:
         """Exact IMM cycles before the steady-state gains take over."""
-        return max(1, int(round(self.warmup_time * self.sample_rate)))
+        return max(1, int(round(self.warmup_time_s * self.sample_rate_hz)))
 
     @property
     def smoothing_samples(self) -> int:
         """Moving-average length in samples (>= 1)."""
-        return max(1, int(round(self.smoothing_window * self.sample_rate)))
+        return max(1, int(round(self.smoothing_window_s * self.sample_rate_hz)))
 
     def modes(self) -> tuple[SuspensionMode, ...]:
         """The configured mode set."""
@@ -363,12 +503,12 @@ class ImmStep:
     fault: FaultStatus
 
 
-def _log_likelihood(residual: np.ndarray, s_inv_res: np.ndarray, chol: np.ndarray) -> np.ndarray:
-    """(M,) Gaussian log-likelihoods of the residuals (M, p), given S^-1 residual (M, p) and
+def _log_likelihood(y: np.ndarray, s_inv_y: np.ndarray, chol: np.ndarray) -> np.ndarray:
+    """(M,) Gaussian log-likelihoods of the residuals y (M, p), given S^-1 y (M, p) and
     the Cholesky factors (M, p, p) of their covariances S."""
-    maha = np.einsum('mi,mi->m', residual, s_inv_res)
+    maha = np.einsum('mi,mi->m', y, s_inv_y)
     log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-    return -0.5 * (maha + log_det + residual.shape[1] * LOG_2PI)
+    return -0.5 * (maha + log_det + y.shape[1] * LOG_2PI)
 
 
 class SuspensionImm:
@@ -378,22 +518,23 @@ class SuspensionImm:
     :func:`rail_monitor_ros.offline.imm_runs.run_suspension_imm`.
 
     Args:
-        config: IMM configuration.
-        vehicle: the model's vehicle parameters (defaults: Table 1 and the reference vehicle of
-            :class:`RailVehicleParams`). Full car: its speed sets the creep forces, the track
-            bandwidth and the delays (change it with :meth:`set_speed`); the half car does not
-            use it.
+        params: the IMM's parameters (defaults: ``SuspensionImmParams()``).
+        vehicle: the model's vehicle parameters, to study a vehicle beyond what
+            ``params.vehicle`` sets (default: ``params.vehicle.rail_vehicle()``). Full car: its
+            speed sets the creep forces, the track bandwidth and the delays (change it with
+            :meth:`set_speed`); the half car does not use it.
     """
 
-    def __init__(self, config: SuspensionImmConfig | None = None,
+    def __init__(self, params: SuspensionImmParams | None = None,
                  vehicle: RailVehicleParams | None = None) -> None:
-        self.config = config if config is not None else SuspensionImmConfig()
-        self.vehicle = vehicle if vehicle is not None else RailVehicleParams()
+        self.params = params if params is not None else SuspensionImmParams()
+        self.vehicle = vehicle if vehicle is not None else self.params.vehicle.rail_vehicle()
         self.creep_factor = 1.0
-        cfg = self.config
-        self.modes = cfg.modes()
+        params = self.params
+        self.modes = params.modes()
         self.n_modes = len(self.modes)
-        self.transition = markov_transition_matrix(self.n_modes, cfg.mean_sojourn_time, cfg.dt)
+        self.transition = markov_transition_matrix(self.n_modes, params.mean_sojourn_time_s,
+                                                   params.dt)
         nominal = self._model(1.0, 1.0)
         self.state_names = nominal.state_names
         self.input_names = nominal.input_names
@@ -407,15 +548,16 @@ class SuspensionImm:
         self._damper_grid = np.unique(np.round(
             [1.0, *[m.damper_ratio for m in self.modes if m.kind == 'damper']], RATIO_DECIMALS))
         self._r_sensor = np.diag(np.array(
-            [cfg.bogie_accel_noise, cfg.bogie_gyro_noise, cfg.body_accel_noise]) ** 2)
-        self._full_car = cfg.estimation_model == 'full_car'
+            [params.bogie_accel_noise_mps2, params.bogie_gyro_noise_rad_s,
+             params.body_accel_noise_mps2]) ** 2)
+        self._full_car = params.estimation_model == 'full_car'
         self._track_cache: tuple[tuple[float, tuple[float, ...]], TrackShapingModel] | None = None
         if self._full_car:
             # Known inputs: the measured alignment under the front bogie's wheelsets or all
             # four, extra measurements of the track model's outputs.
             self._known_sizes: tuple[int, ...] = (0, 2, self.n_inputs)
             self._t_known = {k: np.eye(k) for k in self._known_sizes}
-            known_std = np.full(self.n_inputs, cfg.known_track_std)
+            known_std = np.full(self.n_inputs, params.known_track_std_m)
             n_aug = self.n_states + self._track_model().a.shape[0]
         else:
             v = self.vehicle
@@ -423,12 +565,12 @@ class SuspensionImm:
             n_bogies = self.n_inputs // N_BOGIE_INPUTS
             yaw_gain = 1.0 + (v.primary_lateral_stiffness * v.semi_wheelbase ** 2
                               / v.primary_yaw_stiffness)
-            self._combination_std = np.tile([cfg.wheelset_lateral_std,
-                                             cfg.wheelset_yaw_std * yaw_gain], n_bogies)
+            self._combination_std = np.tile([params.wheelset_lateral_std_m,
+                                             params.wheelset_yaw_std_rad * yaw_gain], n_bogies)
             n_aug = self.n_states + 2 * self._combination.shape[0]
             yaw_input = np.array([name.startswith('psi') for name in self.input_names])
-            known_std = np.where(yaw_input, cfg.known_input_yaw_std,
-                                 cfg.known_input_lateral_std)
+            known_std = np.where(yaw_input, params.known_input_yaw_std_rad,
+                                 params.known_input_lateral_std_m)
             # Known inputs: the monitored bogie's wheelsets, measured as combinations.
             self._known_sizes = tuple(sorted({0, N_BOGIE_INPUTS, self.n_inputs}))
             self._t_known = {k: self._combination[:k // 2, :k] for k in self._known_sizes}
@@ -436,9 +578,10 @@ class SuspensionImm:
             self._r_sensor, t @ np.diag(known_std[:k] ** 2) @ t.T)
             for k, t in self._t_known.items()}
         # Unmodelled accelerations as white noise on the rate states, integrated over a step.
-        dt = cfg.dt
+        dt = params.dt
         q_model = np.zeros((n_aug, n_aug))
-        lateral_std, yaw_std = cfg.model_accel_noise
+        lateral_std = params.model_lateral_accel_noise_mps2
+        yaw_std = params.model_yaw_accel_noise_rad_s2
         for k, name in enumerate(self.state_names):
             if name.startswith('d'):
                 std = yaw_std if 'psi' in name else lateral_std
@@ -447,17 +590,23 @@ class SuspensionImm:
         self._q_model = q_model
         self._discretized: dict[tuple[float, float], ModeModel] = {}
         self._p0 = self._prior()
-        self.decision = FaultDecision(cfg.fault_threshold, cfg.hold_time, dt)
+        self.decision = FaultDecision(params.fault_threshold, params.hold_time_s, dt)
         self.covariance_repairs = 0
         self.rediscretizations = 0
         self.steady_state_failures = 0
+        # Data time (stamps given to step): the core decides what a gap means.
+        self._period_ns = 1e9 / params.sample_rate_hz
+        self._last_stamp_ns: int | None = None
+        self._max_gap_s = params.max_gap_s
+        self.gap_restarts = 0
+        self.missing_samples = 0
         self._damper_spring = 1.0
         self._build_bank(1.0)
         self.reset()
 
     # ----------------------------------------------------------------------- model bank
     def _model(self, spring: float, damper: float) -> StateSpace:
-        if self.config.estimation_model == 'full_car':
+        if self.params.estimation_model == 'full_car':
             full = full_car_state_space(self.vehicle, self.creep_factor, (spring, 1.0),
                                         (damper, 1.0))
             # The monitored (front) bogie's sensors only.
@@ -471,10 +620,11 @@ class SuspensionImm:
         shipped fault bag, where the adaptive step makes about 100 banks)."""
         key = (self.vehicle.speed, tuple(self.vehicle.wheelset_offsets))
         if self._track_cache is None or self._track_cache[0] != key:
-            cfg = self.config
+            params = self.params
             self._track_cache = (key, track_shaping_model(
-                cfg.track_roughness, cfg.track_corner_wavenumber, cfg.track_long_wavenumber,
-                self.vehicle.speed, self.vehicle.wheelset_offsets, cfg.delay_min_wavelength))
+                params.track_roughness_m_rad, params.track_corner_wavenumber_rad_per_m,
+                params.track_long_wavenumber_rad_per_m,
+                self.vehicle.speed, self.vehicle.wheelset_offsets, params.delay_min_wavelength_m))
         return self._track_cache[1]
 
     def _prior(self) -> np.ndarray:
@@ -485,29 +635,29 @@ class SuspensionImm:
             nominal = self._discretize(1.0, 1.0)
             p = scipy.linalg.solve_discrete_lyapunov(nominal.f, nominal.q)
             return 0.5 * (p + p.T)
-        cfg = self.config
-        initial_std = [_initial_std(name, cfg) for name in self.state_names]
+        params = self.params
+        initial_std = [_initial_std(name, params) for name in self.state_names]
         # Input states w and w' (var(w') = w1 w2 var(w)).
-        poles = (1.0 / cfg.input_correlation_time) * 2.0 * math.pi * cfg.input_bandwidth
+        poles = (1.0 / params.input_correlation_time_s) * 2.0 * math.pi * params.input_bandwidth_hz
         input_var = np.column_stack([self._combination_std ** 2,
                                      poles * self._combination_std ** 2]).ravel()
         return np.diag(np.concatenate([np.square(initial_std), input_var]))
 
     def _discretize(self, spring: float, damper: float) -> ModeModel:
         key = (round(spring, RATIO_DECIMALS), round(damper, RATIO_DECIMALS))
-        shared_key = (self.config, self.vehicle, self.creep_factor, key)
+        shared_key = (self.params, self.vehicle, self.creep_factor, key)
         cached = self._discretized.get(key, _SHARED_DISCRETIZATIONS.get(shared_key))
         if cached is None:
-            cfg = self.config
+            params = self.params
             if self._full_car:
                 track = self._track_model()
-                f, q, h = track_driven_model(self._model(*key), track, cfg.dt)
+                f, q, h = track_driven_model(self._model(*key), track, params.dt)
                 rows = np.hstack([np.zeros((self.n_inputs, self.n_states)), track.c])
                 h_known = {k: np.vstack([h, rows[:k]]) for k in self._known_sizes}
             else:
                 f, q, h = input_shaped_model(self._model(*key), self._combination,
-                                           self._combination_std, cfg.input_correlation_time,
-                                           cfg.input_bandwidth, cfg.dt)
+                                           self._combination_std, params.input_correlation_time_s,
+                                           params.input_bandwidth_hz, params.dt)
                 # Known inputs are extra measurements of the first k // 2 input combinations.
                 eye = np.eye(f.shape[0])
                 h_known = {k: np.vstack([h, eye[self.n_states + 2 * np.arange(k // 2)]])
@@ -519,16 +669,25 @@ class SuspensionImm:
         self._discretized[key] = cached
         return cached
 
+    def update_runtime_params(self, params: SuspensionImmParams) -> None:
+        """The parameters settable at run time changed (``fault_threshold``, ``hold_time_s``,
+        ``max_gap_s``, ``vehicle.speed_mps``; the others are read-only): a new decision rule
+        (nothing pending), the new gap limit, the new speed (:meth:`set_speed`)."""
+        self.decision = FaultDecision(params.fault_threshold, params.hold_time_s,
+                                      self.params.dt)
+        self._max_gap_s = params.max_gap_s
+        self.set_speed(params.vehicle.speed_mps)
+
     def set_speed(self, speed: float) -> None:
         """The forward speed changed (full car: creep forces, track bandwidth and delays
         depend on it): re-discretise the bank, keeping states and probabilities. Ignored when
-        it moved by less than ``speed_resolution`` since the last re-discretisation."""
+        it moved by less than ``speed_resolution_mps`` since the last re-discretisation."""
         if not (math.isfinite(speed) and speed > 0.0):
             raise ValueError(f'speed must be finite and > 0, got {speed}')
         if not self._full_car:
             self.vehicle = self.vehicle.with_speed(speed)   # not used by the half car
             return
-        if abs(speed - self.vehicle.speed) < self.config.speed_resolution:
+        if abs(speed - self.vehicle.speed) < self.params.speed_resolution_mps:
             return
         self.vehicle = self.vehicle.with_speed(speed)
         self._rediscretize()
@@ -543,7 +702,7 @@ class SuspensionImm:
         if not (math.isfinite(creep_factor) and 0.0 < creep_factor <= MAX_CREEP_FACTOR):
             raise ValueError(f'creep_factor must be in (0, {MAX_CREEP_FACTOR}], got '
                              f'{creep_factor}')
-        step = self.config.creep_resolution
+        step = self.params.creep_resolution
         if not self._full_car or abs(creep_factor - self.creep_factor) <= 0.75 * step:
             return
         self.creep_factor = round(max(step, round(creep_factor / step) * step),
@@ -593,12 +752,12 @@ class SuspensionImm:
     # ----------------------------------------------------------------------- state
     def reset(self) -> None:
         """Restart: mode 1 (normal) with probability 1, states at rest with the prior P."""
-        cfg = self.config
-        if self.config.adaptive and self._damper_spring != 1.0:
+        params = self.params
+        if self.params.adaptive and self._damper_spring != 1.0:
             self._build_bank(1.0)
         self.mu = np.zeros(self.n_modes)
         self.mu[0] = 1.0
-        self._smoothing = np.zeros((cfg.smoothing_samples, self.n_modes))
+        self._smoothing = np.zeros((params.smoothing_samples, self.n_modes))
         self._smoothing_sum = np.zeros(self.n_modes)
         self._smoothing_count = 0
         self.smoothed = self.mu.copy()
@@ -667,7 +826,7 @@ class SuspensionImm:
         """Mode-matched update with z: the 3 sensors then ``known`` known inputs (as
         combinations), noise r; log-likelihoods."""
         h, ht = self._h[known], self._ht[known]
-        residual = z - np.einsum('mij,mj->mi', h, self.x)
+        y = z - np.einsum('mij,mj->mi', h, self.x)                    # residuals
         pht = self.P @ ht                                             # (M, n, p)
         s = h @ pht + r
         s = 0.5 * (s + s.transpose(0, 2, 1))
@@ -679,16 +838,16 @@ class SuspensionImm:
             s = h @ pht + r
             s = 0.5 * (s + s.transpose(0, 2, 1))
             chol = np.linalg.cholesky(s)
-        # S^-1 [H P, residual] in one batched solve: the gain's transpose and S^-1 residual.
+        # S^-1 [H P, y] in one batched solve: the gain's transpose and S^-1 y.
         solved = np.linalg.solve(s, np.concatenate(
-            [pht.transpose(0, 2, 1), residual[:, :, None]], axis=2))
-        s_inv_res = solved[:, :, -1]
-        self.x = self.x + np.einsum('mij,mj->mi', pht, s_inv_res)
+            [pht.transpose(0, 2, 1), y[:, :, None]], axis=2))
+        s_inv_y = solved[:, :, -1]
+        self.x = self.x + np.einsum('mij,mj->mi', pht, s_inv_y)
         # P - K S K^T, symmetrised (half the products of the Joseph form on the batch);
         # positive definiteness is checked every step through S and periodically in full.
         p = self.P - pht @ solved[:, :, :-1]
         self.P = 0.5 * (p + p.transpose(0, 2, 1))
-        return _log_likelihood(residual, s_inv_res, chol)
+        return _log_likelihood(y, s_inv_y, chol)
 
     def _steady_cycle(self, z: np.ndarray | None, steady: tuple[np.ndarray, ...]) -> None:
         """The IMM cycle on the steady-state covariances plus the mixing's spread of means
@@ -709,7 +868,7 @@ class SuspensionImm:
         self._cbar = np.empty(self.n_modes)
         valid = steady_imm_cycle(self.x, self.mu, self.transition, self._f_top, self._f_input_t,
                                  hf_rows, prior_ht, s_ss, _NO_MEASUREMENT if z is None else z,
-                                 self.config.probability_floor, x, mu, self._cbar)
+                                 self.params.probability_floor, x, mu, self._cbar)
         self.P = posterior
         if valid:
             self.x, self.mu = x, mu
@@ -746,7 +905,7 @@ class SuspensionImm:
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (the voting modes' weighted ratio,
         :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`)."""
-        quantum = self.config.adaptation_resolution
+        quantum = self.params.adaptation_resolution
         snapped = round(round(self.spring_ratio / quantum) * quantum, RATIO_DECIMALS)
         if snapped != self._damper_spring:
             self._build_bank(snapped)
@@ -787,8 +946,8 @@ class SuspensionImm:
         if known and z is not None and u is not None:
             z = np.concatenate([z, self._t_known[known] @ u])
         steady = None
-        warm = self.config.warmup_samples
-        if self.config.steady_state_gains and self._steps >= warm and (
+        warm = self.params.warmup_samples
+        if self.params.steady_state_gains and self._steps >= warm and (
                 self._bank_age >= warm or known in self._steady_bank
                 or all(known in m.steady for m in self._mode_models)):
             steady = self._steady_state_bank(known)
@@ -802,15 +961,15 @@ class SuspensionImm:
                 log_lik = self._update(z, known, self._r[known])
                 mu = np.empty(self.n_modes)
                 posterior_probabilities(log_lik + np.log(np.maximum(self._cbar, CBAR_FLOOR)),
-                                        self.config.probability_floor, mu)
+                                        self.params.probability_floor, mu)
                 self.mu = mu
         self._steps += 1
         self._bank_age += 1
-        if (steady is None and self.config.spd_check_interval
-                and self._steps % self.config.spd_check_interval == 0):
+        if (steady is None and self.params.spd_check_interval
+                and self._steps % self.params.spd_check_interval == 0):
             self._repair_covariances()
         self._smooth_and_decide()
-        if self.config.adaptive and z is not None:
+        if self.params.adaptive and z is not None:
             self._adapt()
 
     def _smooth_and_decide(self) -> None:
@@ -818,7 +977,7 @@ class SuspensionImm:
         ratios = np.empty(2)
         smooth_probabilities(self.mu, self._smoothing, self._smoothing_sum,
                              self._smoothing_count, self.smoothed, self._mode_ratios,
-                             self.config.estimate_min_probability, ratios)
+                             self.params.estimate_min_probability, ratios)
         self._smoothing_count += 1
         self._mode_spring_used = self.mode_spring_ratio
         self.spring_ratio, self.damper_ratio = ratios.tolist()
@@ -826,8 +985,35 @@ class SuspensionImm:
                           minlength=len(self.hypotheses))
         self.fault = self.decision.update(self.hypotheses, hyp)
 
+    def predict_through_gap(self, gap_s: float) -> int:
+        """Bridge a gap of ``gap_s`` between the last sample and the next by predict-only
+        cycles, one per missing sample (round(gap_s / dt) - 1), each updating the
+        probabilities, their smoothing and the decision as a missing sample does (no result is
+        built). Returns the number of samples predicted."""
+        return self._predict_samples(int(round(gap_s * self.params.sample_rate_hz)) - 1)
+
+    def _predict_samples(self, n: int) -> int:
+        for _ in range(max(0, n)):
+            self.advance(None)
+        self.missing_samples += max(0, n)
+        return max(0, n)
+
+    def _follow_time(self, stamp_ns: int) -> None:
+        """Data time: a gap of up to ``max_gap_s`` since the last sample is bridged by
+        prediction (the models are discretised at the nominal rate); a longer one restarts the
+        states (the motion is unknown, the suspension is not: probabilities kept)."""
+        last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+        if last is None:
+            return
+        if (stamp_ns - last) * 1e-9 > self._max_gap_s:
+            self.gap_restarts += 1
+            self.reset_states()
+        else:
+            self._predict_samples(int(round((stamp_ns - last) / self._period_ns)) - 1)
+
     def step(self, measurement: np.ndarray | Sequence[float] | None,
-             known_input: np.ndarray | Sequence[float] | None = None) -> ImmStep:
+             known_input: np.ndarray | Sequence[float] | None = None,
+             stamp_ns: int | None = None) -> ImmStep:
         """One sample.
 
         Args:
@@ -839,7 +1025,12 @@ class SuspensionImm:
                 noise). Full car: the alignment under the front bogie's two wheelsets, (2,),
                 or under all four, (4,), m, front to rear. Half car: (4,) the wheelset inputs
                 [y_w1, y_w2, psi_w1, psi_w2] (``wheelset_inputs_from_track``).
+            stamp_ns: the sample's stamp, ns, increasing (the caller rejects repeated and
+                out-of-order stamps); the gap since the previous stamped sample is bridged or
+                restarts the states (``max_gap_s``). None: the sample follows the previous one.
         """
+        if stamp_ns is not None:
+            self._follow_time(stamp_ns)
         z, u, reason = self._check_input(measurement, known_input)
         self.advance(z, u)
         return ImmStep(
@@ -864,11 +1055,11 @@ class SuspensionImm:
         return x, 0.5 * (cov + cov.T)
 
 
-def _initial_std(name: str, cfg: SuspensionImmConfig) -> float:
+def _initial_std(name: str, params: SuspensionImmParams) -> float:
     """Prior std of a model state by its kind (lateral or yaw, displacement or rate)."""
     rate = name.startswith('d')
     yaw = 'psi' in name
-    return {(False, False): cfg.initial_displacement_std,
-            (True, False): cfg.initial_velocity_std,
-            (False, True): cfg.initial_yaw_std,
-            (True, True): cfg.initial_yaw_rate_std}[(rate, yaw)]
+    return {(False, False): params.initial_displacement_std_m,
+            (True, False): params.initial_velocity_std_mps,
+            (False, True): params.initial_yaw_std_rad,
+            (True, True): params.initial_yaw_rate_std_rad_s}[(rate, yaw)]

@@ -79,7 +79,7 @@ def generate_mode_set(spring_start: float = 1.1, spring_stop: float = 1.7,
     return tuple(modes)
 
 
-def markov_transition_matrix(n_modes: int, mean_sojourn_time: float, dt: float) -> np.ndarray:
+def markov_transition_matrix(n_modes: int, mean_sojourn_time_s: float, dt: float) -> np.ndarray:
     """Mode transition matrix Pi: Pi[i, j] = P(mode j at k+1 | mode i at k); rows sum to 1.
 
     A mode is left with probability dt / tau per step (mean sojourn time tau, geometric), to
@@ -87,17 +87,17 @@ def markov_transition_matrix(n_modes: int, mean_sojourn_time: float, dt: float) 
 
     Args:
         n_modes: number of modes, >= 2.
-        mean_sojourn_time: tau, s, > dt.
+        mean_sojourn_time_s: tau, s, > dt.
         dt: sample period, s.
     """
     if n_modes < 2:
         raise ValueError(f'n_modes must be >= 2, got {n_modes}')
     if not (math.isfinite(dt) and dt > 0.0):
         raise ValueError(f'dt must be finite and > 0, got {dt}')
-    if not (math.isfinite(mean_sojourn_time) and mean_sojourn_time > dt):
-        raise ValueError(f'mean_sojourn_time must be finite and > dt = {dt}, '
-                         f'got {mean_sojourn_time}')
-    leave = dt / mean_sojourn_time
+    if not (math.isfinite(mean_sojourn_time_s) and mean_sojourn_time_s > dt):
+        raise ValueError(f'mean_sojourn_time_s must be finite and > dt = {dt}, '
+                         f'got {mean_sojourn_time_s}')
+    leave = dt / mean_sojourn_time_s
     matrix = np.full((n_modes, n_modes), leave / (n_modes - 1))
     np.fill_diagonal(matrix, 1.0 - leave)
     return matrix

@@ -124,7 +124,7 @@ class TrackShapingModel:
 
 def track_shaping_model(roughness: float, corner_wavenumber: float, long_wavenumber: float,
                         speed: float, offsets: Sequence[float] | np.ndarray,
-                        delay_min_wavelength: float) -> TrackShapingModel:
+                        delay_min_wavelength_m: float) -> TrackShapingModel:
     """Alignment under wheelsets at the given distances behind the first, at a speed.
 
     The alignment spectrum A Omega_c^2 / ((Omega^2 + Omega_r^2)(Omega^2 + Omega_c^2)) is white
@@ -133,7 +133,7 @@ def track_shaping_model(roughness: float, corner_wavenumber: float, long_wavenum
     pi A Omega_c / (2 Omega_r (Omega_r + Omega_c)), independent of v. The states are the
     alignment under the first wheelset and its rate. A wheelset d behind the previous one sees
     that alignment delayed by d / v: a cascade of [2/2] Pade sections of d / v / n each, n =
-    ceil(pi d / delay_min_wavelength), so every section stays within omega tau <= 2 down to
+    ceil(pi d / delay_min_wavelength_m), so every section stays within omega tau <= 2 down to
     that wavelength at any speed (the state count does not change with speed).
 
     Args:
@@ -142,11 +142,11 @@ def track_shaping_model(roughness: float, corner_wavenumber: float, long_wavenum
         long_wavenumber: Omega_r, rad/m.
         speed: v, m/s.
         offsets: distance of each wheelset behind the first, m, non-decreasing, first 0.
-        delay_min_wavelength: shortest wavelength the delays are accurate for, m.
+        delay_min_wavelength_m: shortest wavelength the delays are accurate for, m.
     """
     for name, value in (('roughness', roughness), ('corner_wavenumber', corner_wavenumber),
                         ('long_wavenumber', long_wavenumber), ('speed', speed),
-                        ('delay_min_wavelength', delay_min_wavelength)):
+                        ('delay_min_wavelength_m', delay_min_wavelength_m)):
         if not (math.isfinite(value) and value > 0.0):
             raise ValueError(f'{name} must be finite and > 0, got {value}')
     d = np.asarray(offsets, dtype=float)
@@ -162,7 +162,7 @@ def track_shaping_model(roughness: float, corner_wavenumber: float, long_wavenum
     couplings: list[tuple[int, np.ndarray]] = []
     source = outputs[0]
     for gap in np.diff(d):
-        n = max(1, math.ceil(math.pi * gap / delay_min_wavelength)) if gap > 0.0 else 0
+        n = max(1, math.ceil(math.pi * gap / delay_min_wavelength_m)) if gap > 0.0 else 0
         for _ in range(n):
             sa, sb, sc, sd = _pade_section(gap / speed / n)
             blocks_a.append(sa)

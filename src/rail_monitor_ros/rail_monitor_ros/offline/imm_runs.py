@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from rail_monitor_ros.core.rail_model import RailVehicleParams
-from rail_monitor_ros.core.suspension_imm import N_OUTPUTS, SuspensionImm, SuspensionImmConfig
+from rail_monitor_ros.core.suspension_imm import N_OUTPUTS, SuspensionImm, SuspensionImmParams
 from rail_monitor_ros.core.suspension_modes import SuspensionMode
 from vehicle_monitor_common.figures import pyplot, save_figure
 
@@ -76,7 +76,7 @@ class ImmRunResult:
 
 
 def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None = None,
-                       config: SuspensionImmConfig | None = None,
+                       params: SuspensionImmParams | None = None,
                        vehicle: RailVehicleParams | None = None, time: np.ndarray | None = None,
                        truth_spring_ratio: np.ndarray | None = None,
                        truth_damper_ratio: np.ndarray | None = None,
@@ -87,16 +87,16 @@ def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None
         measurements: (N, 3) [bogie lateral accel, bogie yaw rate, body lateral accel].
         known_inputs: (N, k) known inputs per sample (see :meth:`SuspensionImm.step`: full
             car (N, 2) or (N, 4) track alignment; half car (N, 4) wheelset inputs), or None.
-        config: IMM configuration.
-        vehicle: model parameters (Table 1 defaults).
-        time: (N,) s; default k / sample_rate.
+        params: the IMM's parameters.
+        vehicle: model parameters (default: ``params.vehicle``).
+        time: (N,) s; default k / sample_rate_hz.
         truth_spring_ratio, truth_damper_ratio: (N,) ground truth kept for plots.
         store_covariance: also keep the (N, n, n) combined covariance (slower).
     """
     z = np.asarray(measurements, dtype=float)
     if z.ndim != 2 or z.shape[1] != N_OUTPUTS:
         raise ValueError(f'measurements must have shape (N, {N_OUTPUTS}), got {z.shape}')
-    imm = SuspensionImm(config, vehicle)
+    imm = SuspensionImm(params, vehicle)
     u = None
     if known_inputs is not None:
         u = np.asarray(known_inputs, dtype=float)
@@ -104,7 +104,7 @@ def run_suspension_imm(measurements: np.ndarray, known_inputs: np.ndarray | None
             raise ValueError(f'known_inputs must have shape ({z.shape[0]}, one of '
                              f'{imm._known_sizes[1:]}), got {u.shape}')
     n, m = z.shape[0], imm.n_modes
-    t = np.arange(n) / imm.config.sample_rate if time is None else np.asarray(time, float)
+    t = np.arange(n) / imm.params.sample_rate_hz if time is None else np.asarray(time, float)
     if t.shape != (n,):
         raise ValueError(f'time must have shape ({n},), got {t.shape}')
     prob = np.empty((n, m))
