@@ -24,7 +24,7 @@ import numpy as np
 from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     LateralForceTrack,
-    ObserverTuning,
+    ObserverTuningParams,
     ObserverVehicleParams,
 )
 from tpms_ros.offline.lateral_force_tuning import (
@@ -161,7 +161,8 @@ def tune() -> None:
     """The reproducible gain search on the paper's worst case (the shipped scenario, mass
     +200 kg, friction drop), run identically for the SKFMEC and the plain EKF (fair)."""
     case = paper_case()
-    for label, start in (('SKFMEC', ObserverTuning()), ('plain EKF', ObserverTuning.plain())):
+    for label, start in (('SKFMEC', ObserverTuningParams()),
+                         ('plain EKF', ObserverTuningParams.plain())):
         result = tune_gains([case], base=start)
         tn = result.tuning
         print(f'{label}: worst-wheel error {result.score:.2f} % q_diag={tn.q_diag} '
@@ -174,16 +175,17 @@ def zeta_calibration() -> ZetaCalibration:
     return calibrate_zeta(ObserverVehicleParams(), case.dt, case.ay, case.p)
 
 
-def variants(zeta: tuple[float, float]) -> dict[str, tuple[dict[str, float], ObserverTuning]]:
+def variants(zeta: tuple[float, float]
+             ) -> dict[str, tuple[dict[str, float], ObserverTuningParams]]:
     """Name -> (vehicle-parameter overrides, tuning). 'paper split' is the paper's relation 2
     (split_exponent 1); the others use the load-sensitive split (the improvement)."""
     return {
-        'SKFMEC': ({}, ObserverTuning()),
-        'SKFMEC, paper split': ({'split_exponent': 1.0}, ObserverTuning()),
-        'SKFMEC, calibrated zeta': ({}, ObserverTuning(zeta=zeta)),
-        'scaled EKF, no MEC': ({}, ObserverTuning(mec=False)),
-        'plain EKF': ({}, ObserverTuning.plain()),
-        'plain EKF, paper split': ({'split_exponent': 1.0}, ObserverTuning.plain()),
+        'SKFMEC': ({}, ObserverTuningParams()),
+        'SKFMEC, paper split': ({'split_exponent': 1.0}, ObserverTuningParams()),
+        'SKFMEC, calibrated zeta': ({}, ObserverTuningParams(zeta=zeta)),
+        'scaled EKF, no MEC': ({}, ObserverTuningParams(mec=False)),
+        'plain EKF': ({}, ObserverTuningParams.plain()),
+        'plain EKF, paper split': ({'split_exponent': 1.0}, ObserverTuningParams.plain()),
     }
 
 

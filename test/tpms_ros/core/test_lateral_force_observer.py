@@ -19,7 +19,7 @@ from scipy import signal
 
 from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
-    ObserverTuning,
+    ObserverTuningParams,
     ObserverVehicleParams,
     differentiator_coefficients,
     split_lateral,
@@ -79,11 +79,11 @@ def test_params_reject_sprung_above_total_mass() -> None:
 
 
 @pytest.mark.parametrize(('field', 'value'), [('q_diag', (1.0,) * 6), ('r_std', (0.1,) * 4),
-                                              ('gp', (1.0, math.nan)), ('max_dt', -1.0)])
+                                              ('gp', (1.0, math.nan)), ('max_dt_s', -1.0)])
 def test_tuning_rejects_bad_values(field: str, value: Any) -> None:
     """Wrong sizes or non-finite filter settings raise ValueError naming the field."""
     with pytest.raises(ValueError, match=field):
-        ObserverTuning(**{field: value})
+        ObserverTuningParams(**{field: value})
 
 
 def test_from_mapping_reads_known_keys() -> None:
@@ -95,7 +95,7 @@ def test_from_mapping_reads_known_keys() -> None:
 def test_zeta_is_the_model_steady_state() -> None:
     """In a steady turn with Fyf = z1 phi, Fyr = z2 phi the model's r', p' and vy'+r vx vanish
     consistently: the roll row balances exactly at the zeta the model reports."""
-    obs = LateralForceObserver(tuning=ObserverTuning(scaled=False))
+    obs = LateralForceObserver(tuning=ObserverTuningParams(scaled=False))
     params = obs.params
     z1, z2 = params.zeta
     phi = 0.02
@@ -171,8 +171,8 @@ def test_skfmec_versus_plain_ekf(paper_case: TuningCase, nominal_mass_case: Tuni
     the same scaled EKF without it. Model mass 20 % too high: the SKFMEC is far better (axle
     16.5 vs 29.8 %), which is where the MEC earns its keep."""
     skf = paper_case.run()
-    plain = paper_case.run(tuning=ObserverTuning.plain())
-    no_mec = paper_case.run(tuning=ObserverTuning(mec=False))
+    plain = paper_case.run(tuning=ObserverTuningParams.plain())
+    no_mec = paper_case.run(tuning=ObserverTuningParams(mec=False))
     skf_worst = np.max(fy_error_percent(skf, paper_case.fy_true))
     plain_worst = np.max(fy_error_percent(plain, paper_case.fy_true))
     assert abs(skf_worst - plain_worst) < 1.0, (skf_worst, plain_worst)
@@ -182,7 +182,7 @@ def test_skfmec_versus_plain_ekf(paper_case: TuningCase, nominal_mass_case: Tuni
     assert np.all(axle_plain < axle_skf) and np.all(axle_skf - axle_plain < 2.0)
     heavy = ObserverVehicleParams(m=1814.0 * 1.2, ms=1661.0 * 1.2)
     skf_heavy = _axle_error_percent(nominal_mass_case.run(heavy), nominal_mass_case.fy_true)
-    plain_heavy = _axle_error_percent(nominal_mass_case.run(heavy, ObserverTuning.plain()),
+    plain_heavy = _axle_error_percent(nominal_mass_case.run(heavy, ObserverTuningParams.plain()),
                                       nominal_mass_case.fy_true)
     assert np.all(skf_heavy < plain_heavy - 8.0), (skf_heavy, plain_heavy)
 
@@ -246,7 +246,7 @@ def test_mass_error_bias_is_bounded(factor: float, nominal_mass_case: TuningCase
 def test_diverging_tuning_resets_instead_of_crashing(paper_case: TuningCase) -> None:
     """An unstable tuning (plain EKF with huge roll-state noise) makes the prediction blow up;
     the filter restarts (counted) and never outputs non-finite forces."""
-    tuning = ObserverTuning.plain(q_diag=(0.01, 0.1, 0.1, 1e5, 1e5, 3.0, 3.0))
+    tuning = ObserverTuningParams.plain(q_diag=(0.01, 0.1, 0.1, 1e5, 1e5, 3.0, 3.0))
     observer = LateralForceObserver(tuning=tuning)
     c = paper_case
     with np.errstate(all='ignore'):
@@ -286,7 +286,7 @@ def test_bad_samples_rejected_without_corrupting(paper_case: TuningCase) -> None
 
 
 def test_gap_restarts_filter(paper_case: TuningCase) -> None:
-    """A time gap longer than max_dt restarts the filter (counted) instead of predicting."""
+    """A time gap longer than max_dt_s restarts the filter (counted) instead of predicting."""
     obs, c = LateralForceObserver(), paper_case
     for k in range(50):
         obs.step(c.ax[k], c.ay[k], c.r[k], c.p[k], c.omega[k], c.wheel_torque[k], c.steer[k],
@@ -320,7 +320,7 @@ def test_tune_gains_never_worse_than_base(paper_case: TuningCase) -> None:
     short = replace(c, ax=c.ax[:500], ay=c.ay[:500], r=c.r[:500], p=c.p[:500],
                     omega=c.omega[:500], wheel_torque=c.wheel_torque[:500],
                     steer=c.steer[:500], fy_true=c.fy_true[:500])
-    base = ObserverTuning()
+    base = ObserverTuningParams()
     result = tune_gains([short], base=base, force_q=(0.3, 1.0), ay_std=(0.3,), gp=(0.0, 20.0),
                         gy=(0.0,), passes=1)
     base_score = result.trials[0][1]

@@ -57,13 +57,15 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     """The node starts with its defaults (SPEC §4 vehicle) and with the shipped YAML, which
     sets every parameter."""
     default = make_node(LateralForceObserverNode)
-    assert default.parameters.m == 1814.0 and default.parameters.tf == 0.784
+    assert default.vehicle_parameters.m == 1814.0 and default.vehicle_parameters.tf == 0.784
     node = make_node(LateralForceObserverNode, node_name='lateral_force_observer',
                      cli_args=['--ros-args', '--params-file', str(CONFIG)])
     shipped = yaml.safe_load(CONFIG.read_text())['lateral_force_observer']['ros__parameters']
-    assert set(shipped) == {f.name for f in dataclasses.fields(node.parameters)}
+    groups = (node.vehicle_parameters, node.tuning_parameters, node.parameters)
+    owner = {f.name: group for group in groups for f in dataclasses.fields(group)}
+    assert set(shipped) == set(owner)
     for name, value in shipped.items():
-        got = getattr(node.parameters, name)
+        got = getattr(owner[name], name)
         assert (list(got) if isinstance(got, tuple) else got) == pytest.approx(value), name
     assert node.observer.params == default.observer.params
     assert node.observer.tuning == default.observer.tuning
@@ -89,7 +91,7 @@ def test_invalid_parameters_refused_at_runtime(make_node: Callable[..., Any]) ->
     assert not result.successful and 'ms' in result.reason
     (result,) = node.set_parameters([Parameter('gp', value=[1.0])])
     assert not result.successful and 'gp' in result.reason
-    assert node.parameters.ms == 1661.0
+    assert node.vehicle_parameters.ms == 1661.0
     (result,) = node.set_parameters([Parameter('m', value=2014.0)])
     assert result.successful and node.observer.params.m == 2014.0
 
@@ -231,6 +233,5 @@ def test_bad_input_stale_topics_and_validity(
     feeder.send(node, 90, 100, ay=6.0)   # 0.61 g
     assert spin_until(lambda: len(feeder.outputs) >= 90, 5.0)
     assert not feeder.outputs[-1].within_validity
-    node._diagnostics.publish()
     assert spin_until(lambda: any('above 0.5 g' in s.message and s.level == bytes([1])
                                   for s in feeder.status), 5.0)

@@ -61,8 +61,8 @@ Relation 1, zeta: by default the model's own steady state (``ObserverVehiclePara
 Fig. 3 manoeuvre (a slow steer ramp) with the IMU alone, which captures the roll the model
 leaves out (tire vertical compliance).
 
-The plain EKF is the same code with ``ObserverTuning(scaled=False, mec=False)``: S = I, no
-compensator; ``ObserverTuning.plain()`` adds its own Q from the same tuning search (a fair
+The plain EKF is the same code with ``ObserverTuningParams(scaled=False, mec=False)``: S = I, no
+compensator; ``ObserverTuningParams.plain()`` adds its own Q from the same tuning search (a fair
 comparison).
 """
 
@@ -76,6 +76,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
 G = 9.81
@@ -99,27 +100,30 @@ class ObserverVehicleParams:
     the same field names.
     """
 
-    m: float = 1814.0           # total mass, kg
-    ms: float = 1661.0          # sprung mass, kg
-    iz: float = 2560.0          # yaw inertia, kg m^2
-    ix: float = 580.0           # roll inertia of the sprung mass about its CG, kg m^2
-    iw: float = 2.0             # wheel spin inertia, kg m^2
-    lf: float = 1.076           # CG to front axle, m
-    lr: float = 1.617           # CG to rear axle, m
-    h: float = 0.55             # CG height, m
-    hf: float = 0.114           # front roll centre height, m
-    hr: float = 0.004           # rear roll centre height, m
-    e: float = 0.48             # roll axis to sprung CG, m
-    rw: float = 0.305           # wheel rolling radius, m
-    tf: float = 0.784           # front half track, m
-    tr: float = 0.760           # rear half track, m
-    kphi_f: float = 108205.8    # front roll stiffness, N m/rad
-    kphi_r: float = 81436.7     # rear roll stiffness, N m/rad
-    cphi_f: float = 826.8       # front roll damping, N m s/rad
-    cphi_r: float = 658.9       # rear roll damping, N m s/rad
-    # Load exponent of the left/right split Fyi ~ Fzi^split_exponent (tire data, see the
-    # module docstring). 1.0 is the paper's proportional relation 2.
-    split_exponent: float = 0.6
+    m: float = param(1814.0, 'total vehicle mass, kg', low=1.0, high=1e5)
+    ms: float = param(1661.0, 'sprung mass, kg (<= m)', low=1.0, high=1e5)
+    iz: float = param(2560.0, 'yaw inertia, kg m^2', low=1.0, high=1e6)
+    ix: float = param(580.0, 'roll inertia of the sprung mass about its CG, kg m^2', low=1.0,
+                      high=1e6)
+    iw: float = param(2.0, 'wheel spin inertia, kg m^2', low=1e-3, high=100.0)
+    lf: float = param(1.076, 'CG to front axle, m', low=0.1, high=10.0)
+    lr: float = param(1.617, 'CG to rear axle, m', low=0.1, high=10.0)
+    h: float = param(0.55, 'CG height, m', low=0.05, high=5.0)
+    hf: float = param(0.114, 'front roll centre height, m', low=-2.0, high=5.0)
+    hr: float = param(0.004, 'rear roll centre height, m', low=-2.0, high=5.0)
+    e: float = param(0.48, 'roll axis to sprung-mass CG, m', low=-2.0, high=5.0)
+    rw: float = param(0.305, 'wheel rolling radius, m', low=0.05, high=2.0)
+    tf: float = param(0.784, 'front HALF track, m', low=0.1, high=3.0)
+    tr: float = param(0.760, 'rear HALF track, m', low=0.1, high=3.0)
+    kphi_f: float = param(108205.8, 'front roll stiffness, N m/rad', low=1.0, high=1e8)
+    kphi_r: float = param(81436.7, 'rear roll stiffness, N m/rad', low=1.0, high=1e8)
+    cphi_f: float = param(826.8, 'front roll damping, N m s/rad', low=0.0, high=1e7)
+    cphi_r: float = param(658.9, 'rear roll damping, N m s/rad', low=0.0, high=1e7)
+    # Tire data, see the module docstring.
+    split_exponent: float = param(
+        0.6, 'left/right split of each axle force by Fz^exponent: 1 is the '
+        "paper's proportional split, below 1 follows the tires' load sensitivity (tire data)",
+        low=0.1, high=2.0)
 
     def __post_init__(self) -> None:
         positive = ('m', 'ms', 'iz', 'ix', 'iw', 'lf', 'lr', 'h', 'rw', 'tf', 'tr',
@@ -173,7 +177,7 @@ class ObserverVehicleParams:
 
 
 @dataclass(frozen=True)
-class ObserverTuning:
+class ObserverTuningParams:
     """Filter settings. Defaults: chosen by ``tune_gains`` on the paper's worst case (the shipped
     ``kim_huh_lateral.yaml``: 14-DOF truth, mass +200 kg, friction drop;
     ``benchmarks/bench_lateral_force_observer.py tune``, started from the previous defaults):
@@ -186,48 +190,66 @@ class ObserverTuning:
     physical otherwise.
     """
 
-    scaled: bool = True
-    mec: bool = True
-    scaling: tuple[float, ...] = PAPER_SCALING
-    q_diag: tuple[float, ...] = (1e-2, 1e-1, 1e-1, 1e-1, 1e1, 10.0, 10.0)   # per second
-    p0_diag: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-    # measurement noise std: ax, ay (m/s^2), r, p (rad/s), vx from wheel speeds (m/s)
-    r_std: tuple[float, ...] = (0.3, 1.0, 0.005, 0.005, 0.5)
-    # MEC gain r -> (Fyf*, Fyr*), scaled units per (rad/s) per s
-    gp: tuple[float, float] = (20.0, -20.0)
-    gy: tuple[float, float] = (1000.0, 300.0)   # MEC gain ay -> load transfer (front, rear), kg
-    zeta: tuple[float, float] | None = None     # None: from the vehicle model
-    imu_gravity_tilt: bool = True               # ay_hat includes g sin(phi) (body-fixed IMU)
-    wheel_accel_tau: float = 0.02               # differentiator time constant, s
-    validity_ay: float = 0.5 * G                # relations hold below this |ay|, m/s^2
-    max_accel: float = 3.0 * G                  # |ax|,|ay| above this: saturated sensor
-    max_rate: float = 3.0                       # |r|,|p| above this (rad/s): rejected
-    max_wheel_speed: float = 400.0              # rad/s (about 440 km/h at rw 0.3 m)
-    max_steer: float = 0.8                      # rad
-    max_torque: float = 2.0e4                   # N m per wheel
-    max_dt: float = 0.2                         # a longer gap restarts the filter, s
+    scaled: bool = param(True, 'EKF on the scaled state x* = S x (false with mec false: the '
+                         'plain EKF)')
+    mec: bool = param(True, 'model error compensator (Gp on yaw rate, Gy on ay)')
+    scaling: tuple[float, ...] = param(PAPER_SCALING, 'state scaling S for [vx, vy, r, phi, p, '
+                                       'Fyf, Fyr]')
+    q_diag: tuple[float, ...] = param((1e-2, 1e-1, 1e-1, 1e-1, 1e1, 10.0, 10.0),
+                                      'process noise spectral density per state, filter '
+                                      'coordinates, per s')
+    p0_diag: tuple[float, ...] = param((1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0), 'initial '
+                                       'covariance per state, filter coordinates')
+    r_std: tuple[float, ...] = param((0.3, 1.0, 0.005, 0.005, 0.5), 'measurement noise std: '
+                                     'ax, ay (m/s^2), r, p (rad/s), vx from wheel speeds (m/s)')
+    gp: tuple[float, ...] = param((20.0, -20.0), 'MEC gain yaw-rate error -> (Fyf*, Fyr*), '
+                                  'scaled units per (rad/s) per s')
+    gy: tuple[float, ...] = param((1000.0, 300.0), 'MEC gain ay error -> load transfer '
+                                  '(front, rear), kg')
+    zeta: tuple[float, ...] = param((), 'relation 1 (z1, z2) = (Fyf/phi, Fyr/phi), N/rad, e.g. '
+                                    'from offline.lateral_force_tuning.calibrate_zeta; empty: '
+                                    "the vehicle model's own steady state")
+    imu_gravity_tilt: bool = param(True, 'the IMU is fixed to the rolling body (its ay reads '
+                                   'g sin(phi))')
+    wheel_accel_tau_s: float = param(0.02, 'time constant of the wheel-acceleration '
+                                     'differentiator, s', low=1e-3, high=1.0)
+    validity_ay_mps2: float = param(0.5 * G, 'the load-ratio relations hold below this |ay| '
+                                    '(0.5 g), m/s^2', low=0.5, high=20.0)
+    max_accel_mps2: float = param(3.0 * G, '|ax| or |ay| above this is a saturated sensor: '
+                                  'the sample is rejected, m/s^2', low=1.0, high=1000.0)
+    max_rate_rad_s: float = param(3.0, '|r| or |p| above this is rejected, rad/s', low=0.1,
+                                  high=100.0)
+    max_wheel_speed_rad_s: float = param(400.0, 'a wheel speed above this (about 440 km/h at '
+                                         'rw 0.3 m) is rejected, rad/s', low=1.0, high=5000.0)
+    max_steer_rad: float = param(0.8, '|steering angle| above this is rejected, rad', low=0.01,
+                                 high=10.0)
+    max_torque_nm: float = param(2.0e4, '|wheel torque| above this is rejected, N m per wheel',
+                                 low=1.0, high=1e6)
+    max_dt_s: float = param(0.2, 'an IMU gap longer than this restarts the filter, s',
+                            low=0.011, high=10.0)
 
     def __post_init__(self) -> None:
         for name, size in (('scaling', _N_X), ('q_diag', _N_X), ('p0_diag', _N_X),
                            ('r_std', _N_Y), ('gp', 2), ('gy', 2)):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (size,) or not np.all(np.isfinite(value)):
-                raise ValueError(f'ObserverTuning.{name} must be {size} finite numbers, '
+                raise ValueError(f'ObserverTuningParams.{name} must be {size} finite numbers, '
                                  f'got {getattr(self, name)}')
         for name in ('scaling', 'p0_diag', 'r_std'):
             if not np.all(np.asarray(getattr(self, name)) > 0.0):
-                raise ValueError(f'ObserverTuning.{name} must be > 0')
+                raise ValueError(f'ObserverTuningParams.{name} must be > 0')
         if not np.all(np.asarray(self.q_diag) >= 0.0):
-            raise ValueError('ObserverTuning.q_diag must be >= 0')
-        if self.zeta is not None and (len(self.zeta) != 2 or not all(
+            raise ValueError('ObserverTuningParams.q_diag must be >= 0')
+        if self.zeta and (len(self.zeta) != 2 or not all(
                 math.isfinite(z) and z > 0.0 for z in self.zeta)):
-            raise ValueError(f'ObserverTuning.zeta must be two finite numbers > 0, '
+            raise ValueError(f'ObserverTuningParams.zeta must be two finite numbers > 0, '
                              f'got {self.zeta}')
-        require_positive(self, ('wheel_accel_tau', 'validity_ay', 'max_accel', 'max_rate',
-                                'max_wheel_speed', 'max_steer', 'max_torque', 'max_dt'))
+        require_positive(self, ('wheel_accel_tau_s', 'validity_ay_mps2', 'max_accel_mps2',
+                                'max_rate_rad_s', 'max_wheel_speed_rad_s', 'max_steer_rad',
+                                'max_torque_nm', 'max_dt_s'))
 
     @classmethod
-    def plain(cls, **overrides: Any) -> ObserverTuning:
+    def plain(cls, **overrides: Any) -> ObserverTuningParams:
         """The plain EKF: no scaling (S = I) and no compensator, with its own tuned Q
         (``PLAIN_Q_DIAG``, physical units; the same search as the SKFMEC's defaults)."""
         overrides.setdefault('q_diag', PLAIN_Q_DIAG)
@@ -293,15 +315,15 @@ class LateralForceObserver:
 
     Args:
         params: the observer's vehicle model.
-        tuning: filter settings; ``ObserverTuning.plain()`` for the plain EKF.
+        tuning: filter settings; ``ObserverTuningParams.plain()`` for the plain EKF.
 
     Stream samples with ``step``; evaluate offline with ``run``.
     """
 
     def __init__(self, params: ObserverVehicleParams | None = None,
-                 tuning: ObserverTuning | None = None) -> None:
+                 tuning: ObserverTuningParams | None = None) -> None:
         self.params = params or ObserverVehicleParams()
-        self.tuning = tuning or ObserverTuning()
+        self.tuning = tuning or ObserverTuningParams()
         p, tn = self.params, self.tuning
         self._s = np.asarray(tn.scaling if tn.scaled else (1.0,) * _N_X, dtype=float)
         self._s_inv = 1.0 / self._s
@@ -521,7 +543,7 @@ class LateralForceObserver:
         fy = split_lateral(fz, float(xp[5]), float(xp[6]), self.params.split_exponent)
         return LateralForceEstimate(
             fx=np.array(fx, dtype=float), fy=fy, fz=fz, fy_front=float(xp[5]),
-            fy_rear=float(xp[6]), within_validity=abs(ay) < self.tuning.validity_ay,
+            fy_rear=float(xp[6]), within_validity=abs(ay) < self.tuning.validity_ay_mps2,
             state=xp.copy(), accepted=True)
 
     def _reject_reason(self, ax: float, ay: float, r: float, pr: float, omega: np.ndarray,
@@ -533,15 +555,15 @@ class LateralForceObserver:
         if not (all(math.isfinite(v) for v in scalars) and np.all(np.isfinite(omega))
                 and np.all(np.isfinite(torque))):
             return 'non_finite'
-        if abs(ax) > tn.max_accel or abs(ay) > tn.max_accel:
+        if abs(ax) > tn.max_accel_mps2 or abs(ay) > tn.max_accel_mps2:
             return 'accel_saturated'
-        if abs(r) > tn.max_rate or abs(pr) > tn.max_rate:
+        if abs(r) > tn.max_rate_rad_s or abs(pr) > tn.max_rate_rad_s:
             return 'rate_saturated'
-        if np.any(np.abs(omega) > tn.max_wheel_speed):
+        if np.any(np.abs(omega) > tn.max_wheel_speed_rad_s):
             return 'wheel_speed'
-        if abs(steer) > tn.max_steer:
+        if abs(steer) > tn.max_steer_rad:
             return 'steer'
-        if np.any(np.abs(torque) > tn.max_torque):
+        if np.any(np.abs(torque) > tn.max_torque_nm):
             return 'torque'
         return None
 
@@ -585,14 +607,14 @@ class LateralForceObserver:
             return self._held()
         dt_total = dt + self._pending_dt
         self._pending_dt = 0.0
-        if self._x is not None and dt_total > self.tuning.max_dt:
+        if self._x is not None and dt_total > self.tuning.max_dt_s:
             self.health.gap_restarts += 1
             self._x = None
         if self._x is None:
             self._omega_prev = omega_a.copy()
             self._omega_dot = np.zeros(4)
         else:
-            b0, b1, a1 = differentiator_coefficients(self.tuning.wheel_accel_tau, dt_total)
+            b0, b1, a1 = differentiator_coefficients(self.tuning.wheel_accel_tau_s, dt_total)
             self._omega_dot = b0 * omega_a + b1 * self._omega_prev - a1 * self._omega_dot
             self._omega_prev = omega_a.copy()
         fx_a = (torque_a - self.params.iw * self._omega_dot) / self.params.rw
@@ -634,12 +656,12 @@ class LateralForceObserver:
         tn = self.tuning
         clean = (np.all(np.isfinite(np.column_stack([ax, ay, r, p, steer])))
                  and np.all(np.isfinite(omega)) and np.all(np.isfinite(wheel_torque))
-                 and np.all(np.abs(np.column_stack([ax, ay])) <= tn.max_accel)
-                 and np.all(np.abs(np.column_stack([r, p])) <= tn.max_rate)
-                 and np.all(np.abs(omega) <= tn.max_wheel_speed)
-                 and np.all(np.abs(steer) <= tn.max_steer)
-                 and np.all(np.abs(wheel_torque) <= tn.max_torque)
-                 and self._pending_dt == 0.0 and dt <= tn.max_dt)
+                 and np.all(np.abs(np.column_stack([ax, ay])) <= tn.max_accel_mps2)
+                 and np.all(np.abs(np.column_stack([r, p])) <= tn.max_rate_rad_s)
+                 and np.all(np.abs(omega) <= tn.max_wheel_speed_rad_s)
+                 and np.all(np.abs(steer) <= tn.max_steer_rad)
+                 and np.all(np.abs(wheel_torque) <= tn.max_torque_nm)
+                 and self._pending_dt == 0.0 and dt <= tn.max_dt_s)
         if not clean:
             for k in range(n):
                 est = self.step(ax[k], ay[k], r[k], p[k], omega[k], wheel_torque[k], steer[k], dt)
@@ -647,7 +669,7 @@ class LateralForceObserver:
                     out_fx[k], out_fy[k], out_fz[k] = est.fx, est.fy, est.fz
                     out_state[k], accepted[k] = est.state, est.accepted
         elif n > 0:
-            b0, b1, a1 = differentiator_coefficients(tn.wheel_accel_tau, dt)
+            b0, b1, a1 = differentiator_coefficients(tn.wheel_accel_tau_s, dt)
             if self._x is None:
                 # The first sample initialises the filter with a zero wheel acceleration.
                 omega_prev, omega_dot_prev = omega[0], np.zeros(4)
@@ -684,11 +706,11 @@ class LateralForceObserver:
             self._last = LateralForceEstimate(
                 fx=out_fx[k].copy(), fy=out_fy[k].copy(), fz=out_fz[k].copy(),
                 fy_front=float(out_state[k, 5]), fy_rear=float(out_state[k, 6]),
-                within_validity=bool(abs(ay[k]) < tn.validity_ay), state=out_state[k].copy(),
+                within_validity=bool(abs(ay[k]) < tn.validity_ay_mps2), state=out_state[k].copy(),
                 accepted=True)
         return LateralForceTrack(
             t=np.arange(n) * dt, fx=out_fx, fy=out_fy, fz=out_fz, fy_front=out_state[:, 5].copy(),
-            fy_rear=out_state[:, 6].copy(), within_validity=np.abs(ay) < tn.validity_ay,
+            fy_rear=out_state[:, 6].copy(), within_validity=np.abs(ay) < tn.validity_ay_mps2,
             state=out_state, accepted=accepted)
 
 

@@ -33,9 +33,13 @@ Bad input: out-of-order or repeated stamps on any topic, wheel speeds that are n
 values, and driver inputs without four torques are rejected and counted here; non-finite or
 saturated IMU values, absurd wheel speeds, steer or torque are rejected by the core (the sample
 is skipped, its time carried into the next step), which also restarts after a gap longer than
-``max_dt`` and resets a covariance that lost positive definiteness (counted). Above the 0.5 g
+``max_dt_s`` and resets a covariance that lost positive definiteness (counted). Above the 0.5 g
 validity of the load-ratio relation the output says ``within_validity`` false and diagnostics
-warn.
+warn. Diagnostics are refreshed on their own timer (``diagnostics_period_s``), never from an
+input callback; events are counted since the previous status.
+
+Parameters: the method's (:class:`ObserverVehicleParams`, :class:`ObserverTuningParams`) and the
+node's alignment ones (:class:`LateralForceObserverNodeParams`), each declared once.
 """
 
 from __future__ import annotations
@@ -45,18 +49,16 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import DriverInputs, TireForces
 
 from tpms_ros.core.lateral_force_observer import (
-    PAPER_SCALING,
     G,
     LateralForceEstimate,
     LateralForceObserver,
-    ObserverTuning,
+    ObserverTuningParams,
     ObserverVehicleParams,
 )
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
@@ -72,71 +74,17 @@ from vehicle_monitor_common.node_helpers import (
     run_node,
     sensor_subscription,
     stamp_ns,
+    time_msg,
 )
 
-_DEFAULT_TUNING = ObserverTuning()
-_DEFAULT_VEHICLE = ObserverVehicleParams()
-# Diagnostics are refreshed every this much data time (and on the first validity excursion).
-_DIAGNOSTICS_PERIOD_S = 0.5
 # Input buffers: bounded so a topic without its IMU partner cannot grow memory.
 _MAX_BUFFERED = 5000
 
 
-def _vehicle(name: str, description: str, low: float | None = 0.0,
-             high: float | None = None) -> Any:
-    return param(float(getattr(_DEFAULT_VEHICLE, name)), description, low=low, high=high)
-
-
 @dataclass(frozen=True)
-class LateralForceNodeParameters:
-    """Parameters of the ``lateral_force_observer`` node (vehicle defaults: SPEC §4)."""
-
-    m: float = _vehicle('m', 'total vehicle mass, kg', 1.0, 1e5)
-    ms: float = _vehicle('ms', 'sprung mass, kg (<= m)', 1.0, 1e5)
-    iz: float = _vehicle('iz', 'yaw inertia, kg m^2', 1.0, 1e6)
-    ix: float = _vehicle('ix', 'roll inertia of the sprung mass about its CG, kg m^2', 1.0, 1e6)
-    iw: float = _vehicle('iw', 'wheel spin inertia, kg m^2', 1e-3, 100.0)
-    lf: float = _vehicle('lf', 'CG to front axle, m', 0.1, 10.0)
-    lr: float = _vehicle('lr', 'CG to rear axle, m', 0.1, 10.0)
-    h: float = _vehicle('h', 'CG height, m', 0.05, 5.0)
-    hf: float = _vehicle('hf', 'front roll centre height, m', -2.0, 5.0)
-    hr: float = _vehicle('hr', 'rear roll centre height, m', -2.0, 5.0)
-    e: float = _vehicle('e', 'roll axis to sprung-mass CG, m', -2.0, 5.0)
-    rw: float = _vehicle('rw', 'wheel rolling radius, m', 0.05, 2.0)
-    tf: float = _vehicle('tf', 'front HALF track, m', 0.1, 3.0)
-    tr: float = _vehicle('tr', 'rear HALF track, m', 0.1, 3.0)
-    kphi_f: float = _vehicle('kphi_f', 'front roll stiffness, N m/rad', 1.0, 1e8)
-    kphi_r: float = _vehicle('kphi_r', 'rear roll stiffness, N m/rad', 1.0, 1e8)
-    cphi_f: float = _vehicle('cphi_f', 'front roll damping, N m s/rad', 0.0, 1e7)
-    cphi_r: float = _vehicle('cphi_r', 'rear roll damping, N m s/rad', 0.0, 1e7)
-    split_exponent: float = _vehicle(
-        'split_exponent', 'left/right split of each axle force by Fz^exponent: 1 is the '
-        "paper's proportional split, below 1 follows the tires' load sensitivity (tire data)",
-        0.1, 2.0)
-
-    scaled: bool = param(True, 'EKF on the scaled state x* = S x (false with mec false: the '
-                         'plain EKF)')
-    mec: bool = param(True, 'model error compensator (Gp on yaw rate, Gy on ay)')
-    scaling: tuple[float, ...] = param(PAPER_SCALING, 'state scaling S for [vx, vy, r, phi, p, '
-                                       'Fyf, Fyr]')
-    q_diag: tuple[float, ...] = param(_DEFAULT_TUNING.q_diag, 'process noise spectral density '
-                                      'per state, filter coordinates, per s')
-    p0_diag: tuple[float, ...] = param(_DEFAULT_TUNING.p0_diag, 'initial covariance per state, '
-                                       'filter coordinates')
-    r_std: tuple[float, ...] = param(_DEFAULT_TUNING.r_std, 'measurement noise std: ax, ay '
-                                     '(m/s^2), r, p (rad/s), vx from wheel speeds (m/s)')
-    gp: tuple[float, ...] = param(_DEFAULT_TUNING.gp, 'MEC gain yaw-rate error -> (Fyf*, Fyr*), '
-                                  'scaled units per (rad/s) per s')
-    gy: tuple[float, ...] = param(_DEFAULT_TUNING.gy, 'MEC gain ay error -> load transfer '
-                                  '(front, rear), kg')
-    imu_gravity_tilt: bool = param(True, 'the IMU is fixed to the rolling body (its ay reads '
-                                   'g sin(phi))')
-    wheel_accel_tau: float = param(_DEFAULT_TUNING.wheel_accel_tau, 'time constant of the '
-                                   'wheel-acceleration differentiator, s', low=1e-3, high=1.0)
-    validity_ay_g: float = param(0.5, 'the load-ratio relation holds below this |ay|, g',
-                                 low=0.05, high=2.0)
-    max_dt: float = param(_DEFAULT_TUNING.max_dt, 'an IMU gap longer than this restarts the '
-                          'filter, s', low=0.011, high=10.0)
+class LateralForceObserverNodeParams:
+    """Node-only parameters of lateral_force_observer: input alignment and diagnostics (the
+    method's own: :class:`ObserverVehicleParams` and :class:`ObserverTuningParams`)."""
 
     wheel_speeds_max_age_s: float = param(0.05, 'held wheel speeds older than this are stale '
                                           '(IMU sample skipped), s', low=1e-3, high=10.0)
@@ -145,33 +93,8 @@ class LateralForceNodeParameters:
     max_wait_s: float = param(1.0, 'IMU samples wait for late wheel speeds / driver inputs '
                               'until the IMU queue spans this much IMU time, s (must exceed a '
                               "replay's lead)", low=0.0, high=10.0)
-
-    def __post_init__(self) -> None:
-        self.vehicle()
-        self.tuning()
-
-    def vehicle(self) -> ObserverVehicleParams:
-        """The observer's vehicle model (validated by the core)."""
-        return ObserverVehicleParams(
-            m=self.m, ms=self.ms, iz=self.iz, ix=self.ix, iw=self.iw, lf=self.lf, lr=self.lr,
-            h=self.h, hf=self.hf, hr=self.hr, e=self.e, rw=self.rw, tf=self.tf, tr=self.tr,
-            kphi_f=self.kphi_f, kphi_r=self.kphi_r, cphi_f=self.cphi_f, cphi_r=self.cphi_r,
-            split_exponent=self.split_exponent)
-
-    def tuning(self) -> ObserverTuning:
-        """The filter settings (validated by the core)."""
-        return ObserverTuning(
-            scaled=self.scaled, mec=self.mec, scaling=tuple(self.scaling),
-            q_diag=tuple(self.q_diag), p0_diag=tuple(self.p0_diag), r_std=tuple(self.r_std),
-            gp=tuple(self.gp),  # type: ignore[arg-type]
-            gy=tuple(self.gy),  # type: ignore[arg-type]
-            imu_gravity_tilt=self.imu_gravity_tilt, wheel_accel_tau=self.wheel_accel_tau,
-            validity_ay=self.validity_ay_g * G, max_dt=self.max_dt)
-
-
-def _time_msg(ns: int) -> Time:
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
+                                        high=60.0, read_only=True)
 
 
 class LateralForceObserverNode(Node):
@@ -179,10 +102,12 @@ class LateralForceObserverNode(Node):
 
     def __init__(self, node_name: str = 'lateral_force_observer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, LateralForceNodeParameters,
-                                      on_change=self._on_change)
-        p = self._typed.value
-        self._observer = LateralForceObserver(p.vehicle(), p.tuning())
+        self._vehicle = TypedParameters(self, ObserverVehicleParams,
+                                        on_change=self._on_model_change)
+        self._tuning = TypedParameters(self, ObserverTuningParams,
+                                       on_change=self._on_model_change)
+        self._typed = TypedParameters(self, LateralForceObserverNodeParams)
+        self._observer = LateralForceObserver(self._vehicle.value, self._tuning.value)
         self._checks = {topic: StampCheck(max_gap_s=math.inf)
                         for topic in ('imu', 'wheel_speeds', 'driver_inputs')}
         self.received = {topic: 0 for topic in self._checks}
@@ -196,7 +121,6 @@ class LateralForceObserverNode(Node):
         self._driver: deque[tuple[int, float, np.ndarray]] = deque(maxlen=_MAX_BUFFERED)
         self._newest = {'wheel_speeds': -1, 'driver_inputs': -1}
         self._last_step_ns: int | None = None
-        self._last_diag_ns: int | None = None
         self._last: LateralForceEstimate | None = None
         self._last_ay = math.nan
         self._period_events: dict[str, int] = {}
@@ -206,21 +130,33 @@ class LateralForceObserverNode(Node):
         sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
         subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
-        self._diagnostics = Diagnostics(self, hardware_id='vehicle_imu')
+        self._diagnostics = Diagnostics(self, 'vehicle_imu',
+                                        self._typed.value.diagnostics_period_s,
+                                        update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property
-    def parameters(self) -> LateralForceNodeParameters:
-        """The current, validated parameters."""
+    def parameters(self) -> LateralForceObserverNodeParams:
+        """The current, validated node-only parameters."""
         return self._typed.value
+
+    @property
+    def vehicle_parameters(self) -> ObserverVehicleParams:
+        """The observer's current vehicle model."""
+        return self._vehicle.value
+
+    @property
+    def tuning_parameters(self) -> ObserverTuningParams:
+        """The observer's current filter settings."""
+        return self._tuning.value
 
     @property
     def observer(self) -> LateralForceObserver:
         """The estimator core in use."""
         return self._observer
 
-    def _on_change(self, p: LateralForceNodeParameters) -> None:
-        vehicle, tuning = p.vehicle(), p.tuning()
+    def _on_model_change(self, _: Any) -> None:
+        vehicle, tuning = self._vehicle.value, self._tuning.value
         if vehicle != self._observer.params or tuning != self._observer.tuning:
             # A new model: restart the filter from the next IMU sample; keep the counters.
             health = self._observer.health
@@ -324,7 +260,6 @@ class LateralForceObserverNode(Node):
             reason = 'stale_wheel_speeds' if omega is None else 'stale_driver_inputs'
             self.skipped[reason] += 1
             self._period_events[reason] = self._period_events.get(reason, 0) + 1
-            self._maybe_update_diagnostics(stamp)
             return
         steer, torque = driver
         # The first call's dt is ignored by the core; later ones span any skipped samples.
@@ -332,24 +267,20 @@ class LateralForceObserverNode(Node):
         self._last_step_ns = stamp
         estimate = self._observer.step(ax, ay, r, p, omega.tolist(), torque.tolist(), steer, dt)
         if estimate is None or not estimate.accepted:
-            self._maybe_update_diagnostics(stamp)
             return
         self._last = estimate
         self._last_ay = ay
         if not estimate.within_validity:
-            if 'beyond_validity' not in self._period_events:
-                self._last_diag_ns = None  # report the excursion now, not at the period end
             self.beyond_validity += 1
             self._period_events['beyond_validity'] = (
                 self._period_events.get('beyond_validity', 0) + 1)
         self._publish(estimate, stamp)
-        self._maybe_update_diagnostics(stamp)
 
     # -- outputs -----------------------------------------------------------------------------
 
     def _publish(self, est: LateralForceEstimate, stamp: int) -> None:
         msg = TireForces()
-        msg.header.stamp = _time_msg(stamp)
+        msg.header.stamp = time_msg(stamp)
         msg.header.frame_id = 'base_link'
         msg.fx = [float(v) for v in est.fx]
         msg.fy = [float(v) for v in est.fy]
@@ -361,16 +292,12 @@ class LateralForceObserverNode(Node):
         self._publisher.publish(msg)
         self.published += 1
 
-    def _maybe_update_diagnostics(self, stamp: int) -> None:
-        if (self._last_diag_ns is None
-                or stamp - self._last_diag_ns >= _DIAGNOSTICS_PERIOD_S * 1e9):
-            self._last_diag_ns = stamp
-            self._update_diagnostics()
-            self._period_events = {}
-
     def _update_diagnostics(self) -> None:
-        p = self.parameters
+        """Refresh the status (Diagnostics timer): counts so far, events since the last one."""
+        tuning = self._tuning.value
+        limit_g = tuning.validity_ay_mps2 / G
         health = self._observer.health
+        events, self._period_events = self._period_events, {}
         values: dict[str, Any] = {
             f'received_{topic}': count for topic, count in self.received.items()}
         values.update({
@@ -380,10 +307,10 @@ class LateralForceObserverNode(Node):
             'gap_restarts': health.gap_restarts,
             'covariance_resets': health.covariance_resets,
             'samples_beyond_validity': self.beyond_validity,
-            'validity_limit_g': p.validity_ay_g,
+            'validity_limit_g': limit_g,
             'ay_mps2': self._last_ay,
-            'filter': ('SKFMEC' if p.scaled and p.mec else
-                       f'EKF (scaled={p.scaled}, mec={p.mec})'),
+            'filter': ('SKFMEC' if tuning.scaled and tuning.mec else
+                       f'EKF (scaled={tuning.scaled}, mec={tuning.mec})'),
         })
         values.update({f'rejected_{k}': v for k, v in self.rejected.items()})
         values.update({f'rejected_by_filter_{k}': v for k, v in health.rejected.items()})
@@ -395,9 +322,8 @@ class LateralForceObserverNode(Node):
         values['fy_n'] = self._last.fy.tolist()
         values['fz_n'] = self._last.fz.tolist()
         problems = []
-        events = self._period_events
         if not self._last.within_validity or events.get('beyond_validity'):
-            problems.append(f'|ay| above {p.validity_ay_g:g} g: load-ratio split outside its '
+            problems.append(f'|ay| above {limit_g:g} g: load-ratio split outside its '
                             f'validity ({events.get("beyond_validity", 0)} samples)')
         for reason in ('stale_wheel_speeds', 'stale_driver_inputs'):
             if events.get(reason):

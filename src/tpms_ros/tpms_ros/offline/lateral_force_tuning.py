@@ -19,7 +19,7 @@ from tpms_ros.core.lateral_force_observer import (
     G,
     LateralForceObserver,
     LateralForceTrack,
-    ObserverTuning,
+    ObserverTuningParams,
     ObserverVehicleParams,
 )
 from vehicle_monitor_common.figures import pyplot, save_figure
@@ -42,7 +42,7 @@ class TuningCase:
     fy_true: np.ndarray
 
     def run(self, params: ObserverVehicleParams | None = None,
-            tuning: ObserverTuning | None = None) -> LateralForceTrack:
+            tuning: ObserverTuningParams | None = None) -> LateralForceTrack:
         """Run a fresh observer over this case."""
         observer = LateralForceObserver(params, tuning)
         return observer.run(self.dt, self.ax, self.ay, self.r, self.p, self.omega,
@@ -76,7 +76,7 @@ def calibrate_zeta(params: ObserverVehicleParams, dt: float, ay: np.ndarray, p: 
 
     This measured roll gradient includes what the model's roll row leaves out (tire vertical
     compliance, suspension geometry), so it is the vehicle's own relation 1 rather than the
-    model's (``ObserverVehicleParams.zeta``). Use it as ``ObserverTuning(zeta=...)``.
+    model's (``ObserverVehicleParams.zeta``). Use it as ``ObserverTuningParams(zeta=...)``.
 
     Args:
         params: the observer's vehicle model (m, lf, lr).
@@ -129,13 +129,13 @@ def fy_error_percent(track: LateralForceTrack, fy_true: np.ndarray) -> np.ndarra
 class TuningResult:
     """Outcome of ``tune_gains``: the chosen tuning, its score and every trial."""
 
-    tuning: ObserverTuning
+    tuning: ObserverTuningParams
     score: float                                   # worst per-wheel error over cases, %
     trials: tuple[tuple[str, float], ...]          # (description, score) in trial order
 
 
 def _score(cases: Sequence[TuningCase], params: ObserverVehicleParams | None,
-           tuning: ObserverTuning) -> float:
+           tuning: ObserverTuningParams) -> float:
     worst = 0.0
     for case in cases:
         error = fy_error_percent(case.run(params, tuning), case.fy_true)
@@ -144,7 +144,7 @@ def _score(cases: Sequence[TuningCase], params: ObserverVehicleParams | None,
 
 
 def tune_gains(cases: Sequence[TuningCase], params: ObserverVehicleParams | None = None,
-               base: ObserverTuning | None = None,
+               base: ObserverTuningParams | None = None,
                force_q: Sequence[float] = (0.1, 0.3, 1.0, 3.0, 10.0),
                ay_std: Sequence[float] = (0.1, 0.3, 1.0, 3.0),
                gp: Sequence[float] = (0.0, 10.0, 30.0, 100.0, 300.0),
@@ -168,11 +168,11 @@ def tune_gains(cases: Sequence[TuningCase], params: ObserverVehicleParams | None
         raise ValueError('cases must hold at least one TuningCase')
     if passes < 1:
         raise ValueError(f'passes must be >= 1, got {passes}')
-    best = base or ObserverTuning()
+    best = base or ObserverTuningParams()
     best_score = _score(cases, params, best)
     trials: list[tuple[str, float]] = [('base', best_score)]
 
-    def consider(candidate: ObserverTuning, label: str) -> None:
+    def consider(candidate: ObserverTuningParams, label: str) -> None:
         nonlocal best, best_score
         score = _score(cases, params, candidate)
         trials.append((label, score))
