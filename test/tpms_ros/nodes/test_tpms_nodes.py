@@ -564,7 +564,7 @@ def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., 
         'stiffness': 0.8, 'vibration': 0.8, 'wheel_radius': 0.8}
     shipped = make_node(TpmsVoterNode, node_name='voter_shipped',
                         parameter_overrides=_shipped('tpms_voter'))
-    assert shipped.parameters.methods == ('stiffness', 'vibration', 'wheel_radius')
+    assert shipped.node_parameters.methods == ('stiffness', 'vibration', 'wheel_radius')
     with pytest.raises(ConfigurationError, match='must be in \\(h0'):
         make_node(TpmsVoterNode, node_name='bad1',
                   parameter_overrides=[Parameter('vibration.threshold', value=0.4)])

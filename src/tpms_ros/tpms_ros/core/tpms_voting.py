@@ -24,44 +24,84 @@ No ROS import: ``tpms_voter`` converts ``TpmsIndication`` messages to :class:`Tp
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, make_dataclass, replace
 import math
+from typing import Any
 
 import numpy as np
 
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
+from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
 
 @dataclass(frozen=True)
-class VoterParams:
-    """Thresholds and timing of the voter.
+class MethodVoteParams:
+    """One method's part in the vote; a node declares it as ``<method>.enabled`` and
+    ``<method>.threshold`` (see :func:`method_votes_params`)."""
 
-    Attributes:
-        h0: threshold on the mean confidence when all counted methods agree.
-        method_thresholds: method name -> its own threshold h_i (each > h0), used when the
-            methods disagree or only one is available. Only these methods are voted.
-        max_age_s: an indication older than this (relative to the evaluation time) is stale
-            and ignored, s.
-        set_on_s: hold-off: the warning condition must hold this long (net: the timer counts
-            down while it does not hold) before a warning, s.
-        set_off_s: the evidence must stay below the clear threshold this long (net) to clear, s.
-        clear_ratio: clear threshold = clear_ratio x the threshold in force (h0 or h_i); in
-            (0, 1], lower than the set threshold so a signal hovering there does not flicker.
-    """
+    enabled: bool = param(True, "vote this method's indications")
+    threshold: float = param(
+        0.8, 'own threshold h_i of the method, used when the methods disagree or only it is '
+        'fresh (> h0)', low=0.0, high=1.0)
 
-    h0: float = 0.5
-    method_thresholds: Mapping[str, float] = field(
-        default_factory=lambda: {'vibration': 0.8, 'wheel_radius': 0.8, 'stiffness': 0.8})
-    max_age_s: float = 2.0
-    set_on_s: float = 3.0
-    set_off_s: float = 10.0
-    clear_ratio: float = 0.7
+
+# The methods voted by default, in the order the voter iterates them.
+DEFAULT_METHODS = ('vibration', 'wheel_radius', 'stiffness')
+
+
+def method_votes_params(methods: Sequence[str]) -> type[Any]:
+    """A parameter class with one :class:`MethodVoteParams` group per method: the method set
+    is configuration (the node's ``methods``), so the class is built for it."""
+    return make_dataclass(
+        'MethodVotesParams',
+        [(m, MethodVoteParams, group(MethodVoteParams, f'the {m} method in the vote'))
+         for m in methods], frozen=True)
+
+
+@dataclass(frozen=True)
+class VotingRuleParams:
+    """The voting rule's thresholds and timing, each a ROS parameter of the same name."""
+
+    h0: float = param(0.5, 'threshold on the mean confidence when all counted methods agree '
+                      '(below every <method>.threshold)', low=0.01, high=0.99)
+    max_age_s: float = param(2.0, 'an indication older than this (relative to the evaluation '
+                             'time, data time) is stale and not voted, s', low=0.01, high=3600.0)
+    # Net: the timer counts down while the condition does not hold.
+    set_on_s: float = param(3.0, 'hold-off: the warning condition must hold this long (net) '
+                            'before a warning, s', low=0.0, high=3600.0)
+    set_off_s: float = param(10.0, 'the evidence must stay below the clear threshold this long '
+                             '(net) to clear a warning, s', low=0.0, high=3600.0)
+    # Lower than the set threshold so that a signal hovering there does not flicker.
+    clear_ratio: float = param(0.7, 'clear threshold = clear_ratio x the threshold in force '
+                               '(h0 or h_i), in (0, 1] (hysteresis)', low=0.01, high=1.0)
 
     def __post_init__(self) -> None:
+        name = type(self).__name__
         if not 0.0 < self.h0 < 1.0:
-            raise ValueError(f'VoterParams.h0 must be in (0, 1), got {self.h0}')
+            raise ValueError(f'{name}.h0 must be in (0, 1), got {self.h0}')
+        require_positive(self, ('max_age_s', 'set_on_s', 'set_off_s'), allow_zero=True)
+        if not self.max_age_s > 0.0:
+            raise ValueError(f'{name}.max_age_s must be > 0, got {self.max_age_s}')
+        if not 0.0 < self.clear_ratio <= 1.0:
+            raise ValueError(f'{name}.clear_ratio must be in (0, 1], got {self.clear_ratio}')
+
+
+@dataclass(frozen=True)
+class VoterParams(VotingRuleParams):
+    """The voting rule and the methods voted.
+
+    Attributes:
+        method_thresholds: method name -> its own threshold h_i (each > h0), used when the
+            methods disagree or only one is available. Only these methods are voted.
+    """
+
+    method_thresholds: Mapping[str, float] = field(
+        default_factory=lambda: dict.fromkeys(DEFAULT_METHODS, MethodVoteParams().threshold))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
         if not self.method_thresholds:
             raise ValueError('VoterParams.method_thresholds must name at least one method')
         for name, h in self.method_thresholds.items():
@@ -69,11 +109,6 @@ class VoterParams:
                 raise ValueError(
                     f'VoterParams.method_thresholds[{name!r}] must be in (h0={self.h0}, 1), '
                     f'got {h}')
-        require_positive(self, ('max_age_s', 'set_on_s', 'set_off_s'), allow_zero=True)
-        if not self.max_age_s > 0.0:
-            raise ValueError(f'VoterParams.max_age_s must be > 0, got {self.max_age_s}')
-        if not 0.0 < self.clear_ratio <= 1.0:
-            raise ValueError(f'VoterParams.clear_ratio must be in (0, 1], got {self.clear_ratio}')
         object.__setattr__(self, 'method_thresholds', dict(self.method_thresholds))
 
     def only(self, methods: Iterable[str]) -> VoterParams:

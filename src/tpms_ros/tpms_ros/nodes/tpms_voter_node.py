@@ -22,18 +22,21 @@ import math
 import re
 from typing import Any
 
-from builtin_interfaces.msg import Time
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 from vehicle_monitor_msgs.msg import TpmsWarning
 
 from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
-from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
-from vehicle_monitor_common.input_health import StampCheck
+from tpms_ros.core.tpms_voting import (
+    TpmsVoter,
+    VoterParams,
+    VotingRuleParams,
+    method_votes_params,
+)
+from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
@@ -42,35 +45,25 @@ from vehicle_monitor_common.node_helpers import (
     ConfigurationError,
     Diagnostics,
     TypedParameters,
-    param,
     run_node,
     sensor_subscription,
     stamp_ns,
+    time_msg,
 )
+from vehicle_monitor_common.parameters import flatten, param
 
-_D = VoterParams()
 _METHOD_NAME = re.compile(r'^[a-z][a-z0-9_]*$')
-_DEFAULT_THRESHOLD = 0.8
 
 
 @dataclass(frozen=True)
-class TpmsVoterParameters:
-    """Parameters of the tpms_voter node (per-method ones are declared from ``methods``)."""
+class TpmsVoterNodeParams:
+    """The node's own parameters (the rule's are :class:`VotingRuleParams`, each method's
+    ``<method>.enabled`` and ``<method>.threshold`` a :class:`MethodVoteParams` group)."""
 
     methods: tuple[str, ...] = param(('stiffness', 'vibration', 'wheel_radius'),
                                      'methods voted: subscribes tpms/indication/<method>; each '
                                      'has <method>.enabled and <method>.threshold',
                                      read_only=True)
-    h0: float = param(_D.h0, 'threshold on the mean confidence when the counted methods agree '
-                      '(below every <method>.threshold)', low=0.01, high=0.99)
-    max_age_s: float = param(_D.max_age_s, 'an indication older than this (data time) is '
-                             'stale and not voted, s', low=0.01, high=3600.0)
-    set_on_s: float = param(_D.set_on_s, 'hold-off: the warning condition must hold this long '
-                            '(net) before a warning, s', low=0.0, high=3600.0)
-    set_off_s: float = param(_D.set_off_s, 'the evidence must stay below the clear threshold '
-                             'this long (net) to clear a warning, s', low=0.0, high=3600.0)
-    clear_ratio: float = param(_D.clear_ratio, 'clear threshold = clear_ratio x the set '
-                               'threshold (hysteresis)', low=0.01, high=1.0)
     publish_rate_hz: float = param(2.0, 'rate of the periodic tpms/warning between '
                                    'indications, Hz', low=0.01, high=100.0, read_only=True)
     diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
@@ -92,52 +85,48 @@ class TpmsVoterNode(Node):
 
     def __init__(self, node_name: str = 'tpms_voter', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._typed = TypedParameters(self, TpmsVoterParameters, on_change=self._on_change)
-        p = self._typed.value
-        self._thresholds: dict[str, float] = {}
-        self._enabled: dict[str, bool] = {}
-        for method in p.methods:
-            self._thresholds[method] = self._declare(
-                f'{method}.threshold', _DEFAULT_THRESHOLD, ParameterDescriptor(
-                    description=f'own threshold h_i of {method} when the methods disagree or '
-                    'it is alone (> h0)',
-                    floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
-            self._enabled[method] = self._declare(
-                f'{method}.enabled', True, ParameterDescriptor(
-                    description=f'vote the {method} indications'))
+        self._node = TypedParameters(self, TpmsVoterNodeParams)
+        methods = self._node.value.methods
+        self._rule = TypedParameters(self, VotingRuleParams, on_change=self._sync)
+        self._votes = TypedParameters(self, method_votes_params(methods), on_change=self._sync)
         try:
-            self._voter = TpmsVoter(self._voter_params(p.h0, self._thresholds, p))
+            self._voter = TpmsVoter(self._voter_params(self._rule.value, self._votes.value))
         except ValueError as exc:
             raise ConfigurationError(f'invalid parameters: {exc}') from None
-        for method, enabled in self._enabled.items():
-            self._voter.set_enabled(method, enabled)
-        self.add_on_set_parameters_callback(self._validate_methods)
-        self.add_post_set_parameters_callback(self._apply_methods)
+        self._sync()
+        # The rule across the groups (every h_i > h0) is the core's: checked on the candidate.
+        self.add_on_set_parameters_callback(self._validate_votes)
 
-        self._checks = {m: StampCheck(max_gap_s=math.inf) for m in p.methods}
-        self._received = dict.fromkeys(p.methods, 0)
-        self._rate_counts = dict.fromkeys(p.methods, 0)
+        self._checks = {m: StampCheck(max_gap_s=math.inf) for m in methods}
+        self._received = dict.fromkeys(methods, 0)
+        now_ns = self.get_clock().now().nanoseconds
+        self._rates = {m: RateMeter(since_ns=now_ns) for m in methods}
         self._rejected = dict.fromkeys(('invalid', 'method_mismatch', 'out_of_order',
                                         'repeated'), 0)
-        self._rate_since_ns = self.get_clock().now().nanoseconds
         # data-time anchor: newest indication stamp and the node-clock time it arrived
         self._anchor: tuple[float, int] | None = None
         self._last_eval_s = -math.inf
         self._last_result: Any = None
         self._latest_stamp: dict[str, float] = {}
         self._publisher = self.create_publisher(TpmsWarning, 'tpms/warning', OUTPUT_QOS)
-        for method in p.methods:
+        for method in methods:
             sensor_subscription(self, IndicationMsg, f'tpms/indication/{method}',
                                 functools.partial(self._on_indication, method))
+        p = self.node_parameters
         self.create_timer(1.0 / p.publish_rate_hz, self._on_timer)
         self._diagnostics = Diagnostics(self, 'tpms/voter', p.diagnostics_period_s,
                                         update=self._update_diagnostics)
         self._update_diagnostics()
 
     @property
-    def parameters(self) -> TpmsVoterParameters:
-        """The current, validated node-level parameters."""
-        return self._typed.value
+    def parameters(self) -> VotingRuleParams:
+        """The voting rule's current, validated parameters."""
+        return self._rule.value
+
+    @property
+    def node_parameters(self) -> TpmsVoterNodeParams:
+        """The node's own current, validated parameters."""
+        return self._node.value
 
     @property
     def voter(self) -> TpmsVoter:
@@ -146,55 +135,39 @@ class TpmsVoterNode(Node):
 
     # -- parameters ----------------------------------------------------------------------------
 
-    def _declare(self, name: str, default: Any, descriptor: ParameterDescriptor) -> Any:
-        try:
-            return self.declare_parameter(name, default, descriptor).value
-        except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
-            raise ConfigurationError(f'parameter {name}: {str(exc).splitlines()[0]}') from None
+    def _enabled(self) -> dict[str, bool]:
+        return {m: getattr(self._votes.value, m).enabled for m in self.node_parameters.methods}
 
     @staticmethod
-    def _voter_params(h0: float, thresholds: dict[str, float],
-                      p: TpmsVoterParameters) -> VoterParams:
-        return VoterParams(h0=h0, method_thresholds=dict(thresholds), max_age_s=p.max_age_s,
-                           set_on_s=p.set_on_s, set_off_s=p.set_off_s,
-                           clear_ratio=p.clear_ratio)
+    def _voter_params(rule: VotingRuleParams, votes: Any) -> VoterParams:
+        return VoterParams(**flatten(rule), method_thresholds={
+            m: vote.threshold for m, vote in vars(votes).items()})
 
-    def _candidate(self, parameters: list[Parameter]) -> tuple[float, dict[str, float]]:
-        h0 = self.parameters.h0
-        thresholds = dict(self._thresholds)
+    def _validate_votes(self, parameters: list[Parameter]) -> SetParametersResult:
+        rule, votes = flatten(self._rule.value), flatten(self._votes.value)
         for prm in parameters:
-            if prm.name == 'h0':
-                h0 = float(prm.value)
-            elif prm.name.endswith('.threshold') and prm.name[:-10] in thresholds:
-                thresholds[prm.name[:-10]] = float(prm.value)
-        return h0, thresholds
-
-    def _validate_methods(self, parameters: list[Parameter]) -> SetParametersResult:
-        # cross-field rule of the voting: every h_i > h0 (TypedParameters checks the rest)
-        h0, thresholds = self._candidate(parameters)
+            for values in (rule, votes):
+                if prm.name in values:
+                    values[prm.name] = prm.value
+        thresholds = {name[:-len('.threshold')]: float(value) for name, value in votes.items()
+                      if name.endswith('.threshold')}
         try:
-            self._voter_params(h0, thresholds, self.parameters)
-        except ValueError as exc:
+            VoterParams(**rule, method_thresholds=thresholds)
+        except (TypeError, ValueError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
-    def _apply_methods(self, parameters: list[Parameter]) -> None:
-        _, self._thresholds = self._candidate(parameters)
-        for prm in parameters:
-            if prm.name.endswith('.enabled') and prm.name[:-8] in self._enabled:
-                self._enabled[prm.name[:-8]] = bool(prm.value)
-                self._voter.set_enabled(prm.name[:-8], bool(prm.value))
-        self._on_change(self.parameters)
-
-    def _on_change(self, p: TpmsVoterParameters) -> None:
+    def _sync(self, _: Any = None) -> None:
         # the voter reads its params at each evaluation; the method set is read-only
-        self._voter.params = self._voter_params(p.h0, self._thresholds, p)
+        self._voter.params = self._voter_params(self._rule.value, self._votes.value)
+        for method, enabled in self._enabled().items():
+            self._voter.set_enabled(method, enabled)
 
     # -- voting --------------------------------------------------------------------------------
 
     def _on_indication(self, method: str, msg: IndicationMsg) -> None:
         self._received[method] += 1
-        self._rate_counts[method] += 1
+        self._rates[method].tick()
         if msg.method != method:
             self._rejected['method_mismatch'] += 1
             return
@@ -235,8 +208,7 @@ class TpmsVoterNode(Node):
         used = [self._latest_stamp[m] for m in result.methods_used]
         stamp_s = max(used) if used else now_s
         msg = TpmsWarning()
-        sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
-        msg.header.stamp = Time(sec=sec, nanosec=nanosec)
+        msg.header.stamp = time_msg(round(stamp_s * 1e9))
         msg.warning = result.warning.tolist()
         msg.active = result.active
         msg.confidence = result.confidence.tolist()
@@ -248,18 +220,14 @@ class TpmsVoterNode(Node):
 
     def _update_diagnostics(self) -> None:
         now = self.get_clock().now().nanoseconds
-        elapsed = (now - self._rate_since_ns) * 1e-9
-        values: dict[str, Any] = {
-            f'input_rate_hz.{m}': (n / elapsed if elapsed > 0 else 0.0)
-            for m, n in self._rate_counts.items()}
-        self._rate_counts = dict.fromkeys(self._rate_counts, 0)
-        self._rate_since_ns = now
+        values: dict[str, Any] = {f'input_rate_hz.{m}': meter.read(now)
+                                  for m, meter in self._rates.items()}
         values.update({f'received.{m}': n for m, n in self._received.items()})
-        values.update({f'enabled.{m}': e for m, e in self._enabled.items()})
+        values.update({f'enabled.{m}': e for m, e in self._enabled().items()})
         values.update({f'rejected_{k}': v for k, v in self._rejected.items()})
         values.update({f'rejected_core_{k}': v for k, v in self._voter.rejected.items()})
         result = self._last_result
-        enabled = [m for m, e in self._enabled.items() if e]
+        enabled = [m for m, e in self._enabled().items() if e]
         if result is None:
             self._diagnostics.set(WARN, 'waiting for indications', values)
             return
