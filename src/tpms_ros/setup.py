@@ -32,7 +32,7 @@ setup(
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'vehicle_simulator = tpms_ros.nodes.vehicle_simulator_node:VehicleSimulator',
+            'vehicle_simulator = tpms_ros.nodes.vehicle_simulator_node:VehicleSimulatorNode',
             'vibration_analyzer = tpms_ros.nodes.vibration_analyzer_node:VibrationAnalyzerNode',
             'wheel_radius_analyzer = '
             'tpms_ros.nodes.wheel_radius_analyzer_node:WheelRadiusAnalyzerNode',

@@ -10,7 +10,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_monitor_msgs.msg import WheelSpeeds
 
-from tpms_ros.nodes.vehicle_simulator_node import VehicleSimulator
+from tpms_ros.nodes.vehicle_simulator_node import VehicleSimulatorNode
 from vehicle_monitor_common.bag_io import bag_topics
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,
@@ -23,7 +23,7 @@ def test_kim_huh_scenario_replays_every_wheel_speed(
     got: list[WheelSpeeds] = []
     make_node('listener').create_subscription(WheelSpeeds, '/vehicle/wheel_speeds',
                                               got.append, DEEP)
-    simulator = make_node(VehicleSimulator, parameter_overrides=[
+    simulator = make_node(VehicleSimulatorNode, parameter_overrides=[
         Parameter('scenario', value='kim_huh_lateral'),
         Parameter('output_bag', value=str(tmp_path / 'kh')),
         Parameter('wait_for_subscribers', value=1), Parameter('rate', value=2.0),

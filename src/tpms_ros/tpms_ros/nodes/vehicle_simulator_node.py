@@ -17,7 +17,7 @@ from vehicle_monitor_common.player import run_player
 from vehicle_monitor_common.simulator import SimulatorNode
 
 
-class VehicleSimulator(SimulatorNode):
+class VehicleSimulatorNode(SimulatorNode):
     """The road vehicle simulator node."""
 
     package = 'tpms_ros'
@@ -28,7 +28,7 @@ class VehicleSimulator(SimulatorNode):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of the ``vehicle_simulator`` executable."""
-    sys.exit(run_player(VehicleSimulator, args))
+    sys.exit(run_player(VehicleSimulatorNode, args))
 
 
 if __name__ == '__main__':
