@@ -8,7 +8,7 @@ from pathlib import Path
 import re
 from typing import Any
 
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
@@ -95,6 +95,11 @@ def test_written_as_plain_mcap_with_zstd_chunks(
         raw = [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages(
             log_time_order=True)]
     assert raw == [(topic, stamp, bytes(data)) for topic, _, stamp, data in iter_raw(path)]
+    # A streaming reader (no seeking, no index: as a pipe or a data-loader reads it) too.
+    with open(path / 'small_bag.mcap', 'rb') as stream:
+        streamed = [(c.topic, m.log_time, m.data) for _, c, m in NonSeekingReader(
+            stream, validate_crcs=True).iter_messages()]
+    assert sorted(streamed, key=lambda item: item[1]) == raw
 
 
 def _write_file_compressed(path: Path, series: dict[str, TopicSeries]) -> None:

@@ -8,8 +8,9 @@ from typing import Any
 import pytest
 import yaml
 
-from vehicle_monitor_common.node_helpers import ConfigurationError
-from vehicle_monitor_common.runner import Graph, GraphSpec, load_graph
+from vehicle_monitor_common.graph_spec import GraphSpec, load_graph
+from vehicle_monitor_common.parameters import ConfigurationError
+from vehicle_monitor_common.runner import Graph
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -8,9 +8,11 @@ from typing import Any
 
 import pytest
 
-from vehicle_monitor_common.node_helpers import ConfigurationError, run_node
+from vehicle_monitor_common.graph_spec import parse_graph
+from vehicle_monitor_common.node_helpers import run_node
+from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.recorder import GraphRecorder
-from vehicle_monitor_common.runner import Graph, parse_graph
+from vehicle_monitor_common.runner import Graph
 
 
 def test_unknown_parameter_in_a_params_file_is_refused(

@@ -7,16 +7,11 @@ from typing import Any
 
 import pytest
 
-from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.graph_spec import load_graph, parse_graph
+from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
-from vehicle_monitor_common.runner import (
-    Graph,
-    _apply_overrides,
-    load_graph,
-    node_class,
-    parse_graph,
-)
+from vehicle_monitor_common.runner import Graph, _apply_overrides, node_class
 from vehicle_monitor_common.series import TopicSeries
 
 

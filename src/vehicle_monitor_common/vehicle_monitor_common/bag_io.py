@@ -126,8 +126,13 @@ def _column_value(store: Typestore, node: tuple[Any, Any], value: Any) -> Any:
     raise ValueError(f'cannot set a {detail} field from a column')
 
 
-def _build_message(store: Typestore, msgtype: str, values: Mapping[str, Any]) -> Any:
-    """A message whose dotted-path fields are taken from ``values``, the rest defaulted."""
+def build_message(store: Typestore, msgtype: str, values: Mapping[str, Any]) -> Any:
+    """A rosbags message whose dotted-path fields (``header.stamp.sec``) are taken from
+    ``values`` (numbers, sequences, numpy arrays), the rest defaulted.
+
+    Raises:
+        ValueError: a field the message does not have, or a value of the wrong shape.
+    """
     cls = store.types[msgtype]
     _, fields = store.fielddefs[msgtype]
     nested: dict[str, dict[str, Any]] = {}
@@ -143,7 +148,7 @@ def _build_message(store: Typestore, msgtype: str, values: Mapping[str, Any]) ->
         if name in nested:
             if node[0] != Nodetype.NAME:
                 raise ValueError(f'{msgtype}.{name} is not a message, cannot set sub-fields')
-            kwargs[name] = _build_message(store, node[1], nested.pop(name))
+            kwargs[name] = build_message(store, node[1], nested.pop(name))
         elif name in direct:
             try:
                 kwargs[name] = _column_value(store, node, direct.pop(name))
@@ -172,7 +177,7 @@ def series_messages(series: TopicSeries, store: Typestore | None = None) -> Iter
             values['header.stamp.sec'] = int(stamp // 1_000_000_000)
             values['header.stamp.nanosec'] = int(stamp % 1_000_000_000)
             values['header.frame_id'] = series.frame_id
-        yield _build_message(store, series.msgtype, values)
+        yield build_message(store, series.msgtype, values)
 
 
 def _flatten(store: Typestore, msgtype: str, msg: Any, prefix: str, out: dict[str, Any]) -> None:

@@ -46,7 +46,7 @@ from vehicle_monitor_common.evaluation import (
     write_report,
     write_results,
 )
-from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.parameters import ConfigurationError
 
 DEFAULT_OUT = Path('out/evaluate')
 

@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.parameters import ConfigurationError
 
 _SUBSTITUTION = re.compile(r'\$\(([^)]*)\)')
 NODE_KEYS = {'pkg', 'exec', 'name', 'namespace', 'param', 'remap'}

@@ -46,10 +46,11 @@ from vehicle_monitor_common.evaluation import (
     write_report,
     write_results,
 )
-from vehicle_monitor_common.node_helpers import ConfigurationError
+from vehicle_monitor_common.graph_spec import GraphSpec, load_graph
+from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
-from vehicle_monitor_common.runner import EXECUTORS, Graph, GraphSpec, load_graph
+from vehicle_monitor_common.runner import EXECUTORS, Graph
 
 DEFAULT_OUT = Path('out/demo')
 # Printed progress lines are this far apart (wall time, s).

@@ -34,6 +34,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from vehicle_monitor_common.parameters import (
+    ConfigurationError,
     ParameterSpec,
     build,
     check_choice,
@@ -69,10 +70,6 @@ def sensor_subscription(node: Node, msg_type: Any, topic: str,
     return node.create_subscription(
         msg_type, topic, callback, SENSOR_QOS, raw=raw,
         qos_overriding_options=QoSOverridingOptions.with_default_policies())
-
-
-class ConfigurationError(ValueError):
-    """A user error in a node's configuration: reported in one line, exit code 2."""
 
 
 def _descriptor(spec: ParameterSpec) -> ParameterDescriptor:

@@ -18,6 +18,10 @@ from dataclasses import dataclass
 from typing import Any
 
 
+class ConfigurationError(ValueError):
+    """A user error in a node's or a graph's configuration: reported in one line, exit code 2."""
+
+
 def param(default: Any, description: str, *, low: float | None = None,
           high: float | None = None, choices: Sequence[str] | None = None,
           read_only: bool = False) -> Any:

@@ -38,7 +38,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from vehicle_monitor_common.bag_io import BagError, bag_topics, iter_raw, open_reader
-from vehicle_monitor_common.node_helpers import ConfigurationError, TypedParameters, param
+from vehicle_monitor_common.node_helpers import TypedParameters
+from vehicle_monitor_common.parameters import ConfigurationError, param
 
 # Reliable with a deep queue: a replay must not lose messages to a slow reader.
 REPLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,

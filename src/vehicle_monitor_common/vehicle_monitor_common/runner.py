@@ -28,8 +28,8 @@ without players runs until then) and prints what the recorders received.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import replace
 import importlib
 from importlib.metadata import entry_points
 import os
@@ -50,8 +50,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 import yaml
 
-from vehicle_monitor_common.launch_yaml import is_launch_file, parse_launch
-from vehicle_monitor_common.node_helpers import ConfigurationError, refuse_unknown_parameters
+from vehicle_monitor_common.graph_spec import GraphSpec, NodeSpec, load_graph
+from vehicle_monitor_common.node_helpers import refuse_unknown_parameters
+from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
 
@@ -65,79 +66,6 @@ EXECUTORS: dict[str, Callable[[Context | None], Executor]] = {
     'multi': lambda context: MultiThreadedExecutor(num_threads=os.cpu_count() or 2,
                                                    context=context),
 }
-
-
-@dataclass(frozen=True)
-class NodeSpec:
-    """One node of a graph."""
-
-    plugin: str
-    name: str | None = None
-    namespace: str = ''
-    parameters: dict[str, Any] = field(default_factory=dict)
-    remappings: dict[str, str] = field(default_factory=dict)
-    param_files: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class GraphSpec:
-    """A graph: its nodes and how they are executed."""
-
-    nodes: tuple[NodeSpec, ...]
-    executor: str = 'events'
-    use_sim_time: bool = False
-
-    def __post_init__(self) -> None:
-        if self.executor not in EXECUTORS:
-            raise ConfigurationError(
-                f'executor must be one of {", ".join(EXECUTORS)}, got {self.executor!r}')
-        if not self.nodes:
-            raise ConfigurationError('a graph needs at least one node')
-
-
-def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
-    """Validate a graph description (the YAML's content) into a GraphSpec."""
-    if not isinstance(data, dict):
-        raise ConfigurationError(f'{source}: expected a mapping with a nodes list')
-    unknown = set(data) - {'executor', 'use_sim_time', 'nodes'}
-    if unknown:
-        raise ConfigurationError(f'{source}: unknown key {sorted(unknown)[0]!r}')
-    nodes = []
-    for index, entry in enumerate(data.get('nodes') or []):
-        where = f'{source}: nodes[{index}]'
-        if not isinstance(entry, dict) or 'plugin' not in entry:
-            raise ConfigurationError(f'{where}: needs a plugin')
-        bad = set(entry) - {'plugin', 'name', 'namespace', 'parameters', 'remappings'}
-        if bad:
-            raise ConfigurationError(f'{where}: unknown key {sorted(bad)[0]!r}')
-        nodes.append(NodeSpec(plugin=str(entry['plugin']), name=entry.get('name'),
-                              namespace=str(entry.get('namespace') or ''),
-                              parameters=dict(entry.get('parameters') or {}),
-                              remappings={str(k): str(v) for k, v in
-                                          (entry.get('remappings') or {}).items()}))
-    return GraphSpec(nodes=tuple(nodes), executor=str(data.get('executor', 'events')),
-                     use_sim_time=bool(data.get('use_sim_time', False)))
-
-
-def load_graph(path: str | os.PathLike[str],
-               launch_args: Mapping[str, str] | None = None) -> GraphSpec:
-    """Read and validate a graph YAML file or a YAML launch file (with its arguments)."""
-    try:
-        with open(path, encoding='utf-8') as stream:
-            data = yaml.safe_load(stream)
-    except OSError as exc:
-        raise ConfigurationError(f'cannot read graph file {path}: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        raise ConfigurationError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
-    if is_launch_file(data):
-        nodes = parse_launch(data, launch_args or {}, str(path))
-        return GraphSpec(nodes=tuple(
-            NodeSpec(plugin=n['plugin'], name=n['name'], namespace=n['namespace'],
-                     parameters=n['parameters'], remappings=n['remappings'],
-                     param_files=tuple(n['param_files'])) for n in nodes))
-    if launch_args:
-        raise ConfigurationError(f'{path}: launch arguments given, but this is a graph file')
-    return parse_graph(data, str(path))
 
 
 def node_class(plugin: str) -> Callable[..., Node]:

@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 from vehicle_monitor_common.bag_io import BagError, write_bag
-from vehicle_monitor_common.node_helpers import ConfigurationError, param
+from vehicle_monitor_common.parameters import ConfigurationError, param
 from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer
 from vehicle_monitor_common.resources import shipped_file
 from vehicle_monitor_common.series import TopicSeries

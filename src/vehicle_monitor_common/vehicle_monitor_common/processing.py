@@ -1,0 +1,78 @@
+"""Node logic as ROS-free processors, shared by the live node and the offline engine.
+
+A processor is what a node does with its inputs, without the transport: it is given each input
+message (decoded, or as the serialised bytes for a raw input) in arrival order and returns the
+messages to publish, each as an :class:`Output` (topic, stamp, fields); it reports its health as
+a :class:`Status`. All of a node's logic lives there: time checks, buffering and chunking,
+calibration, gating, output timing in data time. Then
+
+* the **node** (``node_helpers.ProcessorNode``) is a transport adapter: it subscribes the
+  processor's inputs, hands each message over, fills and publishes the outputs, publishes the
+  status on ``/diagnostics`` from its timer, and serves ``~/calibrate``;
+* the **offline engine** (``offline_engine``) reads a recording, hands every message to the
+  processors of a graph in recorded order (outputs that other processors subscribe go to them
+  at once), and writes or summarises what they publish: the same outputs as the live graph,
+  with no DDS in between.
+
+Input messages are objects with the contract's attribute names (``msg.header.stamp.sec``,
+``msg.linear_acceleration.y``): rclpy's messages in the node, rosbags' in the engine; a
+processor reads attributes only, so both work.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+OK, WARN, ERROR = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Input:
+    """One input of a processor: its message type, and whether it wants the serialised bytes
+    (a dense stream whose decoding costs more than its processing) or the decoded message."""
+
+    msgtype: str
+    raw: bool = False
+
+
+@dataclass
+class Output:
+    """One message to publish.
+
+    Attributes:
+        topic: relative topic name, as the node publishes it (``tpms/tire_stiffness``).
+        stamp_ns: ``header.stamp`` of the message: the input sample it answers.
+        fields: the message's other fields by name (nested messages as nested mappings;
+            arrays as sequences or numpy arrays).
+    """
+
+    topic: str
+    stamp_ns: int
+    fields: dict[str, Any]
+
+
+@dataclass
+class Status:
+    """A processor's health for ``/diagnostics``: level (OK, WARN, ERROR), one-line message,
+    and key-values."""
+
+    level: int = OK
+    message: str = 'starting'
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+class Processor(Protocol):
+    """What a node does with its inputs (see the module docstring)."""
+
+    inputs: Mapping[str, Input]
+    """Relative topic -> how it arrives."""
+    outputs: Mapping[str, str]
+    """Relative topic -> message type published there."""
+
+    def process(self, topic: str, message: Any) -> list[Output]:
+        """Take one input message (bytes for a raw input); the outputs it makes due."""
+
+    def status(self, now_ns: int) -> Status:
+        """Health now (``now_ns`` on the node's clock; for rates and silence)."""

@@ -1,0 +1,87 @@
+"""The transport adapter every estimator node is: a :class:`~rclpy.node.Node` around a processor.
+
+A node subclass declares its parameters (``TypedParameters``), builds its processor
+(:mod:`vehicle_monitor_common.processing`) and calls :meth:`ProcessorNode.attach`; from then on
+this class subscribes every input of the processor (sensor QoS, overridable), hands each message
+over, publishes the outputs it returns (reliable, depth 10), publishes its status on
+``/diagnostics`` from a timer, and serves ``~/calibrate`` when the processor can calibrate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+import importlib
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from vehicle_monitor_common.node_helpers import (
+    OUTPUT_QOS,
+    Diagnostics,
+    sensor_subscription,
+    time_msg,
+)
+from vehicle_monitor_common.processing import Output, Processor
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``package/msg/Name``."""
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
+    """Set a message's fields from a mapping (nested mappings for nested messages)."""
+    for name, value in fields.items():
+        if isinstance(value, Mapping):
+            fill_message(getattr(message, name), value)
+        else:
+            setattr(message, name, value.tolist() if isinstance(value, np.ndarray) else value)
+    return message
+
+
+class ProcessorNode(Node):
+    """A node whose logic is a processor (see the module docstring)."""
+
+    processor: Processor
+
+    def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float) -> None:
+        """Wire the processor to the graph: inputs, outputs, diagnostics, ``~/calibrate``."""
+        self.processor = processor
+        self._message_classes = {topic: message_class(msgtype)
+                                 for topic, msgtype in processor.outputs.items()}
+        self._publishers_by_topic = {
+            topic: self.create_publisher(cls, topic, OUTPUT_QOS)
+            for topic, cls in self._message_classes.items()}
+        for topic, spec in processor.inputs.items():
+            sensor_subscription(self, message_class(spec.msgtype), topic,
+                                self._input_callback(topic), raw=spec.raw)
+        if hasattr(processor, 'request_calibration'):
+            self.create_service(Trigger, '~/calibrate', self._on_calibrate)
+        self._diagnostics = Diagnostics(self, hardware_id, diagnostics_period_s,
+                                        update=self._update_diagnostics)
+        self._update_diagnostics()
+
+    def _input_callback(self, topic: str) -> Callable[[Any], None]:
+        return lambda message: self.deliver(topic, message)
+
+    def deliver(self, topic: str, message: Any) -> None:
+        """Hand one input message to the processor and publish what it returns."""
+        for output in self.processor.process(topic, message):
+            self.publish_output(output)
+
+    def publish_output(self, output: Output) -> None:
+        """Fill the output's message and publish it, stamped with the sample it answers."""
+        message = fill_message(self._message_classes[output.topic](), output.fields)
+        message.header.stamp = time_msg(output.stamp_ns)
+        self._publishers_by_topic[output.topic].publish(message)
+
+    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = self.processor.request_calibration()  # type: ignore[attr-defined]
+        return response
+
+    def _update_diagnostics(self) -> None:
+        status = self.processor.status(self.get_clock().now().nanoseconds)
+        self._diagnostics.set(status.level, status.message, status.values)
