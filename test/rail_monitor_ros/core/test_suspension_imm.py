@@ -407,3 +407,52 @@ def test_plot_writes_png(tmp_path: Path) -> None:
     out = plot_mode_probabilities(_paper_run(), tmp_path / 'imm.png')
     assert out.stat().st_size > 10_000
     assert out.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def _state(imm: SuspensionImm) -> tuple[np.ndarray, ...]:
+    return (imm.x.copy(), imm.P.copy(), imm.mu.copy(), imm.smoothed.copy(),
+            np.array([imm.spring_ratio, imm.damper_ratio, imm.fault.detected]))
+
+
+def test_predict_through_gap_is_the_missing_samples_predicted() -> None:
+    """A gap bridged by predict_through_gap leaves the IMM exactly where one predict-only step
+    per missing sample leaves it (probabilities, smoothing, decision included), and a stamped
+    step bridges the gap since the previous stamp by itself."""
+    z = _imu(_simulation('rail_imm_spring_damper_fault'))[500:800]
+    period_ns = 5_000_000
+    stepped, bridged, stamped = SuspensionImm(), SuspensionImm(), SuspensionImm()
+    for k in range(250):                          # past the warm-up: steady-state cycles too
+        for imm in (stepped, bridged):
+            imm.step(z[k])
+        stamped.step(z[k], stamp_ns=k * period_ns)
+    for _ in range(7):
+        stepped.step(None)
+    assert bridged.predict_through_gap(8 * 0.005) == 7
+    stamped.step(z[257], stamp_ns=257 * period_ns)
+    stepped.step(z[257])
+    bridged.step(z[257])
+    for a, b, c in zip(_state(stepped), _state(bridged), _state(stamped), strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    assert bridged.missing_samples == stamped.missing_samples == 7
+    assert stamped.gap_restarts == 0
+
+
+def test_gap_longer_than_max_gap_restarts_the_states_keeping_probabilities() -> None:
+    """A stamped sample more than max_gap_s after the previous one restarts the bank's states
+    (exact cycles again) but keeps the mode probabilities."""
+    z = _imu(_simulation('rail_imm_spring_damper_fault'))[500:800]
+    imm = SuspensionImm(replace(SuspensionImmParams(), max_gap_s=0.2))
+    for k in range(100):
+        imm.step(z[k], stamp_ns=k * 5_000_000)
+    mu = imm.mu.copy()
+    restarted = SuspensionImm(replace(SuspensionImmParams(), max_gap_s=0.2))
+    for k in range(100):
+        restarted.step(z[k])
+    restarted.reset_states()
+    imm.step(z[100], stamp_ns=99 * 5_000_000 + 300_000_000)
+    restarted.step(z[100])
+    assert imm.gap_restarts == 1 and imm.missing_samples == 0
+    np.testing.assert_array_equal(imm.x, restarted.x)
+    np.testing.assert_array_equal(imm.mu, restarted.mu)
+    assert not np.array_equal(imm.mu, mu)        # updated from the kept probabilities

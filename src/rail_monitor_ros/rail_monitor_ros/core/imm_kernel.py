@@ -25,14 +25,15 @@ LOG_2PI = math.log(2.0 * math.pi)
 CBAR_FLOOR = 1e-300
 
 
-_F1, _F2, _F3 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
+# C-contiguous float64 arrays of one, two and three dimensions (what the monitor passes).
+VECTOR, MATRIX, STACK = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
 
 # Reassociation lets the reductions vectorise; no 'nnan'/'ninf': the definiteness test must
 # see a NaN.
 _FASTMATH = {'reassoc', 'contract'}
 
 
-@njit(types.void(_F1, types.float64, _F1), cache=True)
+@njit(types.void(VECTOR, types.float64, VECTOR), cache=True)
 def posterior_probabilities(log_post: np.ndarray, probability_floor: float,
                             out: np.ndarray) -> None:
     """out = normalised exp(log_post) (log-sum-exp: no mode underflows to an undefined
@@ -52,7 +53,8 @@ def posterior_probabilities(log_post: np.ndarray, probability_floor: float,
         out[j] /= total
 
 
-@njit(types.boolean(_F2, _F1, _F2, _F3, _F2, _F2, _F3, _F3, _F1, types.float64, _F2, _F1, _F1),
+@njit(types.boolean(MATRIX, VECTOR, MATRIX, STACK, MATRIX, MATRIX, STACK, STACK, VECTOR,
+                    types.float64, MATRIX, VECTOR, VECTOR),
       cache=True, fastmath=_FASTMATH)
 def steady_imm_cycle(x: np.ndarray, mu: np.ndarray, transition: np.ndarray,
                      f_top: np.ndarray, f_input_t: np.ndarray, hf_rows: np.ndarray,
@@ -181,7 +183,8 @@ def steady_imm_cycle(x: np.ndarray, mu: np.ndarray, transition: np.ndarray,
     return True
 
 
-@njit(types.void(_F1, _F2, _F1, types.int64, _F1, _F2, types.float64, _F1), cache=True)
+@njit(types.void(VECTOR, MATRIX, VECTOR, types.int64, VECTOR, MATRIX, types.float64, VECTOR),
+      cache=True)
 def smooth_probabilities(mu: np.ndarray, window: np.ndarray, window_sum: np.ndarray,
                          count: int, smoothed: np.ndarray, mode_ratios: np.ndarray,
                          min_fraction: float, ratios: np.ndarray) -> None:
