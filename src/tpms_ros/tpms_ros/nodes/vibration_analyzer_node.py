@@ -23,30 +23,24 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from builtin_interfaces.msg import Time
 import numpy as np
-from rclpy.node import Node
-from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import TireResonance
-from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
-from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
+from tpms_ros.core.tires import N_TIRES
 from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
+from tpms_ros.nodes.calibrating_tpms_node import CalibratingTpmsNode
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
-from vehicle_monitor_common.calibration_store import CalibrationManager
-from vehicle_monitor_common.input_health import StampCheck
+from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
     WARN,
-    Diagnostics,
-    ProcessAhead,
-    TypedParameters,
     output_phase_param,
     param,
     process_ahead_param,
     run_node,
+    time_msg,
 )
 
 
@@ -74,17 +68,14 @@ class VibrationAnalyzerNodeParams:
                                         high=60.0, read_only=True)
 
 
-class VibrationAnalyzerNode(Node):
+class VibrationAnalyzerNode(
+        CalibratingTpmsNode[VibrationParams, VibrationAnalyzerNodeParams, VibrationAnalyzer]):
     """Wraps :class:`VibrationAnalyzer` (four tires) with ROS topics, calibration, diagnostics."""
 
     def __init__(self, node_name: str = 'vibration_analyzer', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self._core_params = TypedParameters(self, VibrationParams,
-                                            on_change=self._on_core_change)
-        self._typed = TypedParameters(self, VibrationAnalyzerNodeParams,
-                                      on_change=self._on_change)
-        core, p = self._core_params.value, self._typed.value
-        self._analyzer = VibrationAnalyzer(core)
+        super().__init__(node_name, 'vibration', VibrationParams, VibrationAnalyzerNodeParams,
+                         VibrationAnalyzer, **kwargs)
+        core, p = self.core_parameters, self.parameters
         self._period_ns = round(1e9 / core.sample_rate_hz)
         self._block_len = max(1, round(p.block_s * core.sample_rate_hz))
         self._stamps = StampCheck(max_gap_s=p.max_gap_s)
@@ -96,49 +87,12 @@ class VibrationAnalyzerNode(Node):
         self._missing_per_wheel = 0          # NaN rows the node inserted (core counts them)
         self._block_missing = 0              # ... of which in the current buffer
         self._last_bad_s = np.full(N_TIRES, -math.inf)
-        self._last_publish_s = -math.inf
-        self._ahead = ProcessAhead()
-        self._last_stamp_s = math.nan
-        self._last_known = np.zeros(N_TIRES, dtype=bool)
-        self._last_flags = np.zeros(N_TIRES, dtype=bool)
-        self._rate_count = 0
-        self._rate_since_ns = self.get_clock().now().nanoseconds
-
-        self._calibration = CalibrationManager(self._analyzer, p.calibration_file, 'vibration')
-        self._calibration.load()
-        if self._calibration.state == 'file_corrupt':
-            self.get_logger().warning(self._calibration.detail)
-        if p.calibrate_on_start:
-            self._calibration.request(core.calibration_duration_s)
+        self._rate = RateMeter(since_ns=self.get_clock().now().nanoseconds)
 
         self._resonance_pub = self.create_publisher(TireResonance, 'tpms/tire_resonance',
                                                     OUTPUT_QOS)
-        self._indication_pub = self.create_publisher(IndicationMsg, 'tpms/indication/vibration',
-                                                     OUTPUT_QOS)
         subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
-        self.create_service(Trigger, '~/calibrate', self._on_calibrate)
-        self._diagnostics = Diagnostics(self, 'tpms/vibration', p.diagnostics_period_s,
-                                        update=self._update_diagnostics)
-        self._update_diagnostics()
-
-    @property
-    def parameters(self) -> VibrationAnalyzerNodeParams:
-        """The current, validated node-only parameters."""
-        return self._typed.value
-
-    @property
-    def core_parameters(self) -> VibrationParams:
-        """The current, validated parameters of the method."""
-        return self._core_params.value
-
-    @property
-    def analyzer(self) -> VibrationAnalyzer:
-        """The core estimator (read access for tests and tools)."""
-        return self._analyzer
-
-    def _on_core_change(self, core: VibrationParams) -> None:
-        # only the parameters the core reads per call can change (the rest are read-only)
-        self._analyzer.params = core
+        self._start_diagnostics()
 
     def _on_change(self, p: VibrationAnalyzerNodeParams) -> None:
         self._stamps.max_gap_s = p.max_gap_s
@@ -147,12 +101,12 @@ class VibrationAnalyzerNode(Node):
 
     def _on_malformed(self, _: str) -> None:
         self._counts['received'] += 1
-        self._rate_count += 1
+        self._rate.tick()
         self._counts['malformed'] += 1
 
     def _on_wheel_speeds(self, stamp: int, speeds: tuple[float, ...]) -> None:
         self._counts['received'] += 1
-        self._rate_count += 1
+        self._rate.tick()
         omega = np.array(speeds)
         verdict = self._stamps.check(stamp)
         if verdict in ('repeated', 'out_of_order'):
@@ -215,7 +169,7 @@ class VibrationAnalyzerNode(Node):
         sensor_ok = stamp_s - self._last_bad_s >= self.parameters.bad_hold_s
         valid = core_known & sensor_ok
         cal = self._analyzer.calibration
-        header_stamp = _to_time(stamp)
+        header_stamp = time_msg(stamp)
 
         resonance = TireResonance()
         resonance.header.stamp = header_stamp
@@ -232,39 +186,14 @@ class VibrationAnalyzerNode(Node):
         resonance.calibrated = cal is not None
         self._resonance_pub.publish(resonance)
 
-        core = self._analyzer.indication(stamp_s)
-        known = core.known & sensor_ok
-        indication = IndicationMsg()
-        indication.header.stamp = header_stamp
-        indication.method = 'vibration'
-        indication.underinflated = (core.underinflated & known).tolist()
-        indication.confidence = np.where(known, core.confidence, 0.0).tolist()
-        indication.known = known.tolist()
-        self._indication_pub.publish(indication)
-        self._last_known = known
-        self._last_flags = core.underinflated & known
-
-    # -- calibration ---------------------------------------------------------------------------
-
-    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = self._calibration.request(
-            self.core_parameters.calibration_duration_s)
-        return response
-
-    @property
-    def calibration_state(self) -> str:
-        """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
-        return self._calibration.state
+        indication = self._analyzer.indication(stamp_s)
+        self._publish_indication(header_stamp, indication, indication.known & sensor_ok)
 
     # -- diagnostics ---------------------------------------------------------------------------
 
     def _update_diagnostics(self) -> None:
-        now = self.get_clock().now().nanoseconds
-        elapsed = (now - self._rate_since_ns) * 1e-9
-        rate = self._rate_count / elapsed if elapsed > 0 else 0.0
-        self._rate_count, self._rate_since_ns = 0, now
+        rate = self._rate.read(self.get_clock().now().nanoseconds)
         rejected_values = self._analyzer.rejected - self._missing_per_wheel
-        cal = self._calibration
         values: dict[str, Any] = {
             'input_rate_hz': rate,
             'received': self._counts['received'],
@@ -276,12 +205,9 @@ class VibrationAnalyzerNode(Node):
             'gated_low_speed_per_wheel': self._analyzer.gated.tolist(),
             'missing_samples': self._counts['missing_samples'],
             'gaps': self._counts['gaps'],
-            'known': self._last_known.tolist(),
-            'calibration_state': cal.state,
-            'calibration': cal.detail,
-            'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
-            'last_stamp_s': self._last_stamp_s,
         }
+        tire_values, tire_problems = self._tire_diagnostics(self._counts['received'] > 0)
+        values.update(tire_values)
         rejected_total = (sum(self._stamps.rejected.values()) + self._counts['malformed']
                           + int(rejected_values.sum()))
         # every problem is listed; the worst sets the level
@@ -293,22 +219,11 @@ class VibrationAnalyzerNode(Node):
         if self._counts['missing_samples'] > self._counts['received']:
             problems.append((WARN, 'wheel speeds arrive slower than sample_rate_hz: check the '
                                    'parameter'))
-        if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
-            problems.append((WARN, cal.detail))
-        elif self._counts['received'] and not self._last_known.all():
-            unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
-            problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
-        if self._last_flags.any():
-            problems.append((WARN, f'low tires indicated: {", ".join(values["low_tires"])}'))
+        problems += tire_problems
         level = max((lv for lv, _ in problems), default=OK)
         message = '; '.join(text for _, text in problems) or (
             f'ok ({rejected_total} samples rejected so far)' if rejected_total else 'ok')
         self._diagnostics.set(level, message, values)
-
-
-def _to_time(stamp: int) -> Time:
-    sec, nanosec = divmod(stamp, 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
 
 
 def main(args: list[str] | None = None) -> None:

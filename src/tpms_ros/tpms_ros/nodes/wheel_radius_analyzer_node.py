@@ -32,33 +32,27 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from builtin_interfaces.msg import Time
 import numpy as np
-from rclpy.node import Node
 from sensor_msgs.msg import Imu
-from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, WheelRadiusOffsets
-from vehicle_monitor_msgs.msg import TpmsIndication as IndicationMsg
 
-from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
+from tpms_ros.core.tires import N_TIRES
 from tpms_ros.core.wheel_radius_analysis import PAIR_NAMES, WheelRadiusAnalyzer, WheelRadiusParams
+from tpms_ros.nodes.calibrating_tpms_node import CalibratingTpmsNode
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
-from vehicle_monitor_common.calibration_store import CalibrationManager
-from vehicle_monitor_common.input_health import StampCheck
+from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
     OK,
     OUTPUT_QOS,
     WARN,
-    Diagnostics,
-    ProcessAhead,
-    TypedParameters,
     output_phase_param,
     param,
     process_ahead_param,
     run_node,
     sensor_subscription,
     stamp_ns,
+    time_msg,
 )
 
 # core order delta_13, delta_24, delta_34, delta_12 -> message order delta_13, delta_24,
@@ -94,17 +88,15 @@ class WheelRadiusAnalyzerNodeParams:
                                         high=60.0, read_only=True)
 
 
-class WheelRadiusAnalyzerNode(Node):
+class WheelRadiusAnalyzerNode(CalibratingTpmsNode[WheelRadiusParams,
+                                                  WheelRadiusAnalyzerNodeParams,
+                                                  WheelRadiusAnalyzer]):
     """Wraps :class:`WheelRadiusAnalyzer` with input alignment, calibration and diagnostics."""
 
     def __init__(self, node_name: str = 'wheel_radius_analyzer', **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self._core_params = TypedParameters(self, WheelRadiusParams,
-                                            on_change=self._on_core_change)
-        self._typed = TypedParameters(self, WheelRadiusAnalyzerNodeParams)
-        core, p = self._core_params.value, self._typed.value
-        self._analyzer = WheelRadiusAnalyzer(core)
-        self._bin_ns = round(1e9 / core.sample_rate_hz)
+        super().__init__(node_name, 'wheel_radius', WheelRadiusParams,
+                         WheelRadiusAnalyzerNodeParams, WheelRadiusAnalyzer, **kwargs)
+        self._bin_ns = round(1e9 / self.core_parameters.sample_rate_hz)
         # stream checks: only order matters here (the core handles gaps between bins)
         self._checks = {topic: StampCheck(max_gap_s=math.inf)
                         for topic in ('wheel_speeds', 'imu', 'driver_inputs')}
@@ -118,67 +110,25 @@ class WheelRadiusAnalyzerNode(Node):
         self._counts = dict.fromkeys(('wrong_size', 'malformed', 'empty_bins',
                                       'stale_driver_inputs', 'skipped_imu_samples', 'bins'), 0)
         self._received = dict.fromkeys(self._checks, 0)
-        self._rate_counts = dict.fromkeys(self._checks, 0)
-        self._rate_since_ns = self.get_clock().now().nanoseconds
+        now = self.get_clock().now().nanoseconds
+        self._rates = {topic: RateMeter(since_ns=now) for topic in self._checks}
         self._last_trace: np.ndarray | None = None
         self._last_long_update = -math.inf
         self._last_lat_update = -math.inf
-        self._last_publish_s = -math.inf
-        self._ahead = ProcessAhead()
-        self._last_stamp_s = math.nan
         self._gyro_ok = True
-        self._last_known = np.zeros(N_TIRES, dtype=bool)
-        self._last_flags = np.zeros(N_TIRES, dtype=bool)
-
-        self._calibration = CalibrationManager(self._analyzer, p.calibration_file,
-                                               'wheel_radius')
-        self._calibration.load()
-        if self._calibration.state == 'file_corrupt':
-            self.get_logger().warning(self._calibration.detail)
-        if p.calibrate_on_start:
-            self._calibration.request(core.calibration_duration_s)
 
         self._radius_pub = self.create_publisher(WheelRadiusOffsets, 'tpms/wheel_radius',
                                                  OUTPUT_QOS)
-        self._indication_pub = self.create_publisher(
-            IndicationMsg, 'tpms/indication/wheel_radius', OUTPUT_QOS)
         subscribe_wheel_speeds(self, self._on_wheel_speeds, self._on_malformed)
         sensor_subscription(self, Imu, 'vehicle/imu', self._on_imu)
         sensor_subscription(self, DriverInputs, 'vehicle/driver_inputs', self._on_driver_inputs)
-        self.create_service(Trigger, '~/calibrate', self._on_calibrate)
-        self._diagnostics = Diagnostics(self, 'tpms/wheel_radius', p.diagnostics_period_s,
-                                        update=self._update_diagnostics)
-        self._update_diagnostics()
-
-    @property
-    def parameters(self) -> WheelRadiusAnalyzerNodeParams:
-        """The current, validated node-only parameters."""
-        return self._typed.value
-
-    @property
-    def core_parameters(self) -> WheelRadiusParams:
-        """The current, validated parameters of the method."""
-        return self._core_params.value
-
-    @property
-    def analyzer(self) -> WheelRadiusAnalyzer:
-        """The core estimator (read access for tests and tools)."""
-        return self._analyzer
-
-    @property
-    def calibration_state(self) -> str:
-        """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
-        return self._calibration.state
-
-    def _on_core_change(self, core: WheelRadiusParams) -> None:
-        # the read-only parameters are the ones the core captures at construction
-        self._analyzer.params = core
+        self._start_diagnostics()
 
     # -- inputs --------------------------------------------------------------------------------
 
     def _accept(self, topic: str, ns: int) -> int | None:
         self._received[topic] += 1
-        self._rate_counts[topic] += 1
+        self._rates[topic].tick()
         return ns if self._checks[topic].check(ns) in ('ok', 'gap') else None
 
     def _on_malformed(self, _: str) -> None:
@@ -317,8 +267,7 @@ class WheelRadiusAnalyzerNode(Node):
         p = self.parameters
         self._last_publish_s = stamp_s
         self._ahead.published()
-        sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
-        header_stamp = Time(sec=sec, nanosec=nanosec)
+        header_stamp = time_msg(round(stamp_s * 1e9))
         cal = self._analyzer.calibration
 
         radius = WheelRadiusOffsets()
@@ -335,32 +284,14 @@ class WheelRadiusAnalyzerNode(Node):
         radius.calibrated = cal is not None
         self._radius_pub.publish(radius)
 
-        core = self._analyzer.indication(stamp_s)
-        indication = IndicationMsg()
-        indication.header.stamp = header_stamp
-        indication.method = 'wheel_radius'
-        indication.underinflated = (core.underinflated & core.known).tolist()
-        indication.confidence = np.where(core.known, core.confidence, 0.0).tolist()
-        indication.known = core.known.tolist()
-        self._indication_pub.publish(indication)
-        self._last_known = core.known.copy()
-        self._last_flags = core.underinflated & core.known
+        indication = self._analyzer.indication(stamp_s)
+        self._publish_indication(header_stamp, indication, indication.known)
 
-    # -- calibration and diagnostics -----------------------------------------------------------
-
-    def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = self._calibration.request(
-            self.core_parameters.calibration_duration_s)
-        return response
+    # -- diagnostics ---------------------------------------------------------------------------
 
     def _update_diagnostics(self) -> None:
         now = self.get_clock().now().nanoseconds
-        elapsed = (now - self._rate_since_ns) * 1e-9
-        rates = {topic: (count / elapsed if elapsed > 0 else 0.0)
-                 for topic, count in self._rate_counts.items()}
-        self._rate_counts = dict.fromkeys(self._rate_counts, 0)
-        self._rate_since_ns = now
-        cal = self._calibration
+        rates = {topic: meter.read(now) for topic, meter in self._rates.items()}
         core_cal = self._analyzer.calibration
         counts = self._analyzer.counts
         values: dict[str, Any] = {f'input_rate_hz.{t}': r for t, r in rates.items()}
@@ -376,21 +307,16 @@ class WheelRadiusAnalyzerNode(Node):
         for key in ('bins', 'empty_bins', 'stale_driver_inputs',
                     'skipped_imu_samples'):
             values[key] = self._counts[key]
-        values.update({
-            'gyro_ok': self._gyro_ok,
-            'known': self._last_known.tolist(),
-            'calibration_state': cal.state,
-            'calibration': cal.detail,
-            'low_tires': [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)],
-            'last_stamp_s': self._last_stamp_s,
-        })
+        received = any(self._received.values())
+        values['gyro_ok'] = self._gyro_ok
+        tire_values, tire_problems = self._tire_diagnostics(received)
+        values.update(tire_values)
         if core_cal is not None:
             # the calibration's coloured-noise factor on each pair's std (1: white as assumed)
             values.update({f'noise_scale.{name}': float(v) for name, v in
                            zip(PAIR_NAMES, core_cal.noise_scale, strict=True)})
         # every problem is listed; the worst sets the level
         problems: list[tuple[int, str]] = []
-        received = any(self._received.values())
         silent = [t for t in ('wheel_speeds', 'imu') if rates[t] == 0.0]
         if not received:
             problems.append((WARN, 'waiting for inputs'))
@@ -401,13 +327,7 @@ class WheelRadiusAnalyzerNode(Node):
             problems.append((WARN, 'gyro stopped: lateral filter paused'))
         if received and rates['driver_inputs'] == 0.0:
             problems.append((WARN, 'vehicle/driver_inputs silent: longitudinal filters paused'))
-        if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
-            problems.append((WARN, cal.detail))
-        elif received and not self._last_known.all():
-            unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
-            problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
-        if self._last_flags.any():
-            problems.append((WARN, f'low tires indicated: {", ".join(values["low_tires"])}'))
+        problems += tire_problems
         level = max((lv for lv, _ in problems), default=OK)
         message = '; '.join(text for _, text in problems) or 'ok'
         self._diagnostics.set(level, message, values)
