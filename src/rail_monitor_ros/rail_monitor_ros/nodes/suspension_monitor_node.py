@@ -44,7 +44,7 @@ from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregu
 
 from rail_monitor_ros.core.rail_model import MAX_CREEP_FACTOR, wheelset_inputs_from_track
 from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmParams
-from vehicle_monitor_common.imu_pairing import ImuPairer
+from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
 from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -190,7 +190,7 @@ class SuspensionMonitorNode(Node):
         self._track = (stamp_ns(msg.header.stamp), alignment[:used].copy(),
                        rate[:used].copy() if rate.size else None)
 
-    def _process_pairs(self, pairs: list[Any]) -> None:
+    def _process_pairs(self, pairs: list[ImuPair]) -> None:
         for pair in pairs:
             if pair.body is None:
                 continue                       # counted by the pairer: 'unpaired'
