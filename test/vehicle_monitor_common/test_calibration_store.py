@@ -129,3 +129,62 @@ def test_manager_failed_run_and_rejected_file(tmp_path: Path) -> None:
     rejecting = CalibrationManager(_FakeEstimator(enough=True), str(path), 'fake')
     rejecting.load()
     assert rejecting.state == 'file_corrupt' and 'recalibration required' in rejecting.detail
+
+
+class _SelfTimedEstimator(_FakeEstimator):
+    """Counts its own window (valid data per tire): done once ``complete`` is set."""
+
+    def __init__(self) -> None:
+        super().__init__(enough=True)
+        self.complete = False
+
+    def calibration_complete(self) -> bool:
+        return self.complete
+
+
+def test_manager_self_timed_run_ends_when_the_estimator_says(tmp_path: Path) -> None:
+    """A self-timed estimator's run does not end on data time, only when it is complete; a
+    file problem found at load is kept until a calibration is saved over the file."""
+    path = tmp_path / 'cal.yaml'
+    path.write_text('- not\n- a mapping\n')
+    estimator = _SelfTimedEstimator()
+    manager = CalibrationManager(estimator, str(path), 'fake')
+    manager.load()
+    assert manager.state == 'file_corrupt' and 'mapping' in manager.file_problem
+    manager.request(1.0)
+    manager.before_chunk()
+    assert manager.update(0.0, 50.0) == '' and manager.state == 'calibrating'
+    assert 'mapping' in manager.file_problem
+    estimator.complete = True
+    manager.before_chunk()
+    assert 'saved' in manager.update(50.0, 51.0)
+    assert estimator.calls == ['start', 'finish'] and manager.state == 'calibrated'
+    assert manager.file_problem == ''
+
+
+def test_manager_replace_estimator_keeps_or_drops_the_calibration(tmp_path: Path) -> None:
+    """After a rebuild a calibration in force is carried over if the new estimator accepts it
+    (else uncalibrated), and a running one starts over on the new estimator."""
+    path = tmp_path / 'cal.yaml'
+    save_calibration(path, {'value': 42.0})
+    manager = CalibrationManager(_FakeEstimator(enough=True), str(path), 'fake')
+    manager.load()
+    kept = _FakeEstimator(enough=True)
+    manager.replace_estimator(kept)
+    assert manager.state == 'loaded' and kept.state == {'value': 42.0}
+    refusing = _FakeEstimator(enough=True)
+    refusing.load_calibration_state = _refuse  # type: ignore[method-assign]
+    manager.replace_estimator(refusing)
+    assert manager.state == 'uncalibrated' and 'dropped' in manager.detail
+    manager.request(1.0)
+    manager.before_chunk()
+    manager.update(0.0, 0.5)
+    fresh = _FakeEstimator(enough=True)
+    manager.replace_estimator(fresh)
+    manager.before_chunk()
+    assert fresh.calls == ['start']
+    assert 'saved' in manager.update(10.0, 11.0) and fresh.calls == ['start', 'finish']
+
+
+def _refuse(state: dict) -> None:
+    raise ValueError('model changed')

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import os
 from pathlib import Path
 import tempfile
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import yaml
 
@@ -113,7 +113,12 @@ def save_calibration(path: str | os.PathLike[str], state: Mapping[str, Any],
 
 
 class Calibratable(Protocol):
-    """What a calibrating estimator offers (the TPMS cores' method names)."""
+    """What a calibrating estimator offers (the TPMS cores' method names).
+
+    By default the calibration window is data time, counted by :class:`CalibrationManager`; an
+    estimator that counts its own window (valid data per tire, not data time) also offers
+    ``calibration_complete`` (:class:`SelfTimedCalibratable`).
+    """
 
     def start_calibration(self) -> None:
         """Start learning from the data processed from now on."""
@@ -128,6 +133,14 @@ class Calibratable(Protocol):
         """Put a persisted calibration in force; ValueError when it is corrupt."""
 
 
+@runtime_checkable
+class SelfTimedCalibratable(Calibratable, Protocol):
+    """A calibrating estimator that decides itself when its run has enough data."""
+
+    def calibration_complete(self) -> bool:
+        """The running calibration has collected what it needs (then ``finish_calibration``)."""
+
+
 class CalibrationManager:
     """Runs an estimator's calibration over a window of *data* time and persists the result.
 
@@ -139,7 +152,11 @@ class CalibrationManager:
     States: ``uncalibrated``, ``loaded`` (from the file), ``calibrating``, ``calibrated`` (by a
     run in this process), ``failed`` (the last run had too little valid data; the previous
     calibration, if any, stays in force), ``file_corrupt`` (the file was unusable: the node runs
-    uncalibrated and a recalibration is required).
+    uncalibrated and a recalibration is required). Why the file was unusable stays in
+    :attr:`file_problem` until a calibration is saved over it, whatever the state.
+
+    The run ends after ``duration_s`` of data, or, for a :class:`SelfTimedCalibratable`, when
+    the estimator says it has collected enough (``duration_s`` is then the estimator's own).
     """
 
     def __init__(self, estimator: Calibratable, path: str, label: str) -> None:
@@ -149,6 +166,7 @@ class CalibrationManager:
         self.state = 'uncalibrated'
         self.detail = 'no calibration: call ~/calibrate with nominal tire pressures'
         self.save_problem = ''
+        self.file_problem = ''
         self._duration_s = 0.0
         self._start_s: float | None = None
         self._pending = False
@@ -166,6 +184,7 @@ class CalibrationManager:
         if loaded.state is None:
             if loaded.problem:
                 self.state = 'file_corrupt'
+                self.file_problem = loaded.problem
                 self.detail = (f'calibration file unusable ({loaded.problem}): running '
                                'uncalibrated, recalibration required (~/calibrate)')
             return
@@ -173,6 +192,7 @@ class CalibrationManager:
             self._estimator.load_calibration_state(loaded.state)
         except ValueError as exc:
             self.state = 'file_corrupt'
+            self.file_problem = f'{self.path} rejected: {exc}'
             self.detail = (f'calibration file {self.path} rejected ({exc}): running '
                            'uncalibrated, recalibration required (~/calibrate)')
             return
@@ -190,10 +210,6 @@ class CalibrationManager:
         self.detail = f'calibration requested over {duration_s:g} s of data'
         return True, f'{self._label}: calibration started over {duration_s:g} s of data'
 
-    def progress_s(self, stamp_s: float) -> float:
-        """Seconds of data since the running calibration started (0 when none)."""
-        return 0.0 if self._start_s is None else max(stamp_s - self._start_s, 0.0)
-
     def before_chunk(self) -> None:
         """Call before processing a chunk: a requested run starts on the estimator here."""
         if self._pending and self._start_s is None:
@@ -205,7 +221,12 @@ class CalibrationManager:
             return ''
         if self._start_s is None:
             self._start_s = first_stamp_s
-        if last_stamp_s - self._start_s < self._duration_s:
+        if isinstance(self._estimator, SelfTimedCalibratable):
+            if not self._estimator.calibration_complete():
+                self.detail = (f'calibrating: {last_stamp_s - self._start_s:.1f} s of data so '
+                               f'far, until {self._duration_s:g} s of valid data')
+                return ''
+        elif last_stamp_s - self._start_s < self._duration_s:
             self.detail = (f'calibrating: {last_stamp_s - self._start_s:.1f} / '
                            f'{self._duration_s:g} s of data')
             return ''
@@ -224,7 +245,24 @@ class CalibrationManager:
                 comment=f'{self._label} calibration (written by the node; delete to forget)')
             self.detail = (f'calibrated, NOT saved: {self.save_problem}' if self.save_problem
                            else f'calibrated, saved to {self.path}')
+            if not self.save_problem:
+                self.file_problem = ''
         return self.detail
+
+    def replace_estimator(self, estimator: Calibratable) -> None:
+        """The node rebuilt its estimator (new parameters): a running calibration starts over
+        on the new one, a calibration in force is carried over if the new one accepts it."""
+        old, self._estimator = self._estimator, estimator
+        if self._pending:
+            self._start_s = None
+        elif self.state in ('loaded', 'calibrated'):
+            try:
+                estimator.load_calibration_state(old.calibration_state())
+                self.detail += ' (kept across a parameter change)'
+            except ValueError as exc:
+                self.state = 'uncalibrated'
+                self.detail = (f'calibration dropped by a parameter change ({exc}): '
+                               'recalibration required (~/calibrate)')
 
     def restart(self) -> None:
         """The estimator restarted its filters (data gap): a running window starts again."""

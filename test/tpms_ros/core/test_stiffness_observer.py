@@ -412,7 +412,7 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
     est = run(observer, omega)[-1]
     state = json.loads(json.dumps(observer.calibration_state()))
     other = TireStiffnessObserver(StiffnessObserverParams(calibration_s=20.0))
-    other.load_calibration(state)
+    other.load_calibration_state(state)
     est2 = run(other, omega)[-1]
     np.testing.assert_allclose(est2.pressure_kpa, est.pressure_kpa, rtol=1e-12)
     np.testing.assert_allclose(est2.pressure_std_kpa, est.pressure_std_kpa, rtol=1e-12)
@@ -429,7 +429,7 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
     fresh = TireStiffnessObserver()
     for bad, key in corrupt:
         with pytest.raises(ValueError, match=key):
-            fresh.load_calibration(bad)  # type: ignore[arg-type]
+            fresh.load_calibration_state(bad)  # type: ignore[arg-type]
     assert not fresh.estimate().calibrated
 
 

@@ -91,7 +91,7 @@ from tpms_ros.core.block_least_squares import (
     solve_normal,
 )
 from tpms_ros.core.tire_model import TorsionalTire
-from tpms_ros.core.tires import N_TIRES
+from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
 from tpms_ros.core.tooth_correction import ToothErrorCorrector
 from tpms_ros.core.torsional_observer import (
     ConsistencyMap,
@@ -590,6 +590,22 @@ class TireStiffnessObserver:
         """A calibration is running."""
         return self._calibration is not None
 
+    def calibration_complete(self) -> bool:
+        """Every tire has finished its calibration (its ``calibration_s`` of valid data): the
+        run counts valid data per tire itself, so a :class:`CalibrationManager` asks here
+        rather than counting data time."""
+        return bool(np.all(self._wheel_calibrated))
+
+    def finish_calibration(self) -> None:
+        """Confirm a finished run (each tire's calibration went into force as it completed).
+
+        Raises:
+            ValueError: a tire has not collected its valid data yet.
+        """
+        if not self.calibration_complete():
+            missing = [TIRE_NAMES[w] for w in np.flatnonzero(~self._wheel_calibrated)]
+            raise ValueError(f'calibration not finished: {", ".join(missing)} lack valid data')
+
     def calibration_state(self) -> dict[str, Any]:
         """The learned calibration as a plain dict (JSON/YAML-safe) for persisting.
 
@@ -606,7 +622,7 @@ class TireStiffnessObserver:
             'model_k': [float(v) for v in self._model_k],
         }
 
-    def load_calibration(self, state: Mapping[str, Any]) -> None:
+    def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Install a calibration from :meth:`calibration_state` output, after validating it.
 
         Raises:

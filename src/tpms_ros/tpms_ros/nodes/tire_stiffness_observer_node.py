@@ -59,7 +59,7 @@ from tpms_ros.core.stiffness_observer import (
 )
 from tpms_ros.core.tires import TIRE_NAMES
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
-from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
+from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,
@@ -156,13 +156,15 @@ class TireStiffnessObserverNode(Node):
         self._input_rate_hz = math.nan
         self._estimate: StiffnessEstimate | None = None
 
-        self.calibration_state = 'uncalibrated'
-        self.calibration_detail = 'no calibration: call ~/calibrate with nominal tire pressures'
-        # Why the calibration file was unusable; reported until a calibration is saved.
-        self.calibration_file_problem = ''
-        self._load_calibration_file()
-        if n.calibrate_on_start and self.calibration_state != 'loaded':
-            self._start_calibration()
+        # The core counts its own window (valid data per tire): the manager asks it when done.
+        self._calibration = CalibrationManager(self._observer, n.calibration_file,
+                                               'tire_stiffness_observer')
+        self._calibration.load()
+        if self._calibration.state == 'file_corrupt':
+            self.get_logger().warning(self._calibration.detail)
+        # Only when nothing usable was loaded, so a restart keeps what was learned.
+        if n.calibrate_on_start and self._calibration.state != 'loaded':
+            self._calibration.request(p.calibration_s)
 
         self._stiffness_pub = self.create_publisher(TireStiffness, 'tpms/tire_stiffness',
                                                     OUTPUT_QOS)
@@ -204,82 +206,30 @@ class TireStiffnessObserverNode(Node):
             float(values.get('sample_rate_hz', self.parameters.sample_rate_hz)))
         return SetParametersResult(successful=not problem, reason=problem)
 
+    @property
+    def calibration_state(self) -> str:
+        """uncalibrated, loaded, calibrating, calibrated, failed or file_corrupt."""
+        return self._calibration.state
+
+    @property
+    def calibration_file_problem(self) -> str:
+        """Why the calibration file was unusable ('' if it was not, or once one is saved)."""
+        return self._calibration.file_problem
+
     def _on_change(self, p: StiffnessObserverParams) -> None:
         if p == self._observer.params:
             return
         # The filters are designed for these values: build a new estimator and carry the
         # calibration over (the core refuses it when the model K changed).
-        old = self._observer
         self._observer = TireStiffnessObserver(p)
-        if self.calibration_state == 'calibrating':
-            self._start_calibration()
-        elif self.calibration_state in ('loaded', 'calibrated'):
-            try:
-                self._observer.load_calibration(old.calibration_state())
-                self.calibration_detail += ' (kept across a parameter change)'
-            except ValueError as exc:
-                self.calibration_state = 'uncalibrated'
-                self.calibration_detail = (f'calibration dropped by a parameter change ({exc}): '
-                                           'recalibration required (~/calibrate)')
+        self._calibration.replace_estimator(self._observer)
         self._update_diagnostics()
-
-    def _load_calibration_file(self) -> None:
-        path = self.node_parameters.calibration_file
-        if not path:
-            return
-        loaded = load_calibration(path)
-        if loaded.state is None:
-            if loaded.problem:
-                self._file_corrupt(loaded.problem)
-            return
-        try:
-            self._observer.load_calibration(loaded.state)
-        except ValueError as exc:
-            self._file_corrupt(f'{path} rejected: {exc}')
-            return
-        self.calibration_state = 'loaded'
-        self.calibration_detail = f'calibration loaded from {path}'
-
-    def _file_corrupt(self, problem: str) -> None:
-        self.calibration_state = 'file_corrupt'
-        self.calibration_file_problem = problem
-        self.calibration_detail = (f'calibration file unusable ({problem}): running '
-                                   'uncalibrated, recalibration required (~/calibrate)')
-        self.get_logger().warning(self.calibration_detail)
-
-    def _start_calibration(self) -> None:
-        self._observer.start_calibration()
-        self.calibration_state = 'calibrating'
-        self.calibration_detail = (f'calibrating over {self.parameters.calibration_s:g} s of '
-                                   'valid data per tire (tires must be at nominal pressure)')
 
     def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self.calibration_state == 'calibrating':
-            response.success = False
-            response.message = 'a calibration is already running'
-            return response
-        self._start_calibration()
-        response.success = True
-        response.message = self.calibration_detail
+        response.success, response.message = self._calibration.request(
+            self.parameters.calibration_s)
         self._update_diagnostics()
         return response
-
-    def _check_calibration(self) -> None:
-        if self.calibration_state != 'calibrating' or self._observer.calibrating:
-            return
-        state = self._observer.calibration_state()
-        self.calibration_state = 'calibrated'
-        path = self.node_parameters.calibration_file
-        if not path:
-            self.calibration_detail = 'calibrated (not persisted: calibration_file is empty)'
-            return
-        problem = save_calibration(path, state, comment='tire_stiffness_observer calibration '
-                                   '(written by the node; delete to forget)')
-        self.calibration_detail = (f'calibrated, NOT saved: {problem}' if problem
-                                   else f'calibrated, saved to {path}')
-        if not problem:
-            self.calibration_file_problem = ''
-        self.get_logger().info(self.calibration_detail)
 
     # -- inputs ------------------------------------------------------------------------------
 
@@ -348,11 +298,14 @@ class TireStiffnessObserverNode(Node):
         if stamps.size > 1:
             self._input_rate_hz = 1.0 / float(np.median(np.diff(t)))
         torque, steering = self._driver_inputs_for(stamps)
+        self._calibration.before_chunk()
         estimate = self._observer.update(omega, stamps=t, wheel_torque=torque,
                                          steering_angle=steering)
         self.processed += int(stamps.size)
+        event = self._calibration.update(float(t[0]), float(t[-1]))
+        if event:
+            self.get_logger().info(event)
         self._estimate = estimate
-        self._check_calibration()
         if publish:
             self._window_count = 0
             self._publish(estimate, int(stamps[-1]))
@@ -394,7 +347,7 @@ class TireStiffnessObserverNode(Node):
         est = self._estimate
         values: dict[str, Any] = {
             'calibration_state': self.calibration_state,
-            'calibration_detail': self.calibration_detail,
+            'calibration_detail': self._calibration.detail,
             'calibration_file': self.node_parameters.calibration_file or '(none)',
             'samples_received': self.received,
             'samples_processed': self.processed,
@@ -410,8 +363,8 @@ class TireStiffnessObserverNode(Node):
         if self.calibration_file_problem:
             values['calibration_file_problem'] = self.calibration_file_problem
             problems.append(f'calibration file unusable ({self.calibration_file_problem})')
-        if self.calibration_state == 'uncalibrated':
-            problems.append(self.calibration_detail)
+        if self.calibration_state in ('uncalibrated', 'failed'):
+            problems.append(self._calibration.detail)
         elif self.calibration_state == 'calibrating':
             notes.append('calibrating')
         if sum(self.rejected.values()):
