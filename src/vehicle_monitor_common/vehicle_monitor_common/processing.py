@@ -30,11 +30,13 @@ OK, WARN, ERROR = 0, 1, 2
 
 @dataclass(frozen=True)
 class Input:
-    """One input of a processor: its message type, and whether it wants the serialised bytes
-    (a dense stream whose decoding costs more than its processing) or the decoded message."""
+    """One input of a processor: its message type, whether it wants the serialised bytes (a
+    dense stream whose decoding costs more than its processing) or the decoded message, and
+    whether the method works without it (``optional``: its absence is no fault)."""
 
     msgtype: str
     raw: bool = False
+    optional: bool = False
 
 
 @dataclass

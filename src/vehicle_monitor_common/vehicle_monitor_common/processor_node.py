@@ -5,6 +5,12 @@ A node subclass declares its parameters (``TypedParameters``), builds its proces
 this class subscribes every input of the processor (sensor QoS, overridable), hands each message
 over, publishes the outputs it returns (reliable, depth 10), publishes its status on
 ``/diagnostics`` from a timer, and serves ``~/calibrate`` when the processor can calibrate.
+
+Input silence is watched here, once for every node: each input's message count and the age of
+its last message (node clock) go on the diagnostics; an input silent for longer than
+``silence_timeout_s`` after it was flowing raises the status to ERROR naming it, and the status
+returns to the processor's own as soon as messages flow again. A required input never received
+is a WARN ("waiting for ..."); an optional one is only listed.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from vehicle_monitor_common.node_helpers import (
     sensor_subscription,
     time_msg,
 )
-from vehicle_monitor_common.processing import Output, Processor
+from vehicle_monitor_common.processing import ERROR, WARN, Output, Processor
 
 
 def message_class(msgtype: str) -> Any:
@@ -47,9 +53,14 @@ class ProcessorNode(Node):
 
     processor: Processor
 
-    def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float) -> None:
+    def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float,
+               silence_timeout_s: float) -> None:
         """Wire the processor to the graph: inputs, outputs, diagnostics, ``~/calibrate``."""
         self.processor = processor
+        self.silence_timeout_s = silence_timeout_s
+        self._started_ns = self.get_clock().now().nanoseconds
+        self._last_arrival_ns: dict[str, int] = {}
+        self._arrivals = dict.fromkeys(processor.inputs, 0)
         self._message_classes = {topic: message_class(msgtype)
                                  for topic, msgtype in processor.outputs.items()}
         self._publishers_by_topic = {
@@ -69,6 +80,8 @@ class ProcessorNode(Node):
 
     def deliver(self, topic: str, message: Any) -> None:
         """Hand one input message to the processor and publish what it returns."""
+        self._arrivals[topic] += 1
+        self._last_arrival_ns[topic] = self.get_clock().now().nanoseconds
         for output in self.processor.process(topic, message):
             self.publish_output(output)
 
@@ -83,5 +96,23 @@ class ProcessorNode(Node):
         return response
 
     def _update_diagnostics(self) -> None:
-        status = self.processor.status(self.get_clock().now().nanoseconds)
-        self._diagnostics.set(status.level, status.message, status.values)
+        now_ns = self.get_clock().now().nanoseconds
+        status = self.processor.status(now_ns)
+        level, problems = status.level, []
+        values = dict(status.values)
+        for topic, spec in self.processor.inputs.items():
+            last = self._last_arrival_ns.get(topic)
+            values[f'{topic}.received'] = self._arrivals[topic]
+            if last is None:
+                values[f'{topic}.age_s'] = 'never'
+                if not spec.optional:
+                    level = max(level, WARN)
+                    problems.append(f'waiting for {topic}')
+                continue
+            age_s = (now_ns - last) * 1e-9
+            values[f'{topic}.age_s'] = age_s
+            if age_s > self.silence_timeout_s:
+                level = ERROR
+                problems.append(f'{topic} silent for {age_s:.1f} s')
+        message = '; '.join(problems + [status.message]) if problems else status.message
+        self._diagnostics.set(level, message, values)

@@ -1,0 +1,75 @@
+"""The transport adapter around a processor: inputs in, outputs out, silence on /diagnostics."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import Imu
+from vehicle_monitor_msgs.msg import CreepFactor
+
+from vehicle_monitor_common import processing
+from vehicle_monitor_common.node_helpers import ERROR, OK, WARN
+from vehicle_monitor_common.processing import Input, Output, Status
+from vehicle_monitor_common.processor_node import ProcessorNode
+
+
+class Echo:
+    """Publishes ay of each IMU sample as a creep factor; a silent optional second input."""
+
+    inputs = {'imu': Input('sensor_msgs/msg/Imu'),
+              'extra': Input('sensor_msgs/msg/Imu', optional=True)}
+    outputs = {'factor': 'vehicle_monitor_msgs/msg/CreepFactor'}
+
+    def process(self, topic: str, message: Any) -> list[Output]:
+        stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+        return [Output('factor', stamp, {'creep_factor': message.linear_acceleration.y,
+                                         'header': {'frame_id': 'track'}})]
+
+    def status(self, now_ns: int) -> Status:
+        return Status(processing.OK, 'ok', {'n': 1})
+
+
+class EchoNode(ProcessorNode):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('echo', **kwargs)
+        self.attach(Echo(), 'test', diagnostics_period_s=0.05, silence_timeout_s=0.3)
+
+
+def test_adapter_publishes_outputs_and_reports_silence(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+    """An input goes through the processor to its output topic (stamp and nested fields
+    filled); a required input never seen is WARN, silent after flowing ERROR naming it, and
+    the status clears when it flows again."""
+    node = make_node(EchoNode)
+    probe = make_node('probe')
+    factors: list[CreepFactor] = []
+    statuses: list[Any] = []
+    probe.create_subscription(CreepFactor, 'factor', factors.append, 10)
+    probe.create_subscription(DiagnosticArray, '/diagnostics',
+                              lambda m: statuses.extend(m.status), 10)
+    imu_pub = probe.create_publisher(Imu, 'imu', 10)
+
+    assert spin_until(lambda: any(s.level == WARN for s in statuses), 5.0)
+    assert 'waiting for imu' in statuses[-1].message
+
+    def send(ay: float) -> None:
+        msg = Imu()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 345
+        msg.linear_acceleration.y = ay
+        imu_pub.publish(msg)
+
+    assert spin_until(lambda: (send(0.25), bool(factors))[1], 5.0)
+    assert factors[0].creep_factor == 0.25 and factors[0].header.frame_id == 'track'
+    assert (factors[0].header.stamp.sec, factors[0].header.stamp.nanosec) == (12, 345)
+    statuses.clear()
+    assert spin_until(lambda: any(s.level == ERROR for s in statuses), 5.0)
+    silent = next(s for s in statuses if s.level == ERROR)
+    assert 'imu silent for' in silent.message and 'extra' not in silent.message
+    values = {kv.key: kv.value for kv in silent.values}
+    assert values['extra.age_s'] == 'never' and float(values['imu.age_s']) > 0.3
+    statuses.clear()
+    assert spin_until(lambda: (send(0.5), any(s.level == OK for s in statuses))[1],
+                      5.0)
+    assert node.processor.status(0).values == {'n': 1}
