@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from tpms_ros.core.calibration_moments import calibration_moments
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
@@ -394,13 +395,9 @@ class VibrationAnalyzer:
         """
         if not self._calibrating:
             raise ValueError('finish_calibration called without start_calibration')
-        count, total, total_sq = self._cal_sum
-        duration = count / self.params.effective_rate_hz
-        if np.any(duration < self.params.min_calibration_s):
-            raise ValueError(f'calibration too short: {np.round(duration, 1)} s of known '
-                             f'estimates per tire, need {self.params.min_calibration_s} s')
-        mean = total / count
-        std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+        mean, std, duration = calibration_moments(
+            self._cal_sum, self.params.effective_rate_hz, self.params.min_calibration_s,
+            'known estimates per tire')
         # a floor on the stored noise keeps a perfectly clean calibration from dividing by ~0
         std = np.maximum(std, 1e-6 * mean)
         self._calibration = VibrationCalibration(mean, std, duration)

@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
+from tpms_ros.core.calibration_moments import calibration_moments
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -656,13 +657,10 @@ class WheelRadiusAnalyzer:
         """
         if not self._calibrating:
             raise ValueError('finish_calibration called without start_calibration')
-        count, total, total_sq = self._cal_sum
-        duration = count / self.params.sample_rate_hz
-        if np.any(duration < self.params.min_calibration_s):
-            raise ValueError(f'calibration too short: {np.round(duration, 1)} s of valid '
-                             f'updates for {PAIR_NAMES}, need {self.params.min_calibration_s} s')
-        mean = total / count
-        std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+        mean, std, duration = calibration_moments(
+            self._cal_sum, self.params.sample_rate_hz, self.params.min_calibration_s,
+            f'valid updates for {PAIR_NAMES}')
+        count = self._cal_sum[0]
         # the nominal is the observable combination u = delta + a z at the window's mean a;
         # its spread over the window is that of u, not of delta alone
         a_sum, z_sum, z_sq, dz_sum, d_sum, d_sq = self._cal_pair / count
