@@ -23,6 +23,21 @@ from rail_monitor_ros.core.rail_model import REDUCED_INPUT_NAMES, RailVehiclePar
 N_BOGIE_INPUTS = len(REDUCED_INPUT_NAMES)
 
 
+def van_loan_discretization(a: np.ndarray, spectral: np.ndarray, dt: float,
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """(F, Q) of dx = A x dt + dw, E[dw dw^T] = spectral dt, over dt: Van Loan's one matrix
+    exponential of [[-A, spectral], [0, A^T]] dt; Q symmetrised."""
+    size = a.shape[0]
+    van_loan = np.zeros((2 * size, 2 * size))
+    van_loan[:size, :size] = -a
+    van_loan[:size, size:] = spectral
+    van_loan[size:, size:] = a.T
+    e = scipy.linalg.expm(van_loan * dt)
+    f = e[size:, size:].T
+    q = f @ e[:size, size:]
+    return f, 0.5 * (q + q.T)
+
+
 def primary_input_combination(vehicle: RailVehicleParams,
                               input_names: Sequence[str]) -> np.ndarray:
     """The combinations through which a bogie's two wheelsets act on it: T, (2 per bogie, m).
@@ -77,17 +92,11 @@ def input_shaped_model(model: StateSpace, combination: np.ndarray, combination_s
     a_aug[pos + 1, pos] = -w1 * w2
     a_aug[pos + 1, pos + 1] = -(w1 + w2)
     spectral[pos + 1, pos + 1] = 2.0 * w1 * w2 * (w1 + w2) * combination_std ** 2
-    van_loan = np.zeros((2 * size, 2 * size))
-    van_loan[:size, :size] = -a_aug
-    van_loan[:size, size:] = spectral
-    van_loan[size:, size:] = a_aug.T
-    e = scipy.linalg.expm(van_loan * dt)
-    f = e[size:, size:].T
-    q = f @ e[:size, size:]
+    f, q = van_loan_discretization(a_aug, spectral, dt)
     h = np.zeros((model.c.shape[0], size))
     h[:, :n] = model.c
     h[:, pos] = d_w
-    return f, 0.5 * (q + q.T), h
+    return f, q, h
 
 
 def _pade_section(tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -201,12 +210,5 @@ def track_driven_model(model: StateSpace, track: TrackShapingModel, dt: float,
     a_aug[:n, n:] = model.b @ track.c
     a_aug[n:, n:] = track.a
     g = np.concatenate([np.zeros(n), track.g])
-    van_loan = np.zeros((2 * size, 2 * size))
-    van_loan[:size, :size] = -a_aug
-    van_loan[:size, size:] = track.noise_density * np.outer(g, g)
-    van_loan[size:, size:] = a_aug.T
-    e = scipy.linalg.expm(van_loan * dt)
-    f = e[size:, size:].T
-    q = f @ e[:size, size:]
-    h = np.hstack([model.c, model.d @ track.c])
-    return f, 0.5 * (q + q.T), h
+    f, q = van_loan_discretization(a_aug, track.noise_density * np.outer(g, g), dt)
+    return f, q, np.hstack([model.c, model.d @ track.c])
