@@ -78,3 +78,21 @@ class Processor(Protocol):
 
     def status(self, now_ns: int) -> Status:
         """Health now (``now_ns`` on the node's clock; for rates and silence)."""
+
+
+class CalibratingProcessor(Processor, Protocol):
+    """A processor whose method learns a calibration (the TPMS methods).
+
+    The node serves ``request_calibration`` as ``~/calibrate`` and persists the state through
+    ``calibration_store``; the offline engine carries a vehicle's state from one recording to
+    the next in time order, as it would live on the car.
+    """
+
+    def request_calibration(self) -> tuple[bool, str]:
+        """Start learning over the next calibration window of data; (accepted, message)."""
+
+    def calibration_state(self) -> dict[str, Any] | None:
+        """The calibration in force as plain data (None: uncalibrated)."""
+
+    def load_calibration_state(self, state: Mapping[str, Any]) -> None:
+        """Put a stored calibration in force; ValueError when it does not fit this vehicle."""
