@@ -150,7 +150,7 @@ def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
                                                   paper_bag: Path) -> None:
     """The paper's first 5 s (full-car simulator bag) as IMU messages: one output per pair
     with the input's stamp, normal before 3 s, spring fault declared after it, diagnostics
-    WARN/ERROR naming it."""
+    WARN/ERROR naming it and reporting the input rate."""
     data = _imu_from_bag(paper_bag)
     monitor, feeder, got, diagnostics = _setup(make_node, use_track_irregularity=False,
                                                diagnostics_period_s=0.05)
@@ -173,6 +173,9 @@ def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
     status = [s for d in diagnostics for s in d.status if 'suspension fault' in s.message][-1]
     assert status.level in (b'\x01', b'\x02')
     assert monitor.rejected.total() == 0
+    rates = [float(kv.value) for d in diagnostics for st in d.status for kv in st.values
+             if kv.key == 'input_rate_hz.bogie_imu']
+    assert rates and max(rates) > 0.0           # the input rate is reported
 
 
 def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
