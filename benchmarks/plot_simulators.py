@@ -11,8 +11,9 @@ from pathlib import Path
 
 from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
 from rail_monitor_ros.simulation.rail_simulator import plot_acceleration_psd, simulate
+from tpms_ros.offline.wheel_speed_spectra import plot_wheel_speed_psd
 from tpms_ros.simulation.road_scenario import parse_scenario
-from tpms_ros.simulation.road_simulator import plot_wheel_speed_psd, simulate_scenario
+from tpms_ros.simulation.road_simulator import simulate_scenario
 
 ROAD = '''seed: 11
 duration_s: 30
