@@ -1,6 +1,17 @@
-"""Block least squares of the tire stiffness method (Umeno et al. 1997, eq. 9-14): normal
-equations summed per block, RLS in information form and a windowed batch LS, for several
-independent problems (wheels, driven axles) solved together. No ROS import.
+"""Block least squares of the tire stiffness method (Umeno et al. 1997, eq. 9-14), for several
+independent problems (wheels, driven axles) solved together.
+
+``w = zeta^T [dK, dD] - T_d`` with ``zeta = [th, th_dot]``
+(``th_dot = w1 - w2_hat``). Samples are summed in blocks of ``block_s`` seconds; one *update*
+is one block. RLS keeps the information form ``P_k = rho P_(k-1) + sum zeta zeta^T``,
+``b_k = rho b_(k-1) + sum w zeta``, ``theta = P^-1 b``, algebraically the same as eq. 11's
+covariance recursion with ``Gamma = P^-1`` but exact for a block of samples. Forgetting per
+update ``rho`` gives a memory time constant ``tau = block_s / (1 - rho)`` (0.25 s blocks:
+rho = 0.98 -> 12.5 s, 0.95 -> 5 s, 0.99 -> 25 s) and an averaging equivalent to
+``(1 + rho) / (1 - rho)`` blocks. Batch LS (eq. 10) uses the last ``batch_window_blocks``
+valid blocks instead.
+
+No ROS import.
 """
 
 from __future__ import annotations

@@ -5,39 +5,12 @@ Per wheel the chain is (paper Fig. 4, SPEC §2)::
     omega_1 --tooth correction--> band-pass --> reduced-order observer --> [th, th_dot, w]
             --LS/RLS--> dK, dD   (driven axle: the partner's lagged speed as nuisance)
 
-* **Encoder tooth-error correction** (:class:`ToothErrorCorrector`). The ABS speed is
-  ``pitch / period`` per tooth, so the ring's tooth-spacing error is a fixed per-tooth factor,
-  lines at the rotation harmonics inside the band. Uncorrected it is the dominant error of the
-  method on realistic input: the LS fits the spectral shape of omega_1, the lines flatten it,
-  and the estimate moves only ~1/3 of a true stiffness change (measured on the road
-  simulator: FR read ~170 kPa for 120 kPa). Each wheel's tooth pattern is learned online and
-  divided out, as production indirect TPMS do.
-
-* **Observer** (eq. 5-8). The two-inertia model of :class:`~tpms_ros.core.tire_model.TorsionalTire`
-  is extended by the disturbance ``w = dK th + dD th_dot - T_d`` acting on the belt equation
-  and modelled as constant (eq. 6), giving the state ``[w1 | w2, th, w]`` (eq. 7). A Gopinath
-  reduced-order observer estimates ``z = [w2, th, w]`` from ``x_a = w1``::
-
-      z_hat = v + G w1,   v' = F v + (F G + A21 - G A11) w1,   F = A22 - G A12
-
-  which is eq. 8's structure: ``w1'`` is used implicitly through ``G w1``, never differentiated.
-  ``G`` puts the eigenvalues of ``F`` on a Butterworth pattern of radius
-  ``observer_pole_factor`` x the model resonance (``scipy.signal.place_poles``). The observer is
-  LTI, so it is discretised with the **bilinear (Tustin) transform** (stable for any stable
-  continuous design, no half-sample delay on the sampled input; the 0.5 % frequency warping at
-  40 Hz / 1 kHz is common to every tire and cancels in the calibration) and run as one
-  transfer function per output (``scipy.signal.lfilter`` with carried ``zi``) on the band-passed
-  wheel speed. The drive torque on the rim is not fed to the observer: it varies far below the
-  25-60 Hz band, which the pre-filter removes; it is used for gating only.
-* **Least squares** (eq. 9-11). ``w = zeta^T [dK, dD] - T_d`` with ``zeta = [th, th_dot]``
-  (``th_dot = w1 - w2_hat``). Samples are summed in blocks of ``block_s`` seconds; one *update*
-  is one block. RLS keeps the information form ``P_k = rho P_(k-1) + sum zeta zeta^T``,
-  ``b_k = rho b_(k-1) + sum w zeta``, ``theta = P^-1 b``, algebraically the same as eq. 11's
-  covariance recursion with ``Gamma = P^-1`` but exact for a block of samples. Forgetting per
-  update ``rho`` gives a memory time constant ``tau = block_s / (1 - rho)`` (0.25 s blocks:
-  rho = 0.98 -> 12.5 s, 0.95 -> 5 s, 0.99 -> 25 s) and an averaging equivalent to
-  ``(1 + rho) / (1 - rho)`` blocks. Batch LS (eq. 10) uses the last ``batch_window_blocks``
-  valid blocks instead.
+* **Encoder tooth-error correction** (:mod:`~tpms_ros.core.tooth_correction`): each ring's
+  tooth-spacing error, learned online and divided out.
+* **Observer** (:mod:`~tpms_ros.core.torsional_observer`, eq. 5-8): a reduced-order
+  disturbance observer on the two-inertia tire gives ``[th, th_dot, w]`` from the rim speed.
+* **Least squares** (:mod:`~tpms_ros.core.block_least_squares`, eq. 9-11): block sums, RLS with
+  forgetting or a windowed batch LS, ``w = zeta^T [dK, dD] - T_d`` with ``zeta = [th, th_dot]``.
 * **Drive-wheel compensation.** On a driven axle a driveline torque, common to both
   wheels, reaches the rims. The paper (eq. 12-14) regresses ``wL - wR`` on
   ``[thL, thR, th_dotL, th_dotR]`` with coefficients ``[dKL, -dKR, dDL, -dDR]``
@@ -54,15 +27,8 @@ Per wheel the chain is (paper Fig. 4, SPEC §2)::
   wheel, and the same consistency map applies. Limit: the partner's speed carries no
   driveline information at the partner's own belt anti-resonance, so once it is soft the
   unchanged wheel keeps a small residual there (5-10 kPa low on the simulator).
-* **Model-consistency correction.** The paper estimates only the belt-row disturbance (the
-  rim row also carries ``-dK th``, but with one measurement the two are not separable), and the
-  band-pass colours ``T_d`` so that it correlates with ``zeta``. Both bias the raw LS
-  coefficient: with the default design it reads about -2000 N m/rad on a nominal tire and
-  moves about 1.3x the true dK. Under the paper's own assumption (white road torque) the
-  expected raw coefficient for a true stiffness ``K`` follows from the estimator's model and
-  filters alone (frequency-domain Gram matrices); that monotone map is inverted, so
-  ``stiffness`` is an estimate of the true K and ``delta_k = stiffness - K_model``. The
-  calibration then removes what is left (road spectrum not white, sensor noise, model error).
+* **Model-consistency correction** (:class:`~tpms_ros.core.torsional_observer.ConsistencyMap`):
+  the raw LS coefficient is mapped to the true K through the model and filters.
 * **Calibration** learns each tire's nominal K and the block-to-block noise of its estimate;
   pressure follows from ``K / K_nominal`` (see :class:`PressureRelation`).
 * **Gating**: non-finite, negative or absurd speeds, dead and stuck sensors, out-of-order
@@ -1104,8 +1070,8 @@ class TireStiffnessObserver:
         flag_ok = valid & calibrated
         threshold = p.warning_pressure_ratio * p0
         with np.errstate(invalid='ignore', divide='ignore'):
-            z = (threshold - pressure) / np.maximum(pressure_std, 1e-12)
-        confidence = np.where(flag_ok, ndtr(np.where(flag_ok, z, 0.0)), 0.0)
+            sigmas_below = (threshold - pressure) / np.maximum(pressure_std, 1e-12)
+        confidence = np.where(flag_ok, ndtr(np.where(flag_ok, sigmas_below, 0.0)), 0.0)
         underinflated = flag_ok & (pressure < threshold)
         arrays = [stiffness, delta_d, ratio, pressure, pressure_std, valid, calibrated,
                   underinflated, confidence]

@@ -1,10 +1,35 @@
 """Reduced-order disturbance observer of the tire stiffness method (Umeno et al. 1997, eq. 5-8)
-and its model-consistency map; see :mod:`tpms_ros.core.stiffness_observer` for the chain.
+and its model-consistency map; :mod:`tpms_ros.core.stiffness_observer` runs the chain.
 
-The observer extends the two-inertia tire of :class:`~tpms_ros.core.tire_model.TorsionalTire`
-by a constant disturbance on the belt and estimates ``[w2, th, w]`` from the rim speed; the map
-gives the raw least-squares coefficient expected for each true stiffness under white road
-torque, so the estimator can invert it. No ROS import.
+The two-inertia model of :class:`~tpms_ros.core.tire_model.TorsionalTire`
+is extended by the disturbance ``w = dK th + dD th_dot - T_d`` acting on the belt equation
+and modelled as constant (eq. 6), giving the state ``[w1 | w2, th, w]`` (eq. 7). A Gopinath
+reduced-order observer estimates the unmeasured states ``x_b = [w2, th, w]`` from the measured
+one, ``x_a = w1`` (filterpy's words: state ``x = [x_a | x_b]``, measurement ``z = w1``)::
+
+    x_b_hat = v + G w1,   v' = F v + (F G + A21 - G A11) w1,   F = A22 - G A12
+
+which is eq. 8's structure: ``w1'`` is used implicitly through ``G w1``, never differentiated.
+``G`` puts the eigenvalues of ``F`` on a Butterworth pattern of radius
+``observer_pole_factor`` x the model resonance (``scipy.signal.place_poles``). The observer is
+LTI, so it is discretised with the **bilinear (Tustin) transform** (stable for any stable
+continuous design, no half-sample delay on the sampled input; the 0.5 % frequency warping at
+40 Hz / 1 kHz is common to every tire and cancels in the calibration) and run as one
+transfer function per output (``scipy.signal.lfilter`` with carried ``zi``) on the band-passed
+wheel speed. The drive torque on the rim is not fed to the observer: it varies far below the
+25-60 Hz band, which the pre-filter removes; it is used for gating only.
+
+**Model-consistency correction.** The paper estimates only the belt-row disturbance (the
+rim row also carries ``-dK th``, but with one measurement the two are not separable), and the
+band-pass colours ``T_d`` so that it correlates with ``zeta``. Both bias the raw LS
+coefficient: with the default design it reads about -2000 N m/rad on a nominal tire and
+moves about 1.3x the true dK. Under the paper's own assumption (white road torque) the
+expected raw coefficient for a true stiffness ``K`` follows from the estimator's model and
+filters alone (frequency-domain Gram matrices); that monotone map is inverted, so
+``stiffness`` is an estimate of the true K and ``delta_k = stiffness - K_model``. The
+calibration then removes what is left (road spectrum not white, sensor noise, model error).
+
+No ROS import.
 """
 
 from __future__ import annotations
@@ -22,7 +47,7 @@ class ObserverDesign:
     """Continuous and discrete reduced-order disturbance observer for one tire model.
 
     Attributes:
-        gain: observer gain G, (3,) for z = [w2, th, w].
+        gain: observer gain G, (3,) for the unmeasured states x_b = [w2, th, w].
         error_matrix: ``A'22 - G A'12`` (eq. 8); its eigenvalues are the observer poles.
         numerators: (3, n+1) discrete numerators for the outputs [th, th_dot, w] from w1.
         denominator: (n+1,) common discrete denominator.
@@ -52,7 +77,8 @@ def extended_system(tire: TorsionalTire) -> tuple[np.ndarray, np.ndarray]:
 
 def design_observer(tire: TorsionalTire, pole_factor: float,
                     sample_rate_hz: float) -> ObserverDesign:
-    """Gopinath observer for z = [w2, th, w] from w1, discretised by the bilinear transform.
+    """Gopinath observer for x_b = [w2, th, w] from the measurement z = w1, discretised by the
+    bilinear transform.
 
     Args:
         tire: the estimator's nominal model.
@@ -79,7 +105,7 @@ def design_observer(tire: TorsionalTire, pole_factor: float,
     gain = placed.gain_matrix.T  # (3, 1): duality, eig(A22 - G A12) = eig(A22^T - A12^T G^T)
     error_matrix = a22 - gain @ a12
     input_matrix = error_matrix @ gain + a21 - gain @ a11
-    # z_hat = v + G w1; outputs th = z[1], th_dot = w1 - z[0], w = z[2].
+    # x_b_hat = v + G w1; outputs th = x_b[1], th_dot = w1 - x_b[0], w = x_b[2].
     select = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     c_out = select
     d_out = select @ gain + np.array([[0.0], [1.0], [0.0]])
