@@ -8,7 +8,7 @@ at placard pressure for the first ``FAULT_S`` s, then the case's tires lose ``lo
 a puncture-like step (``STEP_S`` long) or a slow leak (``LEAK_KPA_PER_MIN``); four tires lose it
 by diffusion at the leak rate.
 
-Every method is fed the way its node feeds it (:mod:`tpms_ros.tpms_fusion_replay`): vibration in
+Every method is fed the way its node feeds it: vibration in
 0.1 s blocks, wheel radius on 10 ms wheel-speed means closed at the IMU stamps with the driver
 inputs held, the stiffness observer in 0.25 s chunks with held torques and steering. All three
 calibrate over [0, ``CALIBRATION_END_S``] (nominal pressure, a production system's "reset"
