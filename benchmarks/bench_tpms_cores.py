@@ -98,7 +98,8 @@ def bench_radius(seconds: float) -> dict[str, float]:
         r_n = p.nominal_radius_m
         lat = KalmanFilter(dim_x=5, dim_z=3)
         lat.F[0, 1] = 1 / fs
-        lat.R = np.diag([p.gyro_noise_std, p.wheel_yaw_noise_std, p.wheel_yaw_noise_std]) ** 2
+        lat.R = np.diag([p.gyro_noise_std_rad_s, p.wheel_yaw_noise_std_rad_s,
+                         p.wheel_yaw_noise_std_rad_s]) ** 2
         sides = []
         for _ in range(2):
             kf = KalmanFilter(dim_x=2, dim_z=1)

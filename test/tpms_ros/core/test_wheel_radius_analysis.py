@@ -26,8 +26,8 @@ LOSS = 0.0015                                           # radius drop of a ~15 %
 GYRO_BIAS = 0.012                                       # rad/s, REP 103
 # the point-mass drive below has no wheel inertia nor load transfer and accelerates up to
 # ~2 m/s^2 on purpose (1/k observable): the core's corrections and acceleration gate are off
-PURE_SLIP = {'wheel_inertia_kgm2': 0.0, 'cg_height_m': 0.0, 'accel_max_longitudinal': 10.0,
-             'accel_max_lateral': 10.0}
+PURE_SLIP = {'wheel_inertia_kgm2': 0.0, 'cg_height_m': 0.0, 'accel_max_longitudinal_mps2': 10.0,
+             'accel_max_lateral_mps2': 10.0}
 
 
 @dataclass
@@ -114,11 +114,11 @@ def test_lateral_filter_equals_filterpy() -> None:
     kf.F = np.eye(5)
     kf.F[0, 1] = ts
     g = np.array([[ts * ts / 2], [ts], [0], [0], [0]])
-    kf.Q = g @ g.T * p.yaw_jerk_std ** 2 + np.diag(
+    kf.Q = g @ g.T * p.yaw_jerk_std_rad_s3 ** 2 + np.diag(
         [0, 0, p.gyro_offset_rw ** 2, p.delta_rw ** 2, p.delta_rw ** 2]) * ts
-    kf.R = np.diag([p.gyro_noise_std ** 2, p.wheel_yaw_noise_std ** 2,
-                    p.wheel_yaw_noise_std ** 2])
-    kf.P = np.diag([0.1 ** 2, 0.5 ** 2, p.gyro_offset0_std ** 2, p.delta0_std ** 2,
+    kf.R = np.diag([p.gyro_noise_std_rad_s ** 2, p.wheel_yaw_noise_std_rad_s ** 2,
+                    p.wheel_yaw_noise_std_rad_s ** 2])
+    kf.P = np.diag([0.1 ** 2, 0.5 ** 2, p.gyro_offset0_std_rad_s ** 2, p.delta0_std ** 2,
                     p.delta0_std ** 2])
     kf.x = np.zeros((5, 1))
     w = drive.omega
@@ -355,12 +355,12 @@ def test_steady_cruise_calibration_holds_when_traction_varies() -> None:
 
 
 def test_acceleration_gate_pauses_the_slip_model() -> None:
-    """Hard braking / acceleration (|ax| > accel_max_longitudinal) is counted as gated and
+    """Hard braking / acceleration (|ax| > accel_max_longitudinal_mps2) is counted as gated and
     leaves the longitudinal state untouched; in the pure-slip drive the gate is off."""
     drive = simulate_drive(60.0, WEAR, seed=9)
     gated = WheelRadiusAnalyzer(WheelRadiusParams(nominal_radius_m=R_N, track_front_m=TRACK,
                                                   track_rear_m=TRACK, static_load_n=LOADS,
-                                                  accel_max_longitudinal=0.3))
+                                                  accel_max_longitudinal_mps2=0.3))
     est = gated.process(*drive.chunk(0, drive.stamps.size))
     acc = np.abs(np.gradient(22.0 + 6.0 * np.sin(2 * np.pi * drive.stamps / 47.0)
                              + 3.0 * np.sin(2 * np.pi * drive.stamps / 13.0 + 1.0),

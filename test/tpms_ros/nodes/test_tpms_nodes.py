@@ -364,7 +364,7 @@ RAD_TEST = {'calibration_settle_s': 0.5, 'min_calibration_s': 2.0,
             'wheel_recover_s': 0.5,
             # the synthetic drive below weaves its speed at up to 3 m/s^2 and has no wheel
             # inertia nor load transfer: the core's acceleration gates and corrections are off
-            'accel_max_longitudinal': 10.0, 'accel_max_lateral': 10.0,
+            'accel_max_longitudinal_mps2': 10.0, 'accel_max_lateral_mps2': 10.0,
             'wheel_inertia_kgm2': 0.0, 'cg_height_m': 0.0}
 
 

@@ -36,10 +36,10 @@ whose output falls due; compiled, a 20-sample chunk costs about 0.02 ms.
 
 Input is a uniformly sampled (N, 4) wheel speed array (rad/s, FL, FR, RL, RR); the node handles
 stamps and gaps (a gap: :meth:`VibrationAnalyzer.reset_filters`). Bad samples (non-finite,
-negative, above ``max_wheel_speed``) are rejected and counted: the filter input holds the last
-good value and the regression ignores the samples the hold disturbs, so the state is not
-corrupted. Samples below ``min_wheel_speed`` (too little road excitation) are gated out the same
-way. No ROS import.
+negative, above ``max_wheel_speed_rad_s``) are rejected and counted: the filter input holds
+the last good value and the regression ignores the samples the hold disturbs, so the state is
+not corrupted. Samples below ``min_wheel_speed_rad_s`` (too little road excitation) are gated
+out the same way. No ROS import.
 """
 
 from __future__ import annotations
@@ -118,9 +118,9 @@ class VibrationParams:
                             read_only=True)
     rls_regularization: float = param(1e-6, 'RLS initial regularisation P0^-1, (rad/s)^2',
                                       low=1e-15, high=1.0, read_only=True)
-    min_wheel_speed: float = param(10.0, 'below this wheel speed the road excitation is too '
+    min_wheel_speed_rad_s: float = param(10.0, 'below this wheel speed the road excitation is too '
                                    'weak: samples are gated, rad/s', low=0.0, high=1000.0)
-    max_wheel_speed: float = param(600.0, 'wheel speeds above this are non-physical and '
+    max_wheel_speed_rad_s: float = param(600.0, 'wheel speeds above this are non-physical and '
                                    'rejected, rad/s', low=1.0, high=5000.0)
     stuck_s: float = param(0.1, 'an exactly repeated wheel speed for this long is a stuck '
                            'sensor, s', low=1e-3, high=60.0, read_only=True)
@@ -147,10 +147,10 @@ class VibrationParams:
 
     def __post_init__(self) -> None:
         positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
-                    'rls_regularization', 'max_wheel_speed', 'z_flag', 'z_full',
+                    'rls_regularization', 'max_wheel_speed_rad_s', 'z_flag', 'z_full',
                     'rel_noise_floor', 'min_calibration_s', 'stuck_s')
         require_positive(self, positive)
-        require_positive(self, ('min_wheel_speed', 'guard_s', 'calibration_settle_s'),
+        require_positive(self, ('min_wheel_speed_rad_s', 'guard_s', 'calibration_settle_s'),
                          allow_zero=True)
         if len(self.mode_band_hz) != 2:
             raise ValueError(f'VibrationParams.mode_band_hz must be [low, high], got '
@@ -164,8 +164,9 @@ class VibrationParams:
         if not 1 <= self.filter_order <= 8:
             raise ValueError(f'VibrationParams.filter_order must be in 1..8, got '
                              f'{self.filter_order}')
-        if not self.min_wheel_speed < self.max_wheel_speed:
-            raise ValueError('VibrationParams.min_wheel_speed must be < max_wheel_speed')
+        if not self.min_wheel_speed_rad_s < self.max_wheel_speed_rad_s:
+            raise ValueError('VibrationParams.min_wheel_speed_rad_s must be < '
+                             'max_wheel_speed_rad_s')
         if not 0.0 < self.min_valid_fraction <= 1.0:
             raise ValueError(f'VibrationParams.min_valid_fraction must be in (0, 1], got '
                              f'{self.min_valid_fraction}')
@@ -440,7 +441,8 @@ class VibrationAnalyzer:
         self._phase = int(keep[-1] + p.decimation - n) if keep.size else self._phase - n
         trace_hz = np.empty((keep.size, N_TIRES))
         # The runtime parameters (limits) are read at each call.
-        limits = np.array([p.max_wheel_speed, p.min_wheel_speed, 1.0 / p.sample_rate_hz,
+        limits = np.array([p.max_wheel_speed_rad_s, p.min_wheel_speed_rad_s,
+                           1.0 / p.sample_rate_hz,
                            self._tooth_lambda, self._lambda, p.effective_rate_hz,
                            p.min_valid_fraction])
         vibration_chunk(omega, int(keep[0]) if keep.size else n, p.decimation, limits,

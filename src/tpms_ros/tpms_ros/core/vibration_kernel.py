@@ -72,7 +72,7 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
         omega: (N, W) wheel speeds at the sample rate.
         first_keep, decimation: rows first_keep, first_keep + decimation, ... go to the
             regression (the decimation's phase, carried by the caller).
-        limits: [max_wheel_speed, min_wheel_speed, sample interval s, tooth forgetting,
+        limits: [max_wheel_speed_rad_s, min_wheel_speed_rad_s, sample interval s, tooth forgetting,
             RLS forgetting, analysis rate Hz, min_valid_fraction].
         counts: [stuck samples, guard samples].
         driven: the two driven wheels whose common driveline vibration is removed, or -1s.

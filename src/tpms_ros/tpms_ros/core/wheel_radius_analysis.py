@@ -14,7 +14,7 @@ x = (1/k, delta) random walk, measurement s_t = (mu_t, 1) x_t + e_t. Here delta 
 delta_24 = 1 - r2 / r4 (right) whichever axle is driven (exact conversion for rear drive).
 Deviations, measured on the road simulator's nominal driving: mu counts the wheel's inertia
 torque and the longitudinal load transfer, mu = (T - I_w omega_dot) / (r_n (Fz + m h ax /
-(2 L))), and the model pauses while |ax| > ``accel_max_longitudinal`` (braking and hard
+(2 L))), and the model pauses while |ax| > ``accel_max_longitudinal_mps2`` (braking and hard
 acceleration moved delta by 5-10e-3 there). At constant traction 1/k and delta are not
 separable, so a calibration on steady cruising cannot know delta alone: it keeps the slip line's
 height at its mean traction, and the indication compares the current line at that traction
@@ -102,23 +102,23 @@ class WheelRadiusParams:
         driven_axle: 'front' or 'rear'.
         sample_rate_hz: nominal input rate; the first sample's Ts, Hz.
         max_gap_s: a larger gap between stamps restarts the yaw states, s.
-        max_wheel_speed: wheel speeds above this (rad/s) are rejected as non-physical.
+        max_wheel_speed_rad_s: wheel speeds above this (rad/s) are rejected as non-physical.
         min_speed_mps: speed band, lower end: below it the encoder speed is coarse, m/s.
         max_speed_mps: speed band, upper end: above it the radius grows with speed, m/s.
         mu_max: traction limit |Fx/Fz| of the linear slip model.
         slip_max: |s| above this is wheel spin/lock, not the linear model.
         brake_torque_nm: any wheel torque below -this means braking: all wheels slip and the
             non-driven wheel is no speed reference, so the longitudinal model pauses, N m.
-        ay_max_longitudinal: cornering limit |v psi_dot| of the longitudinal model (front and
+        ay_max_longitudinal_mps2: cornering limit |v psi_dot| of the longitudinal model (front and
             rear wheels of a side travel different radii), m/s^2.
-        ay_max_lateral: cornering limit of the lateral model (load transfer changes radii),
+        ay_max_lateral_mps2: cornering limit of the lateral model (load transfer changes radii),
             m/s^2.
-        accel_max_longitudinal: longitudinal acceleration limit |ax| of the longitudinal model,
-            m/s^2. ax is the filtered derivative of the non-driven wheels' speed. Under strong
-            acceleration or braking the slip model's mu is corrupted (wheel inertia, load
+        accel_max_longitudinal_mps2: longitudinal acceleration limit |ax| of the longitudinal
+            model, m/s^2. ax is the filtered derivative of the non-driven wheels' speed. Under
+            strong acceleration or braking the slip model's mu is corrupted (wheel inertia, load
             transfer, the non-driven wheel's own brake slip) and delta moves by 5-10e-3 on the
             road simulator's car, several times a 15 % loss; the updates there are skipped.
-        accel_max_lateral: the same limit for the lateral model's updates, m/s^2. Measured on
+        accel_max_lateral_mps2: the same limit for the lateral model's updates, m/s^2. Measured on
             the road simulator: at the onset of a 2 m/s^2 braking the lateral offsets swing by
             up to 1.1e-2 for 2-3 s (pitch and brake transients in the wheel-speed difference)
             and settle back, which alone gave a full-confidence false warning.
@@ -145,13 +145,13 @@ class WheelRadiusParams:
             sets the tracking time of a pressure change (the paper: about 60 s).
         inv_stiffness0_std: initial std of 1/k.
         delta0_std: initial std of the offsets.
-        yaw_jerk_std: std of the white yaw jerk v driving (psi_dot, psi_ddot), rad/s^3.
-        gyro_noise_std: gyro noise per sample, rad/s.
-        wheel_yaw_noise_std: noise of the wheel-speed yaw rates per sample, rad/s.
+        yaw_jerk_std_rad_s3: std of the white yaw jerk v driving (psi_dot, psi_ddot), rad/s^3.
+        gyro_noise_std_rad_s: gyro noise per sample, rad/s.
+        wheel_yaw_noise_std_rad_s: noise of the wheel-speed yaw rates per sample, rad/s.
         gyro_offset_rw: random walk of the gyro offset, rad/s per sqrt(s) (MEMS bias drift,
             ~0.1 deg/s over 10 min). Larger lets a radius step leak into the offset: at constant
             speed only delta_o + c delta is observable, speed changes separate them.
-        gyro_offset0_std: initial std of the gyro offset, rad/s.
+        gyro_offset0_std_rad_s: initial std of the gyro offset, rad/s.
         calibration_settle_s: first part of a calibration window not used, s.
             The longitudinal nominal is kept as the slip line's height at the calibration's
             mean traction (see :class:`WheelRadiusCalibration`), because at constant traction
@@ -198,7 +198,7 @@ class WheelRadiusParams:
                                   read_only=True)
     max_gap_s: float = param(0.1, 'a larger gap between bins restarts the yaw '
                              'states, s', low=1e-3, high=10.0)
-    max_wheel_speed: float = param(600.0, 'wheel speeds above this are rejected, '
+    max_wheel_speed_rad_s: float = param(600.0, 'wheel speeds above this are rejected, '
                                    'rad/s', low=1.0, high=5000.0)
     min_speed_mps: float = param(8.0, 'lower end of the speed band, m/s',
                                  low=0.0, high=100.0)
@@ -210,14 +210,14 @@ class WheelRadiusParams:
     brake_torque_nm: float = param(20.0, 'any wheel torque below -this is '
                                    'braking: the longitudinal model pauses, N m', low=0.0,
                                    high=1e5)
-    ay_max_longitudinal: float = param(2.0, 'cornering limit of the '
+    ay_max_longitudinal_mps2: float = param(2.0, 'cornering limit of the '
                                        'longitudinal model, m/s^2', low=0.01, high=20.0)
-    ay_max_lateral: float = param(4.0, 'cornering limit of the lateral model, '
+    ay_max_lateral_mps2: float = param(4.0, 'cornering limit of the lateral model, '
                                   'm/s^2', low=0.01, high=20.0)
-    accel_max_longitudinal: float = param(0.8, 'longitudinal '
+    accel_max_longitudinal_mps2: float = param(0.8, 'longitudinal '
                                           'acceleration limit |ax| of the longitudinal model, '
                                           'm/s^2', low=0.01, high=20.0)
-    accel_max_lateral: float = param(1.0, 'longitudinal acceleration limit '
+    accel_max_lateral_mps2: float = param(1.0, 'longitudinal acceleration limit '
                                      '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
     accel_filter_hz: float = param(2.0, 'low-pass corner before '
                                    'differentiating the wheel speeds, Hz', low=0.01, high=40.0,
@@ -244,15 +244,15 @@ class WheelRadiusParams:
                                       high=10.0, read_only=True)
     delta0_std: float = param(0.01, 'initial std of the offsets', low=1e-6, high=1.0,
                               read_only=True)
-    yaw_jerk_std: float = param(2.0, 'yaw jerk process noise, rad/s^3', low=1e-4,
+    yaw_jerk_std_rad_s3: float = param(2.0, 'yaw jerk process noise, rad/s^3', low=1e-4,
                                 high=1000.0)
-    gyro_noise_std: float = param(0.01, 'gyro noise per sample, rad/s', low=1e-6,
+    gyro_noise_std_rad_s: float = param(0.01, 'gyro noise per sample, rad/s', low=1e-6,
                                   high=1.0)
-    wheel_yaw_noise_std: float = param(0.02, 'noise of the wheel-speed yaw '
+    wheel_yaw_noise_std_rad_s: float = param(0.02, 'noise of the wheel-speed yaw '
                                        'rates per sample, rad/s', low=1e-6, high=1.0)
     gyro_offset_rw: float = param(2e-5, 'random walk of the gyro offset, rad/s '
                                   'per sqrt(s)', low=0.0, high=1.0)
-    gyro_offset0_std: float = param(0.03, 'initial std of the gyro offset, '
+    gyro_offset0_std_rad_s: float = param(0.03, 'initial std of the gyro offset, '
                                     'rad/s', low=1e-6, high=1.0, read_only=True)
     calibration_settle_s: float = param(20.0, 'first part of a calibration '
                                         'window not used, s', low=0.0, high=3600.0)
@@ -275,15 +275,16 @@ class WheelRadiusParams:
 
     def __post_init__(self) -> None:
         positive = ('nominal_radius_m', 'track_front_m', 'track_rear_m', 'sample_rate_hz',
-                    'max_gap_s', 'max_wheel_speed', 'max_speed_mps', 'mu_max', 'slip_max',
-                    'ay_max_longitudinal', 'ay_max_lateral', 'gyro_stuck_s',
+                    'max_gap_s', 'max_wheel_speed_rad_s', 'max_speed_mps', 'mu_max', 'slip_max',
+                    'ay_max_longitudinal_mps2', 'ay_max_lateral_mps2', 'gyro_stuck_s',
                     'wheel_speed_noise_mps',
-                    'accel_max_longitudinal', 'accel_max_lateral', 'accel_filter_hz',
+                    'accel_max_longitudinal_mps2', 'accel_max_lateral_mps2', 'accel_filter_hz',
                     'wheelbase_m',
-                    'inv_stiffness0_std', 'delta0_std', 'gyro_noise_std',
-                    'wheel_yaw_noise_std', 'gyro_offset0_std', 'min_calibration_s',
+                    'inv_stiffness0_std', 'delta0_std', 'gyro_noise_std_rad_s',
+                    'wheel_yaw_noise_std_rad_s', 'gyro_offset0_std_rad_s', 'min_calibration_s',
                     'noise_block_s',
-                    'radius_noise_floor', 'informative_std', 'z_flag', 'z_full', 'yaw_jerk_std')
+                    'radius_noise_floor', 'informative_std', 'z_flag', 'z_full',
+                    'yaw_jerk_std_rad_s3')
         require_positive(self, positive)
         non_negative = ('min_speed_mps', 'brake_torque_nm', 'wheel_recover_s',
                         'inv_stiffness_rw', 'delta_rw', 'gyro_offset_rw',
@@ -444,20 +445,20 @@ class RadiusEstimate:
 
 
 def bin_wheel_speeds(wheel_stamps_s: np.ndarray, omega: np.ndarray, bin_ends_s: np.ndarray,
-                     bin_s: float, max_wheel_speed: float) -> np.ndarray:
+                     bin_s: float, max_wheel_speed_rad_s: float) -> np.ndarray:
     """Mean wheel speed over each bin (max(previous end, end - bin_s), end], vectorised.
 
     The offline form of the ``wheel_radius_analyzer`` node's alignment: each IMU stamp closes a
     bin of at most ``bin_s``; the wheel speeds stamped in it are averaged. A wheel with a bad
-    sample in its bin (non-finite, negative, above ``max_wheel_speed``) is NaN there (the core
-    rejects it); an empty bin is all NaN.
+    sample in its bin (non-finite, negative, above ``max_wheel_speed_rad_s``) is NaN there (the
+    core rejects it); an empty bin is all NaN.
 
     Args:
         wheel_stamps_s: (N,) increasing wheel-speed stamps, s.
         omega: (N, 4) wheel speeds, rad/s.
         bin_ends_s: (M,) increasing bin ends (IMU stamps), s.
         bin_s: longest bin, s (1 / the core's sample rate).
-        max_wheel_speed: wheel speeds above this are bad, rad/s.
+        max_wheel_speed_rad_s: wheel speeds above this are bad, rad/s.
 
     Returns:
         (M, 4) mean wheel speed per bin.
@@ -472,7 +473,7 @@ def bin_wheel_speeds(wheel_stamps_s: np.ndarray, omega: np.ndarray, bin_ends_s: 
         raise ValueError(f'bin_wheel_speeds: bin_s must be finite and > 0, got {bin_s}')
     starts = np.maximum(np.concatenate([[-math.inf], ends[:-1]]), ends - bin_s)
     with np.errstate(invalid='ignore'):
-        bad = ~np.isfinite(omega) | (omega < 0.0) | (omega > max_wheel_speed)
+        bad = ~np.isfinite(omega) | (omega < 0.0) | (omega > max_wheel_speed_rad_s)
     # cumulative sums over the samples give every bin's sum and bad count in one pass
     csum = np.vstack([np.zeros(N_TIRES), np.cumsum(np.where(bad, 0.0, omega), axis=0)])
     cbad = np.vstack([np.zeros(N_TIRES, dtype=np.int64), np.cumsum(bad, axis=0)])
@@ -614,7 +615,7 @@ class WheelRadiusAnalyzer:
         self._long_x = [[0.0, 0.0], [0.0, 0.0]]         # per side: 1/k, delta
         self._long_p = [[p.inv_stiffness0_std ** 2, 0.0, p.delta0_std ** 2] for _ in range(2)]
         self._lat_x = np.zeros(5)
-        self._lat_p = np.diag([0.1 ** 2, 0.5 ** 2, p.gyro_offset0_std ** 2,
+        self._lat_p = np.diag([0.1 ** 2, 0.5 ** 2, p.gyro_offset0_std_rad_s ** 2,
                                p.delta0_std ** 2, p.delta0_std ** 2])
         self._last_stamp: float | None = None
         self._last_gyro = math.nan
@@ -736,7 +737,7 @@ class WheelRadiusAnalyzer:
 
         # ---- per-sample validity and measurements, vectorised
         with np.errstate(invalid='ignore'):
-            wheel_ok = np.isfinite(omega) & (omega >= 0.0) & (omega <= p.max_wheel_speed)
+            wheel_ok = np.isfinite(omega) & (omega >= 0.0) & (omega <= p.max_wheel_speed_rad_s)
         self.counts['bad_wheel_speed'] += int((~wheel_ok).sum())
         bad_rows = ~wheel_ok
         if bad_rows.any():
@@ -793,15 +794,15 @@ class WheelRadiusAnalyzer:
         braking = np.any(np.where(torque_ok[:, None], torque, 0.0) < -p.brake_torque_nm, axis=1)
         # a wheel bad within wheel_recover_s leaves its filtered derivative unreliable
         recent_bad = (stamps[:, None] - self._last_bad_wheel < p.wheel_recover_s).any(axis=1)
-        steady = (np.abs(ax) <= p.accel_max_longitudinal) & ~recent_bad
-        lat_steady = (np.abs(ax) <= p.accel_max_lateral) & ~recent_bad
+        steady = (np.abs(ax) <= p.accel_max_longitudinal_mps2) & ~recent_bad
+        lat_steady = (np.abs(ax) <= p.accel_max_lateral_mps2) & ~recent_bad
         self.counts['accel_gated'] += int((in_band & ~steady).sum())
         long_cond = (in_band & torque_ok & ~braking & steady
-                     & (lateral_acc <= p.ay_max_longitudinal))[:, None]
+                     & (lateral_acc <= p.ay_max_longitudinal_mps2))[:, None]
         long_valid = side_ok & long_cond & (np.abs(mu) <= p.mu_max) & (np.abs(slip) <= p.slip_max)
         self.counts['long_gated'] += int((side_ok & ~long_valid).sum())
 
-        lat_cond = in_band & (lateral_acc <= p.ay_max_lateral) & ~gyro_stuck & lat_steady
+        lat_cond = in_band & (lateral_acc <= p.ay_max_lateral_mps2) & ~gyro_stuck & lat_steady
         use_gyro = lat_cond & gyro_finite & (rear_ok | front_ok)
         use_rear = lat_cond & rear_ok
         use_front = lat_cond & front_ok
@@ -877,10 +878,10 @@ class WheelRadiusAnalyzer:
         q_k = p.inv_stiffness_rw ** 2
         q_d = p.delta_rw ** 2
         q_o = p.gyro_offset_rw ** 2
-        q_jerk = p.yaw_jerk_std ** 2
-        r_gyro = p.gyro_noise_std ** 2
-        r_wheel = p.wheel_yaw_noise_std ** 2
-        inv_wheel_std = 1.0 / p.wheel_yaw_noise_std
+        q_jerk = p.yaw_jerk_std_rad_s3 ** 2
+        r_gyro = p.gyro_noise_std_rad_s ** 2
+        r_wheel = p.wheel_yaw_noise_std_rad_s ** 2
+        inv_wheel_std = 1.0 / p.wheel_yaw_noise_std_rad_s
         rw_diag = np.array([0.0, 0.0, q_o, q_d, q_d])
         yaw_prior = np.array([0.1 ** 2, 0.5 ** 2])
         long_x, long_p = self._long_x, self._long_p

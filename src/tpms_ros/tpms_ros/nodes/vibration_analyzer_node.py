@@ -13,8 +13,8 @@ per sample would cost ~100x more), cut where an output falls due and ``process_a
 Stamps: an out-of-order or repeated sample is rejected; a few missing samples (at most
 ``max_gap_s``) are filled with NaN rows, which the core treats as bad samples (held, skipped by
 the regression), so the block stays uniformly sampled; a longer gap restarts the filters. A
-wheel with a bad sample (non-finite, negative, above ``max_wheel_speed``, stuck) is unknown for
-``bad_hold_s`` afterwards, never flagged low.
+wheel with a bad sample (non-finite, negative, above ``max_wheel_speed_rad_s``, stuck) is
+unknown for ``bad_hold_s`` afterwards, never flagged low.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ stamped in the bin are averaged, and the driver input used is the newest one sta
 before t_k. A bin waits until a wheel speed stamped at or after t_k has arrived (topics arrive
 in any order); if none comes within ``max_latency_s`` of IMU time, it is processed with the
 wheel speeds it has, or as missing (NaN) if it has none. A wheel whose bin holds a bad sample
-(non-finite, negative, above ``max_wheel_speed``) is NaN in the bin: the core rejects it and
+(non-finite, negative, above ``max_wheel_speed_rad_s``) is NaN in the bin: the core rejects it and
 keeps the tire unknown for ``wheel_recover_s``. A driver input older than ``max_input_age_s``
 is stale: the torque becomes NaN (longitudinal filters pause) and the steering angle NaN (the
 front-axle lateral measurement pauses). Without the IMU no bin closes: the analysis pauses and
@@ -214,7 +214,7 @@ class WheelRadiusAnalyzerNode(CalibratingTpmsNode[WheelRadiusParams,
             return np.full(N_TIRES, np.nan)
         block = np.vstack(samples)
         with np.errstate(invalid='ignore'):
-            limit = self.core_parameters.max_wheel_speed
+            limit = self.core_parameters.max_wheel_speed_rad_s
             bad = ~np.isfinite(block) | (block < 0.0) | (block > limit)
         return np.where(bad.any(axis=0), np.nan, block.mean(axis=0))
 
