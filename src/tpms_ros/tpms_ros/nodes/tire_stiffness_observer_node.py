@@ -5,8 +5,8 @@ Wraps :class:`tpms_ros.core.stiffness_observer.TireStiffnessObserver` (SPEC §2)
 Topics (relative, so a namespace moves them):
 
 * in ``vehicle/wheel_speeds`` (WheelSpeeds, 1 kHz): the estimator's signal.
-* in ``vehicle/driver_inputs`` (DriverInputs, optional): wheel torques for the hard
-  braking/traction gate.
+* in ``vehicle/driver_inputs`` (DriverInputs, optional): wheel torques and steering angle for
+  the hard braking/traction and cornering gates.
 * out ``tpms/tire_stiffness`` (TireStiffness), ``tpms/indication/stiffness`` (TpmsIndication,
   method ``stiffness``), ``/diagnostics``.
 * service ``~/calibrate`` (std_srvs/Trigger): learn every tire's nominal stiffness over the next
@@ -131,9 +131,10 @@ class TireStiffnessObserverNode(Node):
     def __init__(self, node_name: str = 'tire_stiffness_observer', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         # The method's parameters are the core's own; the node's are topics, rates and files.
-        self._method = TypedParameters(self, StiffnessObserverParams, on_change=self._on_change)
-        self._node = TypedParameters(self, TireStiffnessObserverNodeParams)
-        p, n = self._method.value, self._node.value
+        self._method_params = TypedParameters(self, StiffnessObserverParams,
+                                              on_change=self._on_change)
+        self._node_params = TypedParameters(self, TireStiffnessObserverNodeParams)
+        p, n = self._method_params.value, self._node_params.value
         problem = _chunk_problem(n.process_period_s, p.sample_rate_hz)
         if problem:
             raise ConfigurationError(f'invalid parameters: {problem}')
@@ -186,12 +187,12 @@ class TireStiffnessObserverNode(Node):
     @property
     def parameters(self) -> StiffnessObserverParams:
         """The method's current, validated parameters (the core's)."""
-        return self._method.value
+        return self._method_params.value
 
     @property
     def node_parameters(self) -> TireStiffnessObserverNodeParams:
         """The node's own current, validated parameters."""
-        return self._node.value
+        return self._node_params.value
 
     @property
     def observer(self) -> TireStiffnessObserver:

@@ -85,8 +85,8 @@ class TpmsVoterNode(Node):
 
     def __init__(self, node_name: str = 'tpms_voter', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._node = TypedParameters(self, TpmsVoterNodeParams)
-        methods = self._node.value.methods
+        self._node_params = TypedParameters(self, TpmsVoterNodeParams)
+        methods = self._node_params.value.methods
         self._rule = TypedParameters(self, VotingRuleParams, on_change=self._sync)
         self._votes = TypedParameters(self, method_votes_params(methods), on_change=self._sync)
         try:
@@ -126,7 +126,7 @@ class TpmsVoterNode(Node):
     @property
     def node_parameters(self) -> TpmsVoterNodeParams:
         """The node's own current, validated parameters."""
-        return self._node.value
+        return self._node_params.value
 
     @property
     def voter(self) -> TpmsVoter:
