@@ -30,7 +30,7 @@ when tf is the half track as its nomenclature says)::
 
 and the rear likewise with lf, +ax, kr/(kf+kr), tr and Gy_r.
 
-Measurements y = [ax, ay, r, p] (paper) plus vx from the mean wheel speed times rw (added: the
+Measurements z = [ax, ay, r, p] (paper) plus vx from the mean wheel speed times rw (added: the
 paper's measurements leave vx unobservable; vy stays unobservable but feeds nothing back into the
 forces, roll or yaw). ax_hat = SFx/m, ay_hat = SFy/m + g sin(phi): the specific force of the
 centre of mass as an IMU fixed to the rolling body reads it (``imu_gravity_tilt``).
@@ -38,7 +38,7 @@ centre of mass as an IMU fixed to the rolling body reads it (``imu_gravity_tilt`
 Filter (paper eq. 26-28): an EKF on the scaled state x* = S x, F* = S F S^-1, H* = H S^-1, with
 the model error compensator added to the correction (eq. 21, 38)::
 
-    x*+ = x*- + K (y - y_hat) + dt Gp (r - r_hat)      (Gp acts on Fyf*, Fyr* only)
+    x*+ = x*- + K y + dt Gp (r - r_hat),  y = z - h(x*-)   (Gp acts on Fyf*, Fyr* only)
 
 and Gy (ay - ay_hat) added to the lateral load transfer. Discretisation at each sample of length
 dt: state x*(k+1) = x* + dt (I + A* dt/2) g(x*), i.e. a second-order (linearised Heun) step of
@@ -86,7 +86,7 @@ PAPER_SCALING = (1e-1, 10.0, 10.0, 1e3, 1e2, 1e-3, 1e-3)
 # Q of the plain EKF (physical units per s) from the same search as the SKFMEC's defaults.
 PLAIN_Q_DIAG = (1e-2, 1e-1, 1e-1, 1e-1, 1e3, 3.0, 3.0)
 _N_X = 7
-_N_Y = 5
+_N_Z = 5
 _SPD_CHECK_EVERY = 10
 
 
@@ -230,7 +230,7 @@ class ObserverTuningParams:
 
     def __post_init__(self) -> None:
         for name, size in (('scaling', _N_X), ('q_diag', _N_X), ('p0_diag', _N_X),
-                           ('r_std', _N_Y), ('gp', 2), ('gy', 2)):
+                           ('r_std', _N_Z), ('gp', 2), ('gy', 2)):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (size,) or not np.all(np.isfinite(value)):
                 raise ValueError(f'ObserverTuningParams.{name} must be {size} finite numbers, '
@@ -437,23 +437,24 @@ class LateralForceObserver:
 
     def _measure(self, xp: np.ndarray, fx: Sequence[float], c: float,
                  s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted measurements and their Jacobian in scaled coordinates H* = H S^-1."""
+        """Predicted measurement z_hat = h(x) and its Jacobian in scaled coordinates
+        H* = H S^-1."""
         p = self.params
         fxf = fx[0] + fx[1]
         ay_hat = (s * fxf + 2.0 * c * xp[5] + 2.0 * xp[6]) / p.m
-        h = np.zeros((_N_Y, _N_X))
+        H = np.zeros((_N_Z, _N_X))
         if self.tuning.imu_gravity_tilt:
             # A body-fixed IMU on the rolled sprung mass also reads g sin(phi).
             ay_hat += G * math.sin(xp[3])
-            h[1, 3] = G * math.cos(xp[3])
-        y_hat = np.array([
+            H[1, 3] = G * math.cos(xp[3])
+        z_hat = np.array([
             (c * fxf - 2.0 * s * xp[5] + fx[2] + fx[3]) / p.m, ay_hat, xp[2], xp[4], xp[0],
         ])
-        h[0, 5] = -2.0 * s / p.m
-        h[1, 5] = 2.0 * c / p.m
-        h[1, 6] = 2.0 / p.m
-        h[2, 2] = h[3, 4] = h[4, 0] = 1.0
-        return y_hat, h * self._s_inv[None, :]
+        H[0, 5] = -2.0 * s / p.m
+        H[1, 5] = 2.0 * c / p.m
+        H[1, 6] = 2.0 / p.m
+        H[2, 2] = H[3, 4] = H[4, 0] = 1.0
+        return z_hat, H * self._s_inv[None, :]
 
     def _initial_state(self, ay: float, r: float, pr: float, vx: float) -> np.ndarray:
         """Steady-turn start: forces from ay, roll angle from relation 1."""
@@ -477,34 +478,34 @@ class LateralForceObserver:
             g, a_s = self._derivative(self._s_inv * self._x, self._u_prev)
             a_dt = a_s * dt
             self._x = self._x + dt * (g + 0.5 * (a_dt @ g))
-            phi_d = self._eye + a_dt + 0.5 * (a_dt @ a_dt)
-            self._P = phi_d @ self._P @ phi_d.T + self._q * dt
+            F = self._eye + a_dt + 0.5 * (a_dt @ a_dt)
+            self._P = F @ self._P @ F.T + self._q * dt
             if not math.isfinite(float(self._x.sum()) + float(self._P.sum())):
                 # A diverged prediction (e.g. an unstable tuning): restart from this sample
                 # rather than publish or propagate NaN; counted as a covariance reset.
                 self.health.covariance_resets += 1
                 self._x = self._initial_state(ay, r, pr, vx_wheel)
                 self._P = self._p0.copy()
-        y = np.array([ax, ay, r, pr, vx_wheel])
+        z = np.array([ax, ay, r, pr, vx_wheel])
         xp = self._s_inv * self._x
-        y_hat, h = self._measure(xp, fx, c, s)
-        ph_t = self._P @ h.T
+        z_hat, H = self._measure(xp, fx, c, s)
+        PHt = self._P @ H.T
         try:
-            gain = np.linalg.solve(h @ ph_t + self._r, ph_t.T).T
+            K = np.linalg.solve(H @ PHt + self._r, PHt.T).T
         except np.linalg.LinAlgError:
-            # Numerically singular innovation covariance (P blown up): restart, counted.
+            # Numerically singular residual covariance (P blown up): restart, counted.
             self.health.covariance_resets += 1
             self._x = self._initial_state(ay, r, pr, vx_wheel)
             self._P = self._p0.copy()
             xp = self._s_inv * self._x
-            y_hat, h = self._measure(xp, fx, c, s)
-            ph_t = self._P @ h.T
-            gain = np.linalg.solve(h @ ph_t + self._r, ph_t.T).T
-        innovation = y - y_hat
-        i_kh = self._eye - gain @ h
-        self._P = i_kh @ self._P @ i_kh.T + gain @ self._r @ gain.T
+            z_hat, H = self._measure(xp, fx, c, s)
+            PHt = self._P @ H.T
+            K = np.linalg.solve(H @ PHt + self._r, PHt.T).T
+        y = z - z_hat                     # residual
+        i_kh = self._eye - K @ H
+        self._P = i_kh @ self._P @ i_kh.T + K @ self._r @ K.T
         self._P = 0.5 * (self._P + self._P.T)
-        self._x = self._x + gain @ innovation + (dt * innovation[2]) * self._gp
+        self._x = self._x + K @ y + (dt * y[2]) * self._gp
         if not self._covariance_ok():
             self.health.covariance_resets += 1
             self._P = self._p0.copy()
@@ -512,7 +513,7 @@ class LateralForceObserver:
         phi = float(xp[3])
         # The load transfer follows the kinematic lateral acceleration, not the IMU's tilt.
         ay_kin = ay - G * math.sin(phi) if self.tuning.imu_gravity_tilt else ay
-        loads = self._loads(ax, ay_kin, phi, float(innovation[1]))
+        loads = self._loads(ax, ay_kin, phi, float(y[1]))
         # The yaw moment of the steered front forces needs the left/right split of relation 2.
         w_left = loads[0] ** self.params.split_exponent
         w_right = loads[1] ** self.params.split_exponent

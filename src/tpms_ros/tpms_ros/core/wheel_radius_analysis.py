@@ -807,13 +807,13 @@ class WheelRadiusAnalyzer:
         use_rear = lat_cond & rear_ok
         use_front = lat_cond & front_ok
         self.counts['lat_gated'] += int((~lat_cond & (rear_ok | front_ok)).sum())
-        y_gyro = np.where(gyro_finite, -gyro, 0.0)      # REP 103 -> SAE sign
+        z_gyro = np.where(gyro_finite, -gyro, 0.0)      # REP 103 -> SAE sign
 
-        trace, long_trace, innovation = self._run_filters(
-            dt, gap, slip, slip_var, mu, long_valid, y_gyro, yaw_rear, yaw_front, c_rear,
+        trace, long_trace, residual = self._run_filters(
+            dt, gap, slip, slip_var, mu, long_valid, z_gyro, yaw_rear, yaw_front, c_rear,
             c_front, use_gyro, use_rear, use_front)
         if self._calibrating:
-            self._accumulate_calibration(stamps, trace, long_trace, innovation, mu, c_rear,
+            self._accumulate_calibration(stamps, trace, long_trace, residual, mu, c_rear,
                                          c_front, long_valid, use_rear, use_front)
         trace[:, 4] = -trace[:, 4]                        # gyro offset back to REP 103
         return self._estimate(stamps, trace)
@@ -857,7 +857,7 @@ class WheelRadiusAnalyzer:
 
     def _run_filters(self, dt: np.ndarray, gap: np.ndarray, slip: np.ndarray,
                      slip_var: np.ndarray, mu: np.ndarray, long_valid: np.ndarray,
-                     y_gyro: np.ndarray, yaw_rear: np.ndarray, yaw_front: np.ndarray,
+                     z_gyro: np.ndarray, yaw_rear: np.ndarray, yaw_front: np.ndarray,
                      c_rear: np.ndarray, c_front: np.ndarray, use_gyro: np.ndarray,
                      use_rear: np.ndarray, use_front: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -866,7 +866,7 @@ class WheelRadiusAnalyzer:
         Returns:
             (M, 5) trace as in :class:`RadiusEstimate`; (M, 4) longitudinal states in the
             filter's own terms: delta left, delta right, 1/k left, 1/k right; (M, 4)
-            innovations y - h x of the measurement behind each pair (slip left, slip right,
+            residuals y = z - h x of the measurement behind each pair (slip left, slip right,
             rear and front wheel yaw rate) over the assumed noise std, NaN where it was not
             updated.
         """
@@ -874,7 +874,7 @@ class WheelRadiusAnalyzer:
         m = dt.shape[0]
         trace = np.empty((m, 5))
         long_trace = np.empty((m, 4))
-        innovation = np.full((m, 4), np.nan)
+        residual = np.full((m, 4), np.nan)
         q_k = p.inv_stiffness_rw ** 2
         q_d = p.delta_rw ** 2
         q_o = p.gyro_offset_rw ** 2
@@ -891,7 +891,7 @@ class WheelRadiusAnalyzer:
         slip_var_l = slip_var.tolist()
         dt_l, gap_l = dt.tolist(), gap.tolist()
         flags = np.stack([use_gyro, use_rear, use_front], axis=1).tolist()
-        y_l = np.stack([y_gyro, yaw_rear, yaw_front], axis=1).tolist()
+        z_l = np.stack([z_gyro, yaw_rear, yaw_front], axis=1).tolist()
         c_rear_l, c_front_l = c_rear.tolist(), c_front.tolist()
         for i in range(m):
             ts = dt_l[i]
@@ -907,10 +907,10 @@ class WheelRadiusAnalyzer:
                     ph2 = ps[1] * mu_i + ps[2]
                     r_slip = slip_var_l[i][side]
                     s_inv = 1.0 / (mu_i * ph1 + ph2 + r_slip)
-                    innov = slip_l[i][side] - mu_i * xs[0] - xs[1]
-                    innovation[i, side] = innov / math.sqrt(r_slip)
-                    xs[0] += ph1 * innov * s_inv
-                    xs[1] += ph2 * innov * s_inv
+                    y = slip_l[i][side] - mu_i * xs[0] - xs[1]
+                    residual[i, side] = y / math.sqrt(r_slip)
+                    xs[0] += ph1 * y * s_inv
+                    xs[1] += ph2 * y * s_inv
                     ps[0] -= ph1 * ph1 * s_inv
                     ps[1] -= ph1 * ph2 * s_inv
                     ps[2] -= ph2 * ph2 * s_inv
@@ -932,28 +932,28 @@ class WheelRadiusAnalyzer:
                 cov[1, 1] += q_jerk * ts2
             cov += np.diag(rw_diag * ts)
             use = flags[i]
-            y = y_l[i]
+            z = z_l[i]
             # ---- sequential scalar updates (R diagonal => equal to the joint update)
             if use[0]:            # h = (1, 0, 1, 0, 0)
                 ph = cov[:, 0] + cov[:, 2]
                 s = ph[0] + ph[2] + r_gyro
-                x += ph * ((y[0] - x[0] - x[2]) / s)
+                x += ph * ((z[0] - x[0] - x[2]) / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
             if use[1]:            # h = (1, 0, 0, -c3, 0)
                 c = c_rear_l[i]
                 ph = cov[:, 0] - c * cov[:, 3]
                 s = ph[0] - c * ph[3] + r_wheel
-                innov = y[1] - x[0] + c * x[3]
-                innovation[i, 2] = innov * inv_wheel_std
-                x += ph * (innov / s)
+                y = z[1] - x[0] + c * x[3]
+                residual[i, 2] = y * inv_wheel_std
+                x += ph * (y / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
             if use[2]:            # h = (1, 0, 0, 0, -c1)
                 c = c_front_l[i]
                 ph = cov[:, 0] - c * cov[:, 4]
                 s = ph[0] - c * ph[4] + r_wheel
-                innov = y[2] - x[0] + c * x[4]
-                innovation[i, 3] = innov * inv_wheel_std
-                x += ph * (innov / s)
+                y = z[2] - x[0] + c * x[4]
+                residual[i, 3] = y * inv_wheel_std
+                x += ph * (y / s)
                 cov -= np.outer(ph, ph) * (1.0 / s)
             trace[i, 0] = long_trace[i, 0] = long_x[0][1]
             trace[i, 1] = long_trace[i, 1] = long_x[1][1]
@@ -965,10 +965,10 @@ class WheelRadiusAnalyzer:
         if p.driven_axle == 'rear':
             # filter delta = 1 - r_rear / r_front; paper's delta_13 = 1 - r1 / r3 = -d / (1 - d)
             trace[:, :2] = -trace[:, :2] / (1.0 - trace[:, :2])
-        return trace, long_trace, innovation
+        return trace, long_trace, residual
 
     def _accumulate_calibration(self, stamps: np.ndarray, trace: np.ndarray,
-                                long_trace: np.ndarray, innovation: np.ndarray, mu: np.ndarray,
+                                long_trace: np.ndarray, residual: np.ndarray, mu: np.ndarray,
                                 c_rear: np.ndarray, c_front: np.ndarray,
                                 long_valid: np.ndarray, use_rear: np.ndarray,
                                 use_front: np.ndarray) -> None:
@@ -988,9 +988,9 @@ class WheelRadiusAnalyzer:
         self._cal_pair += np.stack([coef.sum(axis=0), comp.sum(axis=0),
                                     (comp * comp).sum(axis=0), (delta * comp).sum(axis=0),
                                     delta.sum(axis=0), (delta * delta).sum(axis=0)])
-        self._accumulate_noise(np.where(settled[:, None], innovation, np.nan))
+        self._accumulate_noise(np.where(settled[:, None], residual, np.nan))
 
-    def _accumulate_noise(self, innovation: np.ndarray) -> None:
+    def _accumulate_noise(self, residual: np.ndarray) -> None:
         """Close the blocks of ``noise_block_s`` worth of normalised innovations per pair
         (NaN: no update).
 
@@ -999,7 +999,7 @@ class WheelRadiusAnalyzer:
         """
         block = max(1, round(self.params.noise_block_s * self.params.sample_rate_hz))
         for pair in range(4):
-            values = innovation[:, pair]
+            values = residual[:, pair]
             values = values[np.isfinite(values)]
             if not values.size:
                 continue
