@@ -62,7 +62,7 @@ from tpms_ros.core.lateral_force_observer import (
     ObserverVehicleParams,
 )
 from tpms_ros.nodes.wheel_speed_input import subscribe_wheel_speeds
-from vehicle_monitor_common.input_health import StampCheck
+from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.node_helpers import (
     OK,
     OUTPUT_QOS,
@@ -111,6 +111,8 @@ class LateralForceObserverNode(Node):
         self._checks = {topic: StampCheck(max_gap_s=math.inf)
                         for topic in ('imu', 'wheel_speeds', 'driver_inputs')}
         self.received = {topic: 0 for topic in self._checks}
+        now = self.get_clock().now().nanoseconds
+        self._rates = {topic: RateMeter(since_ns=now) for topic in self._checks}
         # Rejections by this node (the core's own are in observer.health.rejected).
         self.rejected: dict[str, int] = {}
         self.skipped = {'stale_wheel_speeds': 0, 'stale_driver_inputs': 0}
@@ -171,6 +173,7 @@ class LateralForceObserverNode(Node):
 
     def _accept_stamp(self, topic: str, stamp: int) -> int | None:
         self.received[topic] += 1
+        self._rates[topic].tick()
         verdict = self._checks[topic].check(stamp)
         if verdict in ('repeated', 'out_of_order'):
             self._reject(f'{topic}_{verdict}')
@@ -187,6 +190,7 @@ class LateralForceObserverNode(Node):
 
     def _on_malformed(self, _: str) -> None:
         self.received['wheel_speeds'] += 1
+        self._rates['wheel_speeds'].tick()
         self._reject('wheel_speeds_malformed')
 
     def _on_wheel_speeds(self, stamp: int, speeds: tuple[float, ...]) -> None:
@@ -298,8 +302,10 @@ class LateralForceObserverNode(Node):
         limit_g = tuning.validity_ay_mps2 / G
         health = self._observer.health
         events, self._period_events = self._period_events, {}
+        now = self.get_clock().now().nanoseconds
         values: dict[str, Any] = {
-            f'received_{topic}': count for topic, count in self.received.items()}
+            f'input_rate_hz.{topic}': meter.read(now) for topic, meter in self._rates.items()}
+        values.update({f'received_{topic}': count for topic, count in self.received.items()})
         values.update({
             'filter_steps': health.samples,
             'filter_accepted': health.accepted,
