@@ -159,7 +159,7 @@ def replay_methods(result: RoadSimulationResult, calibration_end_s: float,
     t_w, omega = result.wheel_speed_t, result.wheel_speed
     imu_t, yaw = result.imu_t, result.imu_gyro[:, 1]
     rp = p.wheel_radius
-    bins = bin_wheel_speeds(t_w, omega, imu_t, 1.0 / rp.sample_rate_hz, rp.max_wheel_speed)
+    bins = bin_wheel_speeds(t_w, omega, imu_t, 1.0 / rp.sample_rate_hz, rp.max_wheel_speed_rad_s)
     torque_bins = sample_and_hold(t_driver, driver.fields['wheel_torque'], imu_t,
                                   DRIVER_MAX_AGE_S)
     steer_bins = sample_and_hold(t_driver, driver.fields['steering_angle'], imu_t,

@@ -26,9 +26,9 @@ from eval_tpms_fusion import (  # noqa: E402
     steer_amplitude_deg,
 )
 
-from tpms_ros.road_scenario import parse_scenario  # noqa: E402
-from tpms_ros.road_simulator import simulate_scenario  # noqa: E402
-from tpms_ros.wheel_radius_analysis import bin_wheel_speeds, sample_and_hold  # noqa: E402
+from tpms_ros.core.wheel_radius_analysis import bin_wheel_speeds, sample_and_hold  # noqa: E402
+from tpms_ros.simulation.road_scenario import parse_scenario  # noqa: E402
+from tpms_ros.simulation.road_simulator import simulate_scenario  # noqa: E402
 
 CALIBRATION_END_S = 70.0
 FAULT_S = 130.0
