@@ -24,13 +24,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from rail_monitor_ros.creep_ekf import (  # noqa: E402
-    CreepEkf,
-    CreepEkfParams,
-    simulation_inputs,
-)
-from rail_monitor_ros.rail_scenario import shipped_scenario  # noqa: E402
-from rail_monitor_ros.rail_simulator import simulate  # noqa: E402
+from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams  # noqa: E402
+from rail_monitor_ros.offline.creep_runs import simulation_inputs  # noqa: E402
+from rail_monitor_ros.simulation.rail_scenario import shipped_scenario  # noqa: E402
+from rail_monitor_ros.simulation.rail_simulator import simulate  # noqa: E402
 
 
 def plain_run(params: CreepEkfParams, y: np.ndarray, track: np.ndarray) -> np.ndarray:

@@ -17,8 +17,8 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 import argparse  # noqa: E402
 import time  # noqa: E402
 
-from rail_monitor_ros.rail_scenario import shipped_scenario  # noqa: E402
-from rail_monitor_ros.rail_simulator import simulate, to_topic_series  # noqa: E402
+from rail_monitor_ros.simulation.rail_scenario import shipped_scenario  # noqa: E402
+from rail_monitor_ros.simulation.rail_simulator import simulate, to_topic_series  # noqa: E402
 
 
 def main() -> None:

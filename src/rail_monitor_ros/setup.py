@@ -12,6 +12,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.yaml')),
         ('share/' + package_name + '/scenarios', glob('scenarios/*.yaml')),
     ],
     install_requires=['setuptools'],
@@ -22,20 +23,20 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'rail_simulator = rail_monitor_ros.rail_simulator_node:main',
-            'creep_estimator = rail_monitor_ros.creep_estimator_node:main',
+            'rail_simulator = rail_monitor_ros.nodes.rail_simulator_node:main',
+            'creep_estimator = rail_monitor_ros.nodes.creep_estimator_node:main',
             'suspension_monitor = rail_monitor_ros.nodes.suspension_monitor_node:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'rail_simulator = rail_monitor_ros.rail_simulator_node:RailSimulator',
-            'creep_estimator = rail_monitor_ros.creep_estimator_node:CreepEstimatorNode',
+            'rail_simulator = rail_monitor_ros.nodes.rail_simulator_node:RailSimulator',
+            'creep_estimator = rail_monitor_ros.nodes.creep_estimator_node:CreepEstimatorNode',
             'suspension_monitor = '
             'rail_monitor_ros.nodes.suspension_monitor_node:SuspensionMonitorNode',
         ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [
-            'rail = rail_monitor_ros.evaluation:domain',
+            'rail = rail_monitor_ros.offline.evaluation:domain',
         ],
     },
 )

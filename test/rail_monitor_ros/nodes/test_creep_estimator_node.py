@@ -19,15 +19,20 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregularity
 import yaml
 
-from rail_monitor_ros.creep_ekf import CreepEkf, simulation_inputs
-from rail_monitor_ros.creep_estimator_node import CreepEstimatorNode
-from rail_monitor_ros.rail_scenario import RailEvent, shipped_scenario
-from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate, to_topic_series
+from rail_monitor_ros.core.creep_ekf import CreepEkf
+from rail_monitor_ros.nodes.creep_estimator_node import CreepEstimatorNode
+from rail_monitor_ros.offline.creep_runs import simulation_inputs
+from rail_monitor_ros.simulation.rail_scenario import RailEvent, shipped_scenario
+from rail_monitor_ros.simulation.rail_simulator import (
+    RailSimulationResult,
+    simulate,
+    to_topic_series,
+)
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
 from vehicle_monitor_common.player import ScenarioPlayer
 
-CONFIG = Path(__file__).resolve().parents[2] / 'src/rail_monitor_ros/config/creep_estimator.yaml'
+CONFIG = Path(__file__).resolve().parents[3] / 'src/rail_monitor_ros/config/creep_estimator.yaml'
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
                   reliability=ReliabilityPolicy.RELIABLE)
 STEP_TIME = 2.0

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rail_monitor_ros.rail_scenario import load_rail_scenario
-from rail_monitor_ros.rail_simulator import scenario_topics
+from rail_monitor_ros.simulation.rail_scenario import load_rail_scenario
+from rail_monitor_ros.simulation.rail_simulator import scenario_topics
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,

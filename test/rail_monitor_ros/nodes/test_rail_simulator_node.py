@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
-from rail_monitor_ros.rail_simulator_node import RailSimulator
+from rail_monitor_ros.nodes.rail_simulator_node import RailSimulator
 from vehicle_monitor_common.bag_io import iter_raw, read_series
 from vehicle_monitor_common.node_helpers import ConfigurationError
 

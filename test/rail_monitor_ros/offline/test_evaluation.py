@@ -1,4 +1,4 @@
-"""Rail evaluation (rail_monitor_ros.evaluation) on small synthetic recordings with known answers.
+"""Rail evaluation (offline.evaluation) on small synthetic recordings with known answers.
 
 Detection delays, false alarms and creep settling times are built into the outputs, so every
 metric is checked against a number that a wrong implementation would miss.
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rail_monitor_ros.evaluation import (
+from rail_monitor_ros.offline.evaluation import (
     MODES,
     TRUTH_CREEP,
     TRUTH_SUSPENSION,

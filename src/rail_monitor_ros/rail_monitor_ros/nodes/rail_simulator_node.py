@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from rail_monitor_ros.rail_simulator import scenario_topics
+from rail_monitor_ros.simulation.rail_simulator import scenario_topics
 from vehicle_monitor_common.player import run_player
 from vehicle_monitor_common.simulator import SimulatorNode
 

@@ -15,14 +15,14 @@ import scipy.signal
 
 from rail_monitor_ros.core.rail_model import full_car_state_space, vehicle_modes
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
-from rail_monitor_ros.rail_scenario import (
+from rail_monitor_ros.simulation.rail_scenario import (
     SCENARIO_DIR,
     evaluate_profiles,
     load_rail_scenario,
     rail_scenario_from_dict,
     shipped_scenario,
 )
-from rail_monitor_ros.rail_simulator import (
+from rail_monitor_ros.simulation.rail_simulator import (
     RailSimulationResult,
     acceleration_psd,
     plot_acceleration_psd,

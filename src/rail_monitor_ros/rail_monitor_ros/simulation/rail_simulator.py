@@ -1,6 +1,6 @@
 """Rail vehicle simulator: the 14-DOF full car on a random track, with ground truth.
 
-Runs a :class:`~rail_monitor_ros.rail_scenario.RailScenario` and returns arrays
+Runs a :class:`~rail_monitor_ros.simulation.rail_scenario.RailScenario` and returns arrays
 (:class:`RailSimulationResult`); :func:`to_topic_series` turns them into the topics of SPEC §1
 for the bag writer and the live node. No ROS import.
 
@@ -27,7 +27,7 @@ import scipy.signal
 
 from rail_monitor_ros.core.rail_model import StateSpace, full_car_state_space, vehicle_modes
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
-from rail_monitor_ros.rail_scenario import (
+from rail_monitor_ros.simulation.rail_scenario import (
     ParameterProfiles,
     RailScenario,
     SensorConfig,
@@ -244,7 +244,13 @@ def _state_noise(name: str, sensors: SensorConfig) -> float:
     return float(getattr(sensors, key))
 
 
-def _lateral_states_fields(state: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+def lateral_states_fields(state: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """RailLateralStates fields (message field name -> (N, ...) array) from full-car states.
+
+    Args:
+        state: (N, n) states of :func:`full_car_state_space` (true or measured).
+        names: their names (``y_w1``, ``dpsi_b2``, ``y_v`` ...).
+    """
     def cols(prefix: str, bodies: list[str]) -> np.ndarray:
         return state[:, [names.index(f'{prefix}_{b}') for b in bodies]]
 
@@ -322,10 +328,10 @@ def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float 
                                                           0.0)),
     }, frame_id='body_above_front_bogie')
     measured = TopicSeries(RAIL_LATERAL_STATES_TYPE, stamps,
-                           _lateral_states_fields(result.measured_state, result.state_names),
+                           lateral_states_fields(result.measured_state, result.state_names),
                            frame_id='track')
     truth_states = TopicSeries(RAIL_LATERAL_STATES_TYPE, stamps,
-                               _lateral_states_fields(result.state, result.state_names),
+                               lateral_states_fields(result.state, result.state_names),
                                frame_id='track')
     track = TopicSeries(TRACK_IRREGULARITY_TYPE, stamps, {
         'lateral_alignment': result.measured_track_alignment,

@@ -4,7 +4,7 @@ Subscribes, per the ``pattern`` parameter, ``rail/lateral_states`` (RailLateralS
 A-C) or ``rail/bogie/imu`` + ``rail/body/imu`` (sensor_msgs/Imu; pattern D), and optionally
 ``rail/track_irregularity`` (TrackIrregularity); publishes ``rail/creep_factor`` (CreepFactor)
 for every processed sample, stamped with that sample's stamp, and ``/diagnostics``. The
-estimator is :class:`rail_monitor_ros.creep_ekf.CreepEkf`.
+estimator is :class:`rail_monitor_ros.core.creep_ekf.CreepEkf`.
 
 Time alignment. The *driving* stream is ``rail/lateral_states`` (A-C) or the bogie IMU (D); its
 stamp is the sample time. Parts of one sample (the body IMU for D, the track alignment) are
@@ -40,8 +40,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregularity
 
-from rail_monitor_ros.core.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
-from rail_monitor_ros.creep_ekf import (
+from rail_monitor_ros.core.creep_ekf import (
     BOGIES,
     MODELS,
     CreepEkf,
@@ -49,6 +48,7 @@ from rail_monitor_ros.creep_ekf import (
     CreepEstimate,
     lateral_states_measurement,
 )
+from rail_monitor_ros.core.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.node_helpers import (
     ERROR,

@@ -8,20 +8,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rail_monitor_ros.core.rail_model import car_end_state_space, full_car_state_space
-from rail_monitor_ros.creep_ekf import (
+from rail_monitor_ros.core.creep_ekf import (
     CreepEkf,
     CreepEkfParams,
     CreepRun,
     lateral_states_measurement,
     measurement_channels,
+)
+from rail_monitor_ros.core.rail_model import car_end_state_space, full_car_state_space
+from rail_monitor_ros.offline.creep_runs import (
     plot_creep,
     run_on_simulation,
     simulation_inputs,
     step_metrics,
 )
-from rail_monitor_ros.rail_scenario import shipped_scenario
-from rail_monitor_ros.rail_simulator import RailSimulationResult, simulate
+from rail_monitor_ros.simulation.rail_scenario import shipped_scenario
+from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, simulate
 
 # SPEC §8: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on the
 # seeded run (known input, default settings), largest error after 1 s, steps to 40 % / 60 %:
