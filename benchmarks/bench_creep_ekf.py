@@ -30,23 +30,23 @@ from rail_monitor_ros.simulation.rail_scenario import shipped_scenario  # noqa: 
 from rail_monitor_ros.simulation.rail_simulator import simulate  # noqa: E402
 
 
-def plain_run(params: CreepEkfParams, y: np.ndarray, track: np.ndarray) -> np.ndarray:
+def plain_run(params: CreepEkfParams, z: np.ndarray, track: np.ndarray) -> np.ndarray:
     """The plainest per-sample EKF on the same model: exact discretisation every sample,
     S inverted explicitly, P = (I - K H) P. Returns the c estimate per sample."""
     ekf = CreepEkf(params)              # for the model matrices, Q and R only
     h = ekf._h[track.shape[1]]          # noqa: SLF001 - benchmark reuses the model
     r = np.diag(ekf._r[track.shape[1]])  # noqa: SLF001
     q = ekf._q_x                        # noqa: SLF001
-    z, p = ekf.z.copy(), ekf.P.copy()
-    out = np.empty(y.shape[0])
-    for k in range(y.shape[0]):
-        obs = np.concatenate([y[k], track[k]])
+    x, p = ekf.x.copy(), ekf.P.copy()
+    out = np.empty(z.shape[0])
+    for k in range(z.shape[0]):
+        z_k = np.concatenate([z[k], track[k]])
         s = h @ p @ h.T + r
         gain = p @ h.T @ np.linalg.inv(s)
-        z = z + gain @ (obs - h @ z)
-        p = (np.eye(z.size) - gain @ h) @ p
-        out[k] = math.exp(z[ekf.i_theta])
-        z, jac = ekf.transition(z, exact=True)
+        x = x + gain @ (z_k - h @ x)
+        p = (np.eye(x.size) - gain @ h) @ p
+        out[k] = math.exp(x[ekf.i_theta])
+        x, jac = ekf.transition(x, exact=True)
         p = jac @ p @ jac.T + q
     return out
 

@@ -29,7 +29,7 @@ setup(
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [
-            'rail_simulator = rail_monitor_ros.nodes.rail_simulator_node:RailSimulator',
+            'rail_simulator = rail_monitor_ros.nodes.rail_simulator_node:RailSimulatorNode',
             'creep_estimator = rail_monitor_ros.nodes.creep_estimator_node:CreepEstimatorNode',
             'suspension_monitor = '
             'rail_monitor_ros.nodes.suspension_monitor_node:SuspensionMonitorNode',

@@ -46,14 +46,14 @@ def known_runs(creep_steps: RailSimulationResult) -> dict[str, CreepRun]:
 def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.ndarray:
     """A plausible augmented state: mm displacements, cm/s rates, mrad yaw (the other bogie's
     forces in units of its motion)."""
-    z = np.zeros(ekf.n_z)
-    n_x = ekf.n_x
-    z[:n_x] = rng.normal(size=n_x) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], 4)[:n_x]
-    z[n_x:n_x + 2] = rng.normal(size=2) * 2e-3
-    z[n_x + 2:n_x + 4] = rng.normal(size=2) * 5e-2
-    z[n_x + 4:ekf.i_theta] = rng.normal(size=ekf.n_disturbances) * 3e-3
-    z[ekf.i_theta] = math.log(creep_factor)
-    return z
+    x = np.zeros(ekf.dim_x)
+    n_q = ekf.n_model
+    x[:n_q] = rng.normal(size=n_q) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], 4)[:n_q]
+    x[n_q:n_q + 2] = rng.normal(size=2) * 2e-3
+    x[n_q + 2:n_q + 4] = rng.normal(size=2) * 5e-2
+    x[n_q + 4:ekf.i_theta] = rng.normal(size=ekf.n_disturbances) * 3e-3
+    x[ekf.i_theta] = math.log(creep_factor)
+    return x
 
 
 @pytest.mark.parametrize('model, creep_factor', [('end', 0.3), ('end', 0.73), ('end', 1.4),
@@ -61,21 +61,21 @@ def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.n
 def test_jacobian_matches_finite_differences(model: str, creep_factor: float) -> None:
     """The exact Jacobian (Frechet derivative of e^{A dt}) equals central finite differences."""
     ekf = CreepEkf(CreepEkfParams(pattern='A', model=model))
-    z = _state(ekf, np.random.default_rng(3), creep_factor)
-    _, jac = ekf.transition(z, exact=True)
-    n_z, i_theta = ekf.n_z, ekf.i_theta
-    numeric = np.zeros((n_z, n_z))
-    for i in range(n_z):
-        step = 1e-5 if i == i_theta else 1e-6 * max(1.0, abs(z[i]))
-        dz = np.zeros(n_z)
-        dz[i] = step
-        plus, _ = ekf.transition(z + dz, exact=True)
-        minus, _ = ekf.transition(z - dz, exact=True)
+    x = _state(ekf, np.random.default_rng(3), creep_factor)
+    _, jac = ekf.transition(x, exact=True)
+    dim_x, i_theta = ekf.dim_x, ekf.i_theta
+    numeric = np.zeros((dim_x, dim_x))
+    for i in range(dim_x):
+        step = 1e-5 if i == i_theta else 1e-6 * max(1.0, abs(x[i]))
+        dx = np.zeros(dim_x)
+        dx[i] = step
+        plus, _ = ekf.transition(x + dx, exact=True)
+        minus, _ = ekf.transition(x - dx, exact=True)
         numeric[:, i] = (plus - minus) / (2.0 * step)
     scale = np.abs(numeric).max(axis=0) + 1e-12
     assert np.max(np.abs(jac - numeric) / scale) < 1e-6
     # The c column is not trivially zero: c acts on the wheelset rows.
-    assert np.abs(jac[:ekf.n_x, i_theta]).max() > 1e-6
+    assert np.abs(jac[:ekf.n_model, i_theta]).max() > 1e-6
 
 
 def test_car_end_model_exact_for_the_full_car(creep_steps: RailSimulationResult) -> None:
@@ -123,12 +123,12 @@ def test_cached_discretisation_close_to_exact() -> None:
     rng = np.random.default_rng(4)
     i_theta = ekf.i_theta
     for c in rng.uniform(0.1, 1.9, size=20):
-        z = _state(ekf, rng, float(c))
-        cached, jac_cached = ekf.transition(z)
-        exact, jac_exact = ekf.transition(z, exact=True)
-        assert np.max(np.abs(cached - exact)[:ekf.n_x]) < 1e-5 * np.max(
-            np.abs(exact[:ekf.n_x]))
-        block = np.s_[:ekf.n_x, :ekf.n_x]
+        x = _state(ekf, rng, float(c))
+        cached, jac_cached = ekf.transition(x)
+        exact, jac_exact = ekf.transition(x, exact=True)
+        assert np.max(np.abs(cached - exact)[:ekf.n_model]) < 1e-5 * np.max(
+            np.abs(exact[:ekf.n_model]))
+        block = np.s_[:ekf.n_model, :ekf.n_model]
         assert np.max(np.abs(jac_cached[block] - jac_exact[block])) < 1e-5 * np.max(
             np.abs(jac_exact[block]))
         column_cached, column_exact = jac_cached[:i_theta, i_theta], jac_exact[:i_theta, i_theta]
@@ -136,8 +136,8 @@ def test_cached_discretisation_close_to_exact() -> None:
                 < 0.01 * np.linalg.norm(column_exact))
     # A second call near the same c is served from the cache (no matrix exponential).
     before = ekf.discretizations
-    z[i_theta] += 1e-4
-    ekf.transition(z)
+    x[i_theta] += 1e-4
+    ekf.transition(x)
     assert ekf.discretizations == before
 
 
@@ -267,7 +267,7 @@ def test_low_adhesion_hysteresis() -> None:
                                   low_adhesion_hysteresis=0.05))
     flags = []
     for c in (0.9, 0.49, 0.53, 0.549, 0.56, 0.52):
-        ekf.z[ekf.i_theta] = math.log(c)
+        ekf.x[ekf.i_theta] = math.log(c)
         flags.append(ekf.step(None).low_adhesion)
     assert flags == [False, True, True, True, False, False]
 
@@ -276,7 +276,7 @@ def test_outputs_scale_nominal_coefficients() -> None:
     """f11 = c f11_nom, f22 = c f22_nom; std_dev = c sqrt(P_theta)."""
     params = CreepEkfParams(pattern='D')
     ekf = CreepEkf(params)
-    ekf.z[ekf.i_theta] = math.log(0.6)
+    ekf.x[ekf.i_theta] = math.log(0.6)
     est = ekf.step(None)
     assert est.f11 == pytest.approx(0.6 * params.vehicle.longitudinal_creep_coefficient)
     assert est.f22 == pytest.approx(0.6 * params.vehicle.lateral_creep_coefficient)

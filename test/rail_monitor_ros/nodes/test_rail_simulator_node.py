@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
-from rail_monitor_ros.nodes.rail_simulator_node import RailSimulator
+from rail_monitor_ros.nodes.rail_simulator_node import RailSimulatorNode
 from vehicle_monitor_common.bag_io import iter_raw, read_series
 from vehicle_monitor_common.node_helpers import ConfigurationError
 
@@ -38,7 +38,7 @@ def test_scenario_is_synthesised_and_replayed(
         Imu, '/rail/bogie/imu',
         lambda m: got.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), DEEP)
     kept = tmp_path / 'imm'
-    simulator = make_node(RailSimulator, parameter_overrides=[
+    simulator = make_node(RailSimulatorNode, parameter_overrides=[
         Parameter('scenario', value='rail_imm_spring_damper_fault'),
         Parameter('output_bag', value=str(kept)), Parameter('wait_for_subscribers', value=1),
         Parameter('rate', value=20.0)])
@@ -53,7 +53,7 @@ def test_same_seed_gives_the_same_bag(tmp_path: Path, make_node: Callable[..., A
     """Same scenario and seed -> identical messages; another seed -> different ones."""
     hashes = []
     for name, seed in (('a', 3), ('b', 3), ('c', 4)):
-        node = make_node(RailSimulator, node_name=f'sim_{name}', parameter_overrides=[
+        node = make_node(RailSimulatorNode, node_name=f'sim_{name}', parameter_overrides=[
             Parameter('scenario', value='rail_creep_steps'), Parameter('seed', value=seed),
             Parameter('output_bag', value=str(tmp_path / name)),
             Parameter('rate', value=1e-3)])
@@ -63,7 +63,7 @@ def test_same_seed_gives_the_same_bag(tmp_path: Path, make_node: Callable[..., A
 
 def test_truth_topics_are_in_the_bag(tmp_path: Path, make_node: Callable[..., Any]) -> None:
     """The synthesised bag carries /truth/creep_factor with the scenario's steps."""
-    node = make_node(RailSimulator, parameter_overrides=[
+    node = make_node(RailSimulatorNode, parameter_overrides=[
         Parameter('scenario', value='rail_creep_steps'),
         Parameter('output_bag', value=str(tmp_path / 'creep')), Parameter('rate', value=1e-3)])
     truth = read_series(node.bag, ['/truth/creep_factor'])['/truth/creep_factor']
@@ -82,7 +82,7 @@ def test_bad_configuration_is_refused(make_node: Callable[..., Any],
                                       overrides: dict[str, Any], match: str) -> None:
     """Unknown scenarios and contradictory modes are refused, naming what is wrong."""
     with pytest.raises(ConfigurationError, match=match):
-        make_node(RailSimulator, parameter_overrides=[
+        make_node(RailSimulatorNode, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
 
 
@@ -92,4 +92,4 @@ def test_invalid_scenario_file_names_the_key(tmp_path: Path,
     bad = tmp_path / 'bad.yaml'
     bad.write_text('duration: 5\nseed: 1\nspeeed: 40\n')
     with pytest.raises(ConfigurationError, match='speeed'):
-        make_node(RailSimulator, parameter_overrides=[Parameter('scenario', value=str(bad))])
+        make_node(RailSimulatorNode, parameter_overrides=[Parameter('scenario', value=str(bad))])

@@ -7,8 +7,11 @@ other bogie replaced by its secondary forces on the body as Gauss-Markov states.
 7-DOF half car (``model='half'``) is kept for comparison. The creep factor c (f11 and f22 scaled
 together) is appended to the state as a random walk (the paper's eq. 11)::
 
-    z = [x, y_r1, y_r2, y_r1', y_r2', d, theta],   theta = ln c
-    z' = A(c) z  (continuous; x' = A_x x + B_r y_r + B_d d, y_r'' = w, d' = -d / tau + w)
+    x = [q, y_r1, y_r2, y_r1', y_r2', d, theta],   theta = ln c
+    x' = A(c) x  (continuous; q' = A_q q + B_r y_r + B_d d, y_r'' = w, d' = -d / tau + w)
+
+with q the vehicle model's states. Vocabulary as filterpy: x the state, P its covariance, F the
+transition, H the observation, z the measurement, y = z - H x the residual, S its covariance.
 
 Why the end model (measured on the seeded ``rail_creep_steps`` run, known input, largest error
 from 1 s after each step): the half car's body is the body mass carried by one bogie with no
@@ -341,7 +344,7 @@ class CreepRun:
 
 @dataclass(frozen=True)
 class Discretization:
-    """The discrete augmented model at one creep factor: z+ = F z over z without ln c.
+    """The discrete augmented model at one creep factor: x+ = F x over x without ln c.
 
     Attributes:
         creep_factor: c where it was evaluated.
@@ -368,9 +371,9 @@ def estimation_model(params: CreepEkfParams, creep_factor: float = 1.0,
 
 
 class _SpeedModel:
-    """The continuous augmented model at one speed: z' = (A0 + c dA) z over z without ln c.
+    """The continuous augmented model at one speed: x' = (A0 + c dA) x over x without ln c.
 
-    z = [x, y_r1, y_r2, y_r1', y_r2', d]: the track alignment moves with its rate (so the
+    x = [q, y_r1, y_r2, y_r1', y_r2', d]: the track alignment moves with its rate (so the
     discretisation sees the track change within a sample, a first-order hold, rather than
     holding it), the rate is a random walk, and the other bogie's force and moment d decay as
     first-order Gauss-Markov processes.
@@ -382,10 +385,10 @@ class _SpeedModel:
         # The creep forces are linear in c: the difference of two evaluations is the exact
         # derivative (c -> 0 is outside the model's valid range, so c = 1 and 1/2).
         half = estimation_model(params, 0.5, speed)
-        n_x, n_d = one.a.shape[0], one.b.shape[1] - N_U
-        n = n_x + 2 * N_U + n_d
-        track, rate, dist = (slice(n_x, n_x + N_U), slice(n_x + N_U, n_x + 2 * N_U),
-                             slice(n_x + 2 * N_U, n))
+        n_q, n_d = one.a.shape[0], one.b.shape[1] - N_U
+        n = n_q + 2 * N_U + n_d
+        track, rate, dist = (slice(n_q, n_q + N_U), slice(n_q + N_U, n_q + 2 * N_U),
+                             slice(n_q + 2 * N_U, n))
 
         # The other bogie's force and moment are carried in units of the other bogie's motion
         # that causes them (f / Ksy in m, m / Cpsi in rad/s), the scale of the other states:
@@ -396,9 +399,9 @@ class _SpeedModel:
 
         def augmented(a: np.ndarray, b: np.ndarray, kinematics: bool) -> np.ndarray:
             out = np.zeros((n, n))
-            out[:n_x, :n_x] = a
-            out[:n_x, track] = b[:, :N_U]
-            out[:n_x, dist] = b[:, N_U:] * self.disturbance_scale
+            out[:n_q, :n_q] = a
+            out[:n_q, track] = b[:, :N_U]
+            out[:n_q, dist] = b[:, N_U:] * self.disturbance_scale
             if kinematics:
                 out[track, rate] = np.eye(N_U)
                 out[dist, dist] = -np.eye(n_d) / params.other_bogie_correlation_s
@@ -417,20 +420,20 @@ class _SpeedModel:
         channels = measurement_channels(params.pattern, params.model)
         self.h = np.zeros((len(channels), n))
         if params.pattern == 'D':
-            self.h[:, :n_x] = one.c
+            self.h[:, :n_q] = one.c
             self.h[:, track] = one.d[:, :N_U]
             self.h[:, dist] = one.d[:, N_U:] * self.disturbance_scale
             return
         # The half car's y_v is the body above the bogie: its 'y_v_above' channel.
         names = [name.replace('y_v', 'y_v_above') if params.model == 'half' else name
                  for name in one.state_names]
-        self.h[:, :n_x] = np.eye(n_x)[[names.index(channel) for channel in channels]]
+        self.h[:, :n_q] = np.eye(n_q)[[names.index(channel) for channel in channels]]
 
 
 class CreepEkf:
     """Augmented-state EKF for the creep factor; one :meth:`step` per sample.
 
-    Augmented state z = [x (n_x), y_r1, y_r2, y_r1', y_r2', d (n_d), ln c]: the model's
+    Augmented state x = [q (n_model), y_r1, y_r2, y_r1', y_r2', d (n_d), ln c]: the model's
     states, the track alignment at the two wheelsets and its rate (integrated random walk), the
     end model's other-bogie force and moment (Gauss-Markov; none in the half car), the log
     creep factor (random walk).
@@ -459,13 +462,13 @@ class CreepEkf:
         self.discretizations = 0
         self._model = _SpeedModel(p, p.vehicle.speed)
         self.state_names = self._model.state_names
-        self.n_x = len(self.state_names)
+        self.n_model = len(self.state_names)
         self.n_disturbances = self._model.n_disturbances
-        self.i_theta = self.n_x + 2 * N_U + self.n_disturbances
-        self.n_z = self.i_theta + 1
+        self.i_theta = self.n_model + 2 * N_U + self.n_disturbances
+        self.dim_x = self.i_theta + 1
         self._build_observation()
         self._q_x = self._state_process_noise()
-        self._jacobian = np.eye(self.n_z)
+        self._jacobian = np.eye(self.dim_x)
         self.rejected: dict[str, int] = {}
         self.resets: dict[str, int] = {}
         self.clipped = 0
@@ -493,10 +496,10 @@ class CreepEkf:
         if not p.min_creep_factor <= c0 <= p.max_creep_factor:
             raise ValueError(f'creep_factor must lie within [{p.min_creep_factor}, '
                              f'{p.max_creep_factor}], got {c0}')
-        self.z = np.zeros(self.n_z)
-        self.z[self.i_theta] = math.log(c0)
+        self.x = np.zeros(self.dim_x)
+        self.x[self.i_theta] = math.log(c0)
         # States start at rest with the spread of a running vehicle: a few mm, a few cm/s.
-        scale = np.tile([5e-3, 5e-2], self.n_x // 2)
+        scale = np.tile([5e-3, 5e-2], self.n_model // 2)
         self.P = np.diag(np.concatenate([
             scale ** 2, np.full(N_U, p.initial_track_std ** 2),
             np.full(N_U, self._track_rate_std() ** 2), self._disturbance_std() ** 2,
@@ -509,7 +512,7 @@ class CreepEkf:
     @property
     def creep_factor(self) -> float:
         """Current estimate of c."""
-        return math.exp(self.z[self.i_theta])
+        return math.exp(self.x[self.i_theta])
 
     @property
     def std_dev(self) -> float:
@@ -534,13 +537,13 @@ class CreepEkf:
     # -- model ---------------------------------------------------------------------------------
 
     def _build_observation(self) -> None:
-        """H over z for the measurements alone and stacked with the track observation, keyed
+        """H over x for the measurements alone and stacked with the track observation, keyed
         by the size of the track sample: 0 (none), 2 (alignment) or 4 (alignment and rate)."""
         p = self.params
-        h = np.zeros((self._n_meas, self.n_z))
+        h = np.zeros((self._n_meas, self.dim_x))
         h[:, :self.i_theta] = self._model.h
-        h_track = np.zeros((2 * N_U, self.n_z))
-        h_track[:, self.n_x:self.n_x + 2 * N_U] = np.eye(2 * N_U)
+        h_track = np.zeros((2 * N_U, self.dim_x))
+        h_track[:, self.n_model:self.n_model + 2 * N_U] = np.eye(2 * N_U)
         r_track = np.repeat([p.track_noise ** 2, p.track_rate_noise ** 2], N_U)
         self._h = {k: np.vstack([h, h_track[:k]]) for k in (0, N_U, 2 * N_U)}
         self._h_track = {k: h_track[:k] for k in (N_U, 2 * N_U)}
@@ -553,11 +556,11 @@ class CreepEkf:
     def _state_process_noise(self) -> np.ndarray:
         """Constant process noise: white accelerations on the coordinates, inputs, ln c."""
         p, dt = self.params, self._dt
-        n_x, i_theta = self.n_x, self.i_theta
-        q = np.zeros((self.n_z, self.n_z))
+        n_q, i_theta = self.n_model, self.i_theta
+        q = np.zeros((self.dim_x, self.dim_x))
         # Discrete white-noise acceleration per coordinate (position, rate) pair.
         block = np.array([[dt ** 4 / 4.0, dt ** 3 / 2.0], [dt ** 3 / 2.0, dt ** 2]])
-        for i in range(0, n_x, 2):
+        for i in range(0, n_q, 2):
             name = self.state_names[i]
             if name == 'y_v':
                 sigma = p.body_accel_process_std
@@ -576,11 +579,11 @@ class CreepEkf:
         track_block = rate_intensity * np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0],
                                                  [dt ** 2 / 2.0, dt]])
         for i in range(N_U):
-            idx = [n_x + i, n_x + N_U + i]
+            idx = [n_q + i, n_q + N_U + i]
             q[np.ix_(idx, idx)] = track_block
         decay = math.exp(-dt / p.other_bogie_correlation_s)
         gm = self._disturbance_std() ** 2 * (1.0 - decay ** 2)
-        q[n_x + 2 * N_U:i_theta, n_x + 2 * N_U:i_theta] = np.diag(gm)
+        q[n_q + 2 * N_U:i_theta, n_q + 2 * N_U:i_theta] = np.diag(gm)
         q[i_theta, i_theta] = p.creep_walk_std ** 2 * dt
         return q
 
@@ -608,36 +611,36 @@ class CreepEkf:
         self.discretizations += 1
         return Discretization(c, f, df)
 
-    def transition(self, z: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """The augmented transition z -> f(z) and its Jacobian df/dz at z.
+    def transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The augmented transition x -> f(x) and its Jacobian df/dx at x.
 
         Args:
-            z: (n_z,) augmented state [x, y_r1, y_r2, y_r1', y_r2', d, ln c].
+            x: (dim_x,) augmented state [q, y_r1, y_r2, y_r1', y_r2', d, ln c].
             exact: discretise exactly at c (no grid, no Taylor step), for checks.
 
         Returns:
-            (f(z), Jacobian (n_z, n_z)).
+            (f(x), Jacobian (dim_x, dim_x)).
         """
-        z = np.asarray(z, dtype=float)
-        if z.shape != (self.n_z,):
-            raise ValueError(f'z must have shape ({self.n_z},), got {z.shape}')
-        z_next, jac = self._transition(z, exact)
-        return z_next, jac.copy()
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.dim_x,):
+            raise ValueError(f'x must have shape ({self.dim_x},), got {x.shape}')
+        x_next, jac = self._transition(x, exact)
+        return x_next, jac.copy()
 
-    def _transition(self, z: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def _transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """As :meth:`transition`, returning the internal Jacobian buffer (no copy)."""
         i_theta = self.i_theta
-        c = math.exp(z[i_theta])
+        c = math.exp(x[i_theta])
         d = self.discretization(c, exact)
-        xu = z[:i_theta]
+        x_q = x[:i_theta]
         fg = d.fg + (c - d.creep_factor) * d.dfg
         jac = self._jacobian
         jac[:i_theta, :i_theta] = fg
         # d/d(ln c) = c d/dc; the derivative of the Taylor-stepped transition actually used.
-        jac[:i_theta, i_theta] = c * (d.dfg @ xu)
-        z_next = z.copy()
-        z_next[:i_theta] = fg @ xu
-        return z_next, jac
+        jac[:i_theta, i_theta] = c * (d.dfg @ x_q)
+        x_next = x.copy()
+        x_next[:i_theta] = fg @ x_q
+        return x_next, jac
 
     # -- filter --------------------------------------------------------------------------------
 
@@ -660,13 +663,13 @@ class CreepEkf:
             self.set_speed(speed)
         status = 'predicted'
         nis = math.nan
-        y = None
+        z = None
         if measurement is not None:
-            y = np.asarray(measurement, dtype=float)
-            if y.shape != (self._n_meas,):
-                status, y = self._reject('wrong_shape'), None
-            elif not np.isfinite(y).all():
-                status, y = self._reject('non_finite'), None
+            z = np.asarray(measurement, dtype=float)
+            if z.shape != (self._n_meas,):
+                status, z = self._reject('wrong_shape'), None
+            elif not np.isfinite(z).all():
+                status, z = self._reject('non_finite'), None
         u_meas = None
         if track is not None:
             u_meas = np.asarray(track, dtype=float)
@@ -677,8 +680,8 @@ class CreepEkf:
                 self._reject('track_non_finite')
                 u_meas = None
         reset = False
-        if y is not None:
-            status, nis = self._update(y, u_meas)
+        if z is not None:
+            status, nis = self._update(z, u_meas)
             reset = self._check_divergence(status, nis)
         elif u_meas is not None:
             self._update_track(u_meas)
@@ -690,37 +693,37 @@ class CreepEkf:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
         return reason
 
-    def _update(self, y: np.ndarray, u_meas: np.ndarray | None) -> tuple[str, float]:
+    def _update(self, z: np.ndarray, u_meas: np.ndarray | None) -> tuple[str, float]:
         with_track = 0 if u_meas is None else u_meas.size
-        obs = y if u_meas is None else np.concatenate((y, u_meas))
+        z_all = z if u_meas is None else np.concatenate((z, u_meas))
         h, r = self._h[with_track], self._r[with_track]
         hp = h @ self.P
         s = hp @ h.T
         s[self._diag_index[with_track]] += r
-        innovation = obs - h @ self.z
+        y = z_all - h @ self.x
         n = self._n_meas
-        if (innovation[:n] ** 2 > self._gate2 * s.diagonal()[:n]).any():
+        if (y[:n] ** 2 > self._gate2 * s.diagonal()[:n]).any():
             # The vehicle measurement is an outlier; the track sample (if any) is still used.
             if u_meas is not None:
                 self._update_track(u_meas)
             return self._reject('outlier'), math.nan
         # One Cholesky solve (LAPACK dposv: S is SPD; numpy.linalg.solve costs 5x more in
-        # call overhead at this size) gives the gain K = (S^-1 H P)^T and S^-1 innovation.
-        _, solved, info = _cholesky_solve(s, np.column_stack((hp, innovation)))
+        # call overhead at this size) gives the gain K = (S^-1 H P)^T and S^-1 y.
+        _, solved, info = _cholesky_solve(s, np.column_stack((hp, y)))
         if info != 0:
             return self._reject('singular_innovation'), math.nan
-        gain = solved[:, :self.n_z].T
-        nis = float(innovation @ solved[:, self.n_z])
+        gain = solved[:, :self.dim_x].T
+        nis = float(y @ solved[:, self.dim_x])
         i = self.i_theta
         # The correction of ln c, normalised by its predicted spread (K S K^T)_theta.
-        correction = float(hp[:, i] @ solved[:, self.n_z])
+        correction = float(hp[:, i] @ solved[:, self.dim_x])
         spread = float(hp[:, i] @ solved[:, i])
-        self.z += gain @ innovation
+        self.x += gain @ y
         self._joseph(gain, hp, s)
         self._clip()
         if spread > 0.0:
             self._detect_change(correction / math.sqrt(spread))
-        return 'ok', nis / obs.size
+        return 'ok', nis / z_all.size
 
     def _detect_change(self, normalised_correction: float) -> None:
         """Two-sided CUSUM on the normalised ln c corrections; on alarm, widen P_theta.
@@ -748,7 +751,7 @@ class CreepEkf:
             self._reject('singular_innovation')
             return
         gain = solved.T
-        self.z += gain @ (u_meas - h @ self.z)
+        self.x += gain @ (u_meas - h @ self.x)
         self._joseph(gain, hp, s)
         self._clip()
 
@@ -764,16 +767,16 @@ class CreepEkf:
 
     def _clip(self) -> None:
         low, high = self._theta_bounds
-        theta = self.z[self.i_theta]
+        theta = self.x[self.i_theta]
         if theta < low or theta > high:
-            self.z[self.i_theta] = min(max(theta, low), high)
+            self.x[self.i_theta] = min(max(theta, low), high)
             self.clipped += 1
             self._pinned_run += 1
         else:
             self._pinned_run = 0
 
     def _predict(self) -> None:
-        self.z, jac = self._transition(self.z)
+        self.x, jac = self._transition(self.x)
         self.P = jac @ self.P @ jac.T + self._q_x
         self.P = 0.5 * (self.P + self.P.T)
 
@@ -824,11 +827,11 @@ class CreepEkf:
             time: (N,) s; default k / sample_rate_hz.
             true_creep_factor: (N,) ground truth to keep with the run (for plots and metrics).
         """
-        y = np.asarray(measurements, dtype=float)
-        if y.ndim != 2 or y.shape[1] != self._n_meas:
+        z = np.asarray(measurements, dtype=float)
+        if z.ndim != 2 or z.shape[1] != self._n_meas:
             raise ValueError(f'measurements must have shape (N, {self._n_meas}) for pattern '
-                             f'{self.params.pattern}, got {y.shape}')
-        n = y.shape[0]
+                             f'{self.params.pattern}, got {z.shape}')
+        n = z.shape[0]
         u = None if track is None else np.asarray(track, dtype=float)
         if u is not None and u.shape not in ((n, N_U), (n, 2 * N_U)):
             raise ValueError(f'track must have shape ({n}, {N_U}) or ({n}, {2 * N_U}), '
@@ -839,7 +842,7 @@ class CreepEkf:
         out_low = np.zeros(n, dtype=bool)
         out_status = np.empty(n, dtype=object)
         for k in range(n):
-            est = self.step(y[k], None if u is None else u[k],
+            est = self.step(z[k], None if u is None else u[k],
                             None if v is None else float(v[k]))
             out_c[k], out_std[k], out_nis[k] = est.creep_factor, est.std_dev, est.nis
             out_low[k], out_status[k] = est.low_adhesion, est.status

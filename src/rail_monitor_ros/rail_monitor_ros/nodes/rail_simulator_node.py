@@ -17,7 +17,7 @@ from vehicle_monitor_common.player import run_player
 from vehicle_monitor_common.simulator import SimulatorNode
 
 
-class RailSimulator(SimulatorNode):
+class RailSimulatorNode(SimulatorNode):
     """The rail vehicle simulator node."""
 
     package = 'rail_monitor_ros'
@@ -28,7 +28,7 @@ class RailSimulator(SimulatorNode):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of the ``rail_simulator`` executable."""
-    sys.exit(run_player(RailSimulator, args))
+    sys.exit(run_player(RailSimulatorNode, args))
 
 
 if __name__ == '__main__':
