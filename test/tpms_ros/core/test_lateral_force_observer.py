@@ -32,6 +32,7 @@ from tpms_ros.offline.lateral_force_tuning import (
     plot_relation_check,
     tune_gains,
 )
+from vehicle_monitor_common.parameters import build
 
 _BENCH = Path(__file__).resolve().parents[3] / 'benchmarks' / 'bench_lateral_force_observer.py'
 _spec = importlib.util.spec_from_file_location('bench_lateral_force_observer', _BENCH)
@@ -86,9 +87,10 @@ def test_tuning_rejects_bad_values(field: str, value: Any) -> None:
         ObserverTuningParams(**{field: value})
 
 
-def test_from_mapping_reads_known_keys() -> None:
-    """A YAML-like dict sets the named fields and leaves the rest at the SPEC defaults."""
-    params = ObserverVehicleParams.from_mapping({'m': 2000.0, 'unknown': 1.0})
+def test_params_build_from_flat_values() -> None:
+    """Flat values (a params file) set the named fields and leave the rest at the SPEC
+    defaults."""
+    params = build(ObserverVehicleParams, {'m': 2000.0, 'unknown': 1.0})
     assert params.m == 2000.0 and params.ms == 1661.0
 
 

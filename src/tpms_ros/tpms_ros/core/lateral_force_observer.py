@@ -68,8 +68,8 @@ comparison).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 import math
 from typing import Any
 
@@ -96,8 +96,8 @@ class ObserverVehicleParams:
 
     Deliberately separate from the simulator's ``VehicleParams``: the observer's model is a
     design choice that robustness studies perturb independently of the truth, and the core must
-    not depend on the simulator. ``from_mapping`` builds it from a YAML dict or any object with
-    the same field names.
+    not depend on the simulator. Its fields are the node's ROS parameters; from flat values
+    (a params file) ``vehicle_monitor_common.parameters.build`` makes one.
     """
 
     m: float = param(1814.0, 'total vehicle mass, kg', low=1.0, high=1e5)
@@ -143,19 +143,6 @@ class ObserverVehicleParams:
         if self.kphi_f + self.kphi_r <= self.ms * G * self.e:
             raise ValueError('ObserverVehicleParams: kphi_f + kphi_r must exceed ms g e '
                              '(otherwise the body has no static roll stability)')
-
-    @classmethod
-    def from_mapping(cls, source: Mapping[str, Any] | object) -> ObserverVehicleParams:
-        """Build from a dict (e.g. parsed YAML) or an object with matching attribute names.
-
-        Unknown keys are ignored, missing ones keep the SPEC defaults.
-        """
-        names = [f.name for f in fields(cls)]
-        if isinstance(source, Mapping):
-            values = {n: float(source[n]) for n in names if n in source}
-        else:
-            values = {n: float(getattr(source, n)) for n in names if hasattr(source, n)}
-        return cls(**values)
 
     @property
     def wheelbase(self) -> float:
