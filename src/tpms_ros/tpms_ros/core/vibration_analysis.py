@@ -119,9 +119,9 @@ class VibrationParams:
     rls_regularization: float = param(1e-6, 'RLS initial regularisation P0^-1, (rad/s)^2',
                                       low=1e-15, high=1.0, read_only=True)
     min_wheel_speed_rad_s: float = param(10.0, 'below this wheel speed the road excitation is too '
-                                   'weak: samples are gated, rad/s', low=0.0, high=1000.0)
+                                         'weak: samples are gated, rad/s', low=0.0, high=1000.0)
     max_wheel_speed_rad_s: float = param(600.0, 'wheel speeds above this are non-physical and '
-                                   'rejected, rad/s', low=1.0, high=5000.0)
+                                         'rejected, rad/s', low=1.0, high=5000.0)
     stuck_s: float = param(0.1, 'an exactly repeated wheel speed for this long is a stuck '
                            'sensor, s', low=1e-3, high=60.0, read_only=True)
     guard_s: float = param(0.05, 'the regression skips this long after a bad sample (filter '

@@ -199,7 +199,7 @@ class WheelRadiusParams:
     max_gap_s: float = param(0.1, 'a larger gap between bins restarts the yaw '
                              'states, s', low=1e-3, high=10.0)
     max_wheel_speed_rad_s: float = param(600.0, 'wheel speeds above this are rejected, '
-                                   'rad/s', low=1.0, high=5000.0)
+                                         'rad/s', low=1.0, high=5000.0)
     min_speed_mps: float = param(8.0, 'lower end of the speed band, m/s',
                                  low=0.0, high=100.0)
     max_speed_mps: float = param(45.0, 'upper end of the speed band, m/s',
@@ -211,14 +211,14 @@ class WheelRadiusParams:
                                    'braking: the longitudinal model pauses, N m', low=0.0,
                                    high=1e5)
     ay_max_longitudinal_mps2: float = param(2.0, 'cornering limit of the '
-                                       'longitudinal model, m/s^2', low=0.01, high=20.0)
+                                            'longitudinal model, m/s^2', low=0.01, high=20.0)
     ay_max_lateral_mps2: float = param(4.0, 'cornering limit of the lateral model, '
-                                  'm/s^2', low=0.01, high=20.0)
-    accel_max_longitudinal_mps2: float = param(0.8, 'longitudinal '
-                                          'acceleration limit |ax| of the longitudinal model, '
-                                          'm/s^2', low=0.01, high=20.0)
+                                       'm/s^2', low=0.01, high=20.0)
+    accel_max_longitudinal_mps2: float = param(0.8, 'longitudinal acceleration limit |ax| '
+                                               'of the longitudinal model, m/s^2', low=0.01,
+                                               high=20.0)
     accel_max_lateral_mps2: float = param(1.0, 'longitudinal acceleration limit '
-                                     '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
+                                          '|ax| of the lateral model, m/s^2', low=0.01, high=20.0)
     accel_filter_hz: float = param(2.0, 'low-pass corner before '
                                    'differentiating the wheel speeds, Hz', low=0.01, high=40.0,
                                    read_only=True)
@@ -245,15 +245,15 @@ class WheelRadiusParams:
     delta0_std: float = param(0.01, 'initial std of the offsets', low=1e-6, high=1.0,
                               read_only=True)
     yaw_jerk_std_rad_s3: float = param(2.0, 'yaw jerk process noise, rad/s^3', low=1e-4,
-                                high=1000.0)
+                                       high=1000.0)
     gyro_noise_std_rad_s: float = param(0.01, 'gyro noise per sample, rad/s', low=1e-6,
-                                  high=1.0)
+                                        high=1.0)
     wheel_yaw_noise_std_rad_s: float = param(0.02, 'noise of the wheel-speed yaw '
-                                       'rates per sample, rad/s', low=1e-6, high=1.0)
+                                             'rates per sample, rad/s', low=1e-6, high=1.0)
     gyro_offset_rw: float = param(2e-5, 'random walk of the gyro offset, rad/s '
                                   'per sqrt(s)', low=0.0, high=1.0)
     gyro_offset0_std_rad_s: float = param(0.03, 'initial std of the gyro offset, '
-                                    'rad/s', low=1e-6, high=1.0, read_only=True)
+                                          'rad/s', low=1e-6, high=1.0, read_only=True)
     calibration_settle_s: float = param(20.0, 'first part of a calibration '
                                         'window not used, s', low=0.0, high=3600.0)
     min_calibration_s: float = param(20.0, 'least seconds of valid updates '
