@@ -366,18 +366,15 @@ def evaluate(series: Mapping[str, TopicSeries], scenario: str, figure_dir: Path,
         if any(f'/tpms/indication/{m}' in series for m in TPMS_METHODS) or WARNING in series:
             figures.append(plot_warnings(series, figure_dir / 'persson_fig9_warnings.png',
                                          t0).name)
-    if 'stiffness' in wanted:
-        metric = pressure_metric(series, t0)
+    # One key figure and one figure each (named after the paper's figure it reproduces).
+    for key, score, plot, figure in (
+            ('stiffness', pressure_metric, plot_pressure, 'umeno_fig11_pressure.png'),
+            ('lateral_force', lateral_force_metric, plot_lateral_forces,
+             'kim_huh_fig5_6_lateral_forces.png')):
+        metric = score(series, t0) if key in wanted else None
         if metric is not None:
             metrics.append(metric)
-            figures.append(plot_pressure(series, figure_dir / 'umeno_fig11_pressure.png',
-                                         t0).name)
-    if 'lateral_force' in wanted:
-        metric = lateral_force_metric(series, t0)
-        if metric is not None:
-            metrics.append(metric)
-            figures.append(plot_lateral_forces(
-                series, figure_dir / 'kim_huh_fig5_6_lateral_forces.png', t0).name)
+            figures.append(plot(series, figure_dir / figure, t0).name)
     has_truth = TRUTH_PRESSURE in series or TRUTH_FORCES in series
     return Evaluation(scenario, has_truth, tuple(metrics), tuple(figures))
 
