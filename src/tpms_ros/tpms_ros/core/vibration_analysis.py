@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from tpms_ros.core.calibration_moments import calibration_moments
+from tpms_ros.core.nominal_calibration import CalibratedCore, calibration_moments
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
@@ -309,7 +309,7 @@ def ar2_rls_reference(y: np.ndarray, forgetting: float, regularization: float) -
     return out
 
 
-class VibrationAnalyzer:
+class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     """Recursive AR(2) resonance estimate, calibration and indication for four tires.
 
     Args:
@@ -371,16 +371,6 @@ class VibrationAnalyzer:
         self._cal_sum = np.zeros((3, N_TIRES))          # count, sum f, sum f^2
         self._cal_seen = 0
 
-    @property
-    def calibration(self) -> VibrationCalibration | None:
-        """The calibration in force, or None."""
-        return self._calibration
-
-    @property
-    def calibrating(self) -> bool:
-        """True between :meth:`start_calibration` and :meth:`finish_calibration`."""
-        return self._calibrating
-
     def start_calibration(self) -> None:
         """Start learning the nominal frequencies from the data processed from now on."""
         self._calibrating = True
@@ -394,8 +384,7 @@ class VibrationAnalyzer:
             ValueError: not calibrating, or a tire has less than ``min_calibration_s`` of known
                 estimates after settling (the previous calibration stays in force).
         """
-        if not self._calibrating:
-            raise ValueError('finish_calibration called without start_calibration')
+        self._check_calibrating()
         mean, std, duration = calibration_moments(
             self._cal_sum, self.params.effective_rate_hz, self.params.min_calibration_s,
             'known estimates per tire')
@@ -404,12 +393,6 @@ class VibrationAnalyzer:
         self._calibration = VibrationCalibration(mean, std, duration)
         self._calibrating = False
         return self._calibration
-
-    def calibration_state(self) -> dict[str, Any]:
-        """Calibration as a plain dict (to persist); raises ValueError if not calibrated."""
-        if self._calibration is None:
-            raise ValueError('not calibrated')
-        return self._calibration.to_dict()
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a persisted calibration in force; raises ValueError if it is corrupt."""

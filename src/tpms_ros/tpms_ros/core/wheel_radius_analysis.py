@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from tpms_ros.core.calibration_moments import calibration_moments
+from tpms_ros.core.nominal_calibration import CalibratedCore, calibration_moments
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -585,7 +585,7 @@ def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
         confidence=np.clip(z / params.z_full, 0.0, 1.0), residual=residual)
 
 
-class WheelRadiusAnalyzer:
+class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
     """Longitudinal and lateral radius filters, calibration and low-tire indication."""
 
     def __init__(self, params: WheelRadiusParams | None = None) -> None:
@@ -635,11 +635,6 @@ class WheelRadiusAnalyzer:
         self._last_good_w = np.full(N_TIRES, np.nan)
 
     # ----------------------------------------------------------- calibration
-    @property
-    def calibration(self) -> WheelRadiusCalibration | None:
-        """The calibration in force, or None."""
-        return self._calibration
-
     def start_calibration(self) -> None:
         """Start learning the nominal pair offsets from the data processed from now on."""
         self._calibrating = True
@@ -656,8 +651,7 @@ class WheelRadiusAnalyzer:
             ValueError: not calibrating, or a pair has less than ``min_calibration_s`` of valid
                 updates after settling (the previous calibration stays in force).
         """
-        if not self._calibrating:
-            raise ValueError('finish_calibration called without start_calibration')
+        self._check_calibrating()
         mean, std, duration = calibration_moments(
             self._cal_sum, self.params.sample_rate_hz, self.params.min_calibration_s,
             f'valid updates for {PAIR_NAMES}')
@@ -677,12 +671,6 @@ class WheelRadiusAnalyzer:
                                                    self._noise_scale())
         self._calibrating = False
         return self._calibration
-
-    def calibration_state(self) -> dict[str, Any]:
-        """Calibration as a plain dict (to persist); raises ValueError if not calibrated."""
-        if self._calibration is None:
-            raise ValueError('not calibrated')
-        return self._calibration.to_dict()
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a persisted calibration in force; raises ValueError if it is corrupt."""
