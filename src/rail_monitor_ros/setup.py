@@ -34,6 +34,12 @@ setup(
             'suspension_monitor = '
             'rail_monitor_ros.nodes.suspension_monitor_node:SuspensionMonitorNode',
         ],
+        # Node logic for the offline engine (vehicle_monitor_common.offline_engine):
+        # make_processor(values, fqn) per node.
+        'vehicle_monitor.processors': [
+            'suspension_monitor = '
+            'rail_monitor_ros.processing.suspension_monitor:make_processor',
+        ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [
             'rail = rail_monitor_ros.offline.evaluation:domain',

@@ -21,10 +21,8 @@ from vehicle_monitor_msgs.msg import CreepFactor, ModeProbabilities, TrackIrregu
 import yaml
 
 from rail_monitor_ros.core.suspension_imm import SuspensionImmParams
-from rail_monitor_ros.nodes.suspension_monitor_node import (
-    SuspensionMonitorNode,
-    SuspensionMonitorNodeParams,
-)
+from rail_monitor_ros.nodes.suspension_monitor_node import SuspensionMonitorNode
+from rail_monitor_ros.processing.suspension_monitor import SuspensionMonitorNodeParams
 from rail_monitor_ros.simulation.rail_scenario import shipped_scenario
 from rail_monitor_ros.simulation.rail_simulator import simulate, to_topic_series
 from vehicle_monitor_common.bag_io import read_series, write_bag
@@ -172,9 +170,9 @@ def test_detects_spring_fault_from_published_imus(make_node: Callable[..., Any],
                                   for d in diagnostics for s in d.status), timeout_s=5.0)
     status = [s for d in diagnostics for s in d.status if 'suspension fault' in s.message][-1]
     assert status.level in (b'\x01', b'\x02')
-    assert monitor.rejected.total() == 0
+    assert monitor.processor.rejected.total() == 0
     rates = [float(kv.value) for d in diagnostics for st in d.status for kv in st.values
-             if kv.key == 'input_rate_hz.bogie_imu']
+             if kv.key == 'input_rate_hz.rail/bogie/imu']
     assert rates and max(rates) > 0.0           # the input rate is reported
 
 
@@ -201,7 +199,7 @@ def test_bad_input_is_rejected_and_counted(make_node: Callable[..., Any],
     for k in range(60, 120):
         feeder.imu(s[k], z[k])
     assert spin_until(lambda: stamp_ns(got[-1].header.stamp) == s[119] if got else False)
-    counts = monitor.rejected
+    counts = monitor.processor.rejected
     assert counts['non_finite'] == 1 and counts['saturated'] == 1
     assert counts['bogie_repeated'] == 1 and counts['body_repeated'] == 1
     assert counts['bogie_out_of_order'] == 1 and counts['body_out_of_order'] == 1
@@ -226,13 +224,13 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
         stamp = START_NS + k * DT_NS
         if k < 30:
             feeder.alignment(stamp, [1e-3, 2e-3, 0.0, 0.0], [0.01, 0.0, 0.0, 0.0])
-            assert spin_until(lambda: monitor._track is not None)
+            assert spin_until(lambda: monitor.processor._track is not None)
         feeder.imu(stamp, data.measurements[k])
         assert spin_until(lambda n=k + 1: len(got) >= n)
-    assert monitor.known_input_samples == 30 + 4
-    assert 'stale' in monitor._track_state
+    assert monitor.processor.known_input_samples == 30 + 4
+    assert 'stale' in monitor.processor._track_state
     feeder.alignment(START_NS + 60 * DT_NS, [1e-3], [])
-    assert spin_until(lambda: monitor.rejected['track_irregularity_size'] == 1)
+    assert spin_until(lambda: monitor.processor.rejected['track_irregularity_size'] == 1)
 
 
 def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
@@ -243,7 +241,7 @@ def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
     publisher = make_node('creep_feeder').create_publisher(CreepFactor, 'rail/creep_factor',
                                                            DEEP)
     assert spin_until(lambda: publisher.get_subscription_count() > 0)
-    f_before = monitor.imm._f.copy()
+    f_before = monitor.processor.imm._f.copy()
 
     def send(c: float, std: float) -> None:
         msg = CreepFactor()
@@ -252,14 +250,15 @@ def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
         publisher.publish(msg)
 
     send(0.5, 0.5)
-    assert spin_until(lambda: 'uncertain' in monitor._creep_state)
-    assert monitor.imm.creep_factor == 1.0
+    assert spin_until(lambda: 'uncertain' in monitor.processor._creep_state)
+    assert monitor.processor.imm.creep_factor == 1.0
     send(0.5, 0.02)
-    assert spin_until(lambda: monitor.imm.creep_factor == 0.5)
-    assert monitor._creep_state == 'following' and not np.allclose(monitor.imm._f, f_before)
+    assert spin_until(lambda: monitor.processor.imm.creep_factor == 0.5)
+    assert monitor.processor._creep_state == 'following'
+    assert not np.allclose(monitor.processor.imm._f, f_before)
     send(math.nan, 0.02)
-    assert spin_until(lambda: monitor.rejected['creep_factor_invalid'] == 1)
-    assert monitor.imm.creep_factor == 0.5
+    assert spin_until(lambda: monitor.processor.rejected['creep_factor_invalid'] == 1)
+    assert monitor.processor.imm.creep_factor == 0.5
 
 
 def test_parameters_validated(make_node: Callable[..., Any]) -> None:
@@ -273,10 +272,10 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
     (result,) = node.set_parameters([Parameter('fault_threshold', value=1.5)])
     assert not result.successful and 'fault_threshold' in result.reason
     (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])
-    assert result.successful and node.imm.decision.threshold == 0.8
-    f_before = node.imm._f.copy()
+    assert result.successful and node.processor.imm.decision.threshold == 0.8
+    f_before = node.processor.imm._f.copy()
     (result,) = node.set_parameters([Parameter('vehicle.speed_mps', value=30.0)])
-    assert result.successful and node.imm.vehicle.speed == 30.0
-    assert not np.allclose(node.imm._f, f_before)
+    assert result.successful and node.processor.imm.vehicle.speed == 30.0
+    assert not np.allclose(node.processor.imm._f, f_before)
     (result,) = node.set_parameters([Parameter('vehicle.body_mass_kg', value=9000.0)])
     assert not result.successful
