@@ -6,7 +6,6 @@ Formula tires), through the scenario builders of ``benchmarks/bench_lateral_forc
 
 from __future__ import annotations
 
-from dataclasses import replace
 import importlib.util
 import math
 from pathlib import Path
@@ -26,11 +25,7 @@ from tpms_ros.core.lateral_force_observer import (
 )
 from tpms_ros.offline.lateral_force_tuning import (
     TuningCase,
-    calibrate_zeta,
     fy_error_percent,
-    plot_lateral_forces,
-    plot_relation_check,
-    tune_gains,
 )
 from vehicle_monitor_common.parameters import build
 
@@ -207,22 +202,6 @@ def test_relations_on_truth(relation_truth) -> None:
     assert np.all(x - fy_ratio > 0.0)   # the paper's relation always overstates it here
 
 
-def test_zeta_calibration_matches_truth(relation_truth) -> None:
-    """The ramp-steer calibration (IMU only: integrated roll rate, ay) recovers the truth's
-    zeta within 5 % (measured 2.9 %, 1.9 %), where the model's own steady state is ~28 %
-    high (it leaves out tire vertical compliance)."""
-    case = bench.to_case(relation_truth, 'ramp', seed=5)
-    cal = calibrate_zeta(ObserverVehicleParams(), case.dt, case.ay, case.p)
-    mask = (np.abs(relation_truth.ay) > 1.0) & (np.abs(relation_truth.ay) < 0.5 * 9.81)
-    roll = relation_truth.roll[mask]
-    true_zeta = (np.mean(relation_truth.fy[mask, :2].mean(axis=1) / roll),
-                 np.mean(relation_truth.fy[mask, 2:].mean(axis=1) / roll))
-    np.testing.assert_allclose(cal.zeta, true_zeta, rtol=0.05)
-    assert cal.model_zeta[0] > 1.2 * true_zeta[0]
-    with pytest.raises(ValueError, match='ay_range'):
-        calibrate_zeta(ObserverVehicleParams(), case.dt, case.ay[:50], case.p[:50])
-
-
 @pytest.mark.parametrize('factor', [0.7, 1.3])
 def test_robust_to_friction_error(factor: float) -> None:
     """+/-30 % road friction (the observer has no friction input): every wheel stays under
@@ -314,36 +293,3 @@ def test_covariance_stays_spd_over_long_run() -> None:
     assert np.allclose(cov, cov.T)
     assert np.min(np.linalg.eigvalsh(cov)) > 0.0
     assert obs.health.covariance_resets == 0
-
-
-def test_tune_gains_never_worse_than_base(paper_case: TuningCase) -> None:
-    """The gain search is deterministic and returns a score no worse than its start."""
-    c = paper_case
-    short = replace(c, ax=c.ax[:500], ay=c.ay[:500], r=c.r[:500], p=c.p[:500],
-                    omega=c.omega[:500], wheel_torque=c.wheel_torque[:500],
-                    steer=c.steer[:500], fy_true=c.fy_true[:500])
-    base = ObserverTuningParams()
-    result = tune_gains([short], base=base, force_q=(0.3, 1.0), ay_std=(0.3,), gp=(0.0, 20.0),
-                        gy=(0.0,), passes=1)
-    base_score = result.trials[0][1]
-    assert result.score <= base_score
-    again = tune_gains([short], base=base, force_q=(0.3, 1.0), ay_std=(0.3,), gp=(0.0, 20.0),
-                       gy=(0.0,), passes=1)
-    assert again.score == result.score
-
-
-def test_plot_writes_png(paper_case: TuningCase, tmp_path: Path) -> None:
-    """The Figs. 5-6 style plot writes a PNG file."""
-    track = paper_case.run()
-    path = tmp_path / 'fy.png'
-    plot_lateral_forces(str(path), track.t, paper_case.fy_true, {'SKFMEC': track})
-    assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
-
-
-def test_relation_plot_writes_png(relation_truth, tmp_path: Path) -> None:
-    """The Figs. 3-4 style plot writes a PNG file."""
-    path = tmp_path / 'rel.png'
-    t = relation_truth
-    plot_relation_check(str(path), t.t, t.fy, t.fz, t.roll, t.ay,
-                        model_zeta=ObserverVehicleParams().zeta)
-    assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
