@@ -23,6 +23,9 @@ ROSDEP_KEYS = {
     'rosbags': 'python3-rosbags-pip',
     'mcap': 'python3-mcap-pip',
     'zstandard': 'python3-zstandard',
+    'ray': 'python3-ray-pip',
+    'pyarrow': 'python3-pyarrow-pip',
+    'pandas': 'python3-pandas',
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'builtin_interfaces', 'std_msgs', 'std_srvs',
                 'sensor_msgs', 'diagnostic_msgs', 'rosgraph_msgs', 'ament_index_python',

@@ -22,6 +22,7 @@ setup(
             'monitor_demo = vehicle_monitor_common.main_job:main',
             'evaluate = vehicle_monitor_common.evaluate_cli:main',
             'parameter_docs = vehicle_monitor_common.parameter_docs:main',
+            'fleet = vehicle_monitor_common.fleet.cli:main',
         ],
         # Node classes for the composed runner (vehicle_monitor_common.runner).
         'vehicle_monitor.nodes': [

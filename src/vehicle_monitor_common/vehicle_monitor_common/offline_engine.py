@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+import importlib
 from importlib.metadata import entry_points
 import os
 from pathlib import Path
@@ -46,6 +47,18 @@ def processor_factories() -> dict[str, ProcessorFactory]:
     """``package/node`` -> the function that builds that node's processor."""
     return {f'{ep.dist.name if ep.dist else ""}/{ep.name}': ep.load()
             for ep in entry_points(group=PROCESSOR_GROUP)}
+
+
+def factory_for(plugin: str, factories: Mapping[str, ProcessorFactory],
+                ) -> ProcessorFactory | None:
+    """The processor factory of a node plugin: a registered one (``package/node``), or one
+    named by import path (``module.path:function``, for processors not installed as entry
+    points, e.g. a test's), or None (the node has no processor)."""
+    factory = factories.get(plugin)
+    if factory is None and ':' in plugin:
+        module, _, attribute = plugin.partition(':')
+        factory = getattr(importlib.import_module(module), attribute)
+    return factory
 
 
 def expand_topic(name: str, namespace: str, remappings: Mapping[str, str]) -> str:
@@ -122,7 +135,7 @@ class OfflineGraph:
         factories = processor_factories()
         nodes = []
         for node_spec in spec.nodes:
-            factory = factories.get(node_spec.plugin)
+            factory = factory_for(node_spec.plugin, factories)
             if factory is None:
                 continue
             name = node_spec.name or node_spec.plugin.split('/')[-1]
