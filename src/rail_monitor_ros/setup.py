@@ -37,6 +37,7 @@ setup(
         # Node logic for the offline engine (vehicle_monitor_common.offline_engine):
         # make_processor(values, fqn) per node.
         'vehicle_monitor.processors': [
+            'creep_estimator = rail_monitor_ros.processing.creep_estimator:make_processor',
             'suspension_monitor = '
             'rail_monitor_ros.processing.suspension_monitor:make_processor',
         ],

@@ -46,9 +46,24 @@ def creep_drop() -> RailSimulationResult:
     return simulate(scenario)
 
 
+def _flatten(data: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested params-file mappings as dotted names (as rcl reads them)."""
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f'{prefix}{key}.'))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def _shipped() -> dict[str, Any]:
+    return _flatten(yaml.safe_load(CONFIG.read_text())['creep_estimator']['ros__parameters'])
+
+
 def _config_parameters(**overrides: Any) -> list[Parameter]:
     """The shipped YAML's parameters (what --params-file would give), with overrides."""
-    data = yaml.safe_load(CONFIG.read_text())['creep_estimator']['ros__parameters']
+    data = _shipped()
     data.update(overrides)
     return [Parameter(k, value=v) for k, v in data.items()]
 
@@ -64,7 +79,7 @@ def _stamp(ns: int) -> Time:
 
 def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) -> None:
     """The shipped YAML loads, names only declared parameters and states their defaults."""
-    data = yaml.safe_load(CONFIG.read_text())['creep_estimator']['ros__parameters']
+    data = _shipped()
     node = make_node(CreepEstimatorNode, parameter_overrides=_config_parameters())
     plain = make_node(CreepEstimatorNode, node_name='creep_defaults')
     for name, value in data.items():
@@ -106,7 +121,7 @@ def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Pa
     # track are the first ones (what the offline run replicates).
     y, track, _ = simulation_inputs(creep_drop, 'A')
     missing_track = n - counts['known_input']
-    ekf = CreepEkf(node.parameters.core())
+    ekf = CreepEkf(node.params)
     offline = [ekf.step(y[k], None if k < missing_track else track[k]).creep_factor
                for k in range(n)]
     np.testing.assert_allclose(c, offline, rtol=1e-9)
@@ -262,9 +277,9 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
         make_node(CreepEstimatorNode, node_name='bad_pattern',
                   parameter_overrides=[Parameter('pattern', value='E')])
     node = make_node(CreepEstimatorNode, node_name='ok')
-    (result,) = node.set_parameters([Parameter('speed', value=30.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.speed', value=30.0)])
     assert result.successful and node.estimator.speed == pytest.approx(30.0)
-    (result,) = node.set_parameters([Parameter('speed', value=-3.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.speed', value=-3.0)])
     assert not result.successful
     (result,) = node.set_parameters([Parameter('pattern', value='A')])
     assert not result.successful                      # read-only: model structure

@@ -71,7 +71,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -86,6 +86,7 @@ from rail_monitor_ros.core.rail_model import (
     discretize_zoh_sensitivity,
     half_car_state_space,
 )
+from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
 N_U = 2            # track alignment at the leading and trailing wheelset
@@ -146,105 +147,120 @@ def _channel_kind(channel: str) -> str:
 class CreepEkfParams:
     """Settings of the creep-factor EKF. Model parameters are the estimator's own (Table 1).
 
-    Attributes:
-        vehicle: the estimation model's vehicle parameters (speed = nominal speed).
-        pattern: observation pattern 'A', 'B', 'C' or 'D'.
-        model: 'end' (default): one end of the full car, :func:`car_end_state_space` (the
-            monitored bogie and its wheelsets, the body lateral and yaw, the other bogie's
-            secondary forces as Gauss-Markov states); 'half': the paper's 7-DOF half car.
-        bogie: the monitored bogie, 'front' or 'rear' (sets the body lever arm's sign).
-        sample_rate_hz: measurement rate, Hz.
-        initial_creep_factor: c at start and after a reset.
-        initial_log_creep_std: initial standard deviation of ln c.
-        creep_walk_std: random-walk intensity of ln c, 1/sqrt(s): how fast c drifts between
-            detected changes (slow ramps); steps are caught by the change detector.
-        min_creep_factor: lower bound of c (clip, counted).
-        max_creep_factor: upper bound of c (clip, counted), at most the model's 2.0.
-        lateral_accel_process_std: model error as white lateral acceleration on the wheelsets
-            and the bogie, m/s^2 (unmodelled forces).
-        yaw_accel_process_std: the same on the yaw coordinates, rad/s^2.
-        body_accel_process_std: the same on the body (lateral; its yaw gets this over lv),
-            m/s^2. The half car's body ignores the other bogie and the body yaw of the real
-            car, its largest model error: give it several m/s^2 there.
-        other_bogie_force_std: end model: std of the other bogie's lateral force on the body
-            beyond the still-bogie springs, Ksy y_b2 + Csy y_b2', N.
-        other_bogie_moment_std: end model: std of its anti-yaw moment Cpsi psi_b2', N m.
-        other_bogie_correlation_s: end model: correlation time of both (first-order
-            Gauss-Markov), s.
-        track_slope_std: standard deviation of the track alignment's slope, rad (the initial
-            spread of the track rate states is this times the speed).
-        track_slope_walk: how fast that slope wanders along the track, rad/sqrt(m): the
-            track rate states are a random walk with v^3 track_slope_walk^2 per second.
-        initial_track_std: initial standard deviation of the track alignment states, m.
-        displacement_noise: measurement noise std of lateral displacements, m.
-        velocity_noise: of lateral velocities, m/s.
-        yaw_noise: of yaw angles, rad.
-        yaw_rate_noise: of yaw rates in patterns A-B, rad/s.
-        accel_noise: of the lateral accelerometers (pattern D), m/s^2.
-        gyro_noise: of the bogie yaw-rate gyro (pattern D), rad/s.
-        track_noise: of the measured track alignment (known-input mode), m.
-        track_rate_noise: of its measured rate, m/s.
-        rediscretize_tolerance: spacing of the cached discretisation grid in ln c.
-        speed_tolerance: a speed change beyond this rebuilds the model, m/s.
-        cache_size: most discretisations kept.
-        gate_sigma: an innovation beyond this many standard deviations in any channel rejects
-            the sample as an outlier.
-        divergence_window_s: averaging time of the innovation consistency test, s.
-        divergence_nis_ratio: the test fires when the averaged NIS / (channels) exceeds this.
-        max_outlier_run_s: averaging time of the outlier fraction: more than half of the
-            samples outliers over about this long counts as divergence (not only an unbroken
-            run: a diverged filter lets the odd sample through its gate), s.
-        bound_hold_s: the estimate pinned at a bound this long counts as divergence, s.
-        change_drift: CUSUM drift per sample, in standard deviations of the ln c correction
-            (about a quarter of their spread: a change shifts their mean by a few tenths).
-        change_threshold: CUSUM alarm level, same units (no alarm on steady runs, an alarm
-            within 0.1-0.3 s of a step of c by 40-60 %).
-        change_log_std: on an alarm, this is added in quadrature to the std of ln c (0.5: c may
-            have moved by a factor of 1.6).
-        low_adhesion_threshold: low_adhesion turns on when c falls below this.
-        low_adhesion_hysteresis: and off when c rises above threshold + hysteresis.
+    Each field's description, unit and range are its :func:`param` declaration: the
+    ``creep_estimator`` node declares its ROS parameters from them (``vehicle`` as the group
+    ``vehicle.*``). All are read-only on a running node but the vehicle speed and the
+    low-adhesion flag's threshold and hysteresis. Why some values are what they are:
+
+    * creep_walk_std: how fast c drifts between detected changes (slow ramps); steps are
+      caught by the change detector (change_drift, change_threshold, change_log_std).
+    * body_accel_process_std: the half car's body ignores the other bogie and the body yaw of
+      the real car, its largest model error: give it several m/s^2 there.
+    * max_outlier_run_s: more than half of the samples outliers over about this long counts as
+      divergence (not only an unbroken run: a diverged filter lets the odd sample through).
+    * change_drift is about a quarter of the normalised corrections' spread (a change shifts
+      their mean by a few tenths); change_threshold gives no alarm on steady runs and an alarm
+      within 0.1-0.3 s of a step of c by 40-60 %; change_log_std 0.5: c may have moved by a
+      factor of 1.6.
     """
 
-    vehicle: RailVehicleParams = field(default_factory=RailVehicleParams)
-    pattern: str = 'C'
-    model: str = 'end'
-    bogie: str = 'front'
-    sample_rate_hz: float = 200.0
-    initial_creep_factor: float = 1.0
-    initial_log_creep_std: float = 0.3
-    creep_walk_std: float = 0.05
-    min_creep_factor: float = 0.05
-    max_creep_factor: float = MAX_CREEP_FACTOR
-    lateral_accel_process_std: float = 0.5
-    yaw_accel_process_std: float = 1.0
-    body_accel_process_std: float = 0.5
-    other_bogie_force_std: float = 5e3
-    other_bogie_moment_std: float = 5e3
-    other_bogie_correlation_s: float = 0.05
-    track_slope_std: float = 1e-3
-    track_slope_walk: float = 3e-4
-    initial_track_std: float = 5e-3
-    displacement_noise: float = 2e-4
-    velocity_noise: float = 2e-3
-    yaw_noise: float = 2e-4
-    yaw_rate_noise: float = 2e-3
-    accel_noise: float = 0.05
-    gyro_noise: float = 2e-3
-    track_noise: float = 2e-4
-    track_rate_noise: float = 2e-3
-    rediscretize_tolerance: float = 0.01
-    speed_tolerance: float = 0.05
-    cache_size: int = 256
-    gate_sigma: float = 10.0
-    divergence_window_s: float = 1.0
-    divergence_nis_ratio: float = 30.0
-    max_outlier_run_s: float = 0.5
-    bound_hold_s: float = 2.0
-    change_drift: float = 0.1
-    change_threshold: float = 8.0
-    change_log_std: float = 0.5
-    low_adhesion_threshold: float = 0.5
-    low_adhesion_hysteresis: float = 0.05
+    vehicle: RailVehicleParams = group(RailVehicleParams, "the estimation model's vehicle "
+                                       '(speed: the nominal speed)')
+    pattern: str = param('C', 'observation pattern: A, B, C (rail/lateral_states) or D (bogie '
+                         'and body IMUs)', choices=OBSERVATION_PATTERNS, read_only=True)
+    model: str = param('end', "estimation model: 'end' (one end of the full car: bogie, "
+                       "wheelsets, body lateral and yaw, the other bogie's secondary forces as "
+                       "Gauss-Markov states) or 'half' (the paper's 7-DOF half car)",
+                       choices=MODELS, read_only=True)
+    bogie: str = param('front', 'monitored bogie, front (wheelsets 1-2) or rear (3-4); sets '
+                       "the body lever arm's sign (the IMUs of D are where they are mounted)",
+                       choices=BOGIES, read_only=True)
+    sample_rate_hz: float = param(200.0, 'measurement rate (the driving topic), Hz', low=10.0,
+                                  high=5000.0, read_only=True)
+    initial_creep_factor: float = param(1.0, 'c at start and after a reset, 1', low=0.01,
+                                        high=2.0, read_only=True)
+    initial_log_creep_std: float = param(0.3, 'initial standard deviation of ln c, 1',
+                                         low=1e-4, high=10.0, read_only=True)
+    creep_walk_std: float = param(0.05, 'random walk of ln c between detected changes, '
+                                  '1/sqrt(s)', low=1e-6, high=10.0, read_only=True)
+    min_creep_factor: float = param(0.05, 'lower bound of c (clip, counted), 1', low=1e-3,
+                                    high=2.0, read_only=True)
+    max_creep_factor: float = param(MAX_CREEP_FACTOR, "upper bound of c (clip, counted), at "
+                                    "most the model's 2.0, 1", low=1e-3, high=2.0,
+                                    read_only=True)
+    lateral_accel_process_std: float = param(0.5, 'model error as white lateral acceleration '
+                                             'on the wheelsets and the bogie, m/s^2',
+                                             low=1e-6, high=100.0, read_only=True)
+    yaw_accel_process_std: float = param(1.0, 'model error on the yaw coordinates, rad/s^2',
+                                         low=1e-6, high=100.0, read_only=True)
+    body_accel_process_std: float = param(0.5, 'model error on the body lateral (its yaw: '
+                                          'this over lv), m/s^2', low=1e-6, high=100.0,
+                                          read_only=True)
+    other_bogie_force_std: float = param(5e3, "end model: std of the other bogie's lateral "
+                                         'force on the body beyond a still bogie, '
+                                         "Ksy y_b2 + Csy y_b2', N", low=1e-3, high=1e7,
+                                         read_only=True)
+    other_bogie_moment_std: float = param(5e3, "end model: std of the other bogie's anti-yaw "
+                                          "moment Cpsi psi_b2', N m", low=1e-3, high=1e7,
+                                          read_only=True)
+    other_bogie_correlation_s: float = param(0.05, 'end model: correlation time of both '
+                                             '(first-order Gauss-Markov), s', low=1e-4,
+                                             high=100.0, read_only=True)
+    track_slope_std: float = param(1e-3, 'std of the track alignment slope, rad (the initial '
+                                   'spread of the track rate states is this times the speed)',
+                                   low=1e-7, high=0.1, read_only=True)
+    track_slope_walk: float = param(3e-4, 'random walk of the track slope along the track '
+                                    '(rate states: v^3 walk^2 per second), rad/sqrt(m)',
+                                    low=1e-8, high=0.1, read_only=True)
+    initial_track_std: float = param(5e-3, 'initial std of the track alignment states, m',
+                                     low=1e-6, high=1.0, read_only=True)
+    displacement_noise: float = param(2e-4, 'measurement noise std of lateral displacements, '
+                                      'm', low=1e-7, high=1.0, read_only=True)
+    velocity_noise: float = param(2e-3, 'measurement noise std of lateral velocities, m/s',
+                                  low=1e-7, high=10.0, read_only=True)
+    yaw_noise: float = param(2e-4, 'measurement noise std of yaw angles, rad', low=1e-8,
+                             high=1.0, read_only=True)
+    yaw_rate_noise: float = param(2e-3, 'measurement noise std of yaw rates (patterns A-B), '
+                                  'rad/s', low=1e-8, high=10.0, read_only=True)
+    accel_noise: float = param(0.05, 'lateral accelerometer noise std (pattern D), m/s^2',
+                               low=1e-6, high=100.0, read_only=True)
+    gyro_noise: float = param(2e-3, 'bogie yaw-rate gyro noise std (pattern D), rad/s',
+                              low=1e-8, high=10.0, read_only=True)
+    track_noise: float = param(2e-4, 'noise std of the measured track alignment (known-input '
+                               'mode), m', low=1e-7, high=1.0, read_only=True)
+    track_rate_noise: float = param(2e-3, 'noise std of its measured rate, m/s', low=1e-7,
+                                    high=10.0, read_only=True)
+    rediscretize_tolerance: float = param(0.01, 'spacing of the cached discretisation grid in '
+                                          'ln c, 1', low=1e-5, high=0.5, read_only=True)
+    speed_tolerance: float = param(0.05, 'a speed change beyond this rebuilds the model, m/s',
+                                   low=1e-4, high=10.0, read_only=True)
+    cache_size: int = param(256, 'most discretisations kept', low=1, high=100000,
+                            read_only=True)
+    gate_sigma: float = param(10.0, 'an innovation beyond this many standard deviations in any '
+                              'channel rejects the sample as an outlier', low=1.0, high=1e3,
+                              read_only=True)
+    divergence_window_s: float = param(1.0, 'averaging time of the innovation consistency '
+                                       'test, s', low=0.01, high=600.0, read_only=True)
+    divergence_nis_ratio: float = param(30.0, 'the test fires when the averaged NIS per channel '
+                                        'exceeds this', low=1.0, high=1e6, read_only=True)
+    max_outlier_run_s: float = param(0.5, 'averaging time of the outlier fraction (more than '
+                                     'half outliers: divergence), s', low=0.001, high=600.0,
+                                     read_only=True)
+    bound_hold_s: float = param(2.0, 'the estimate pinned at a bound this long counts as '
+                                'divergence, s', low=0.001, high=600.0, read_only=True)
+    max_gap_s: float = param(0.5, 'stamped samples: missing samples up to this gap are bridged '
+                             'by prediction; a longer gap resets the filter, s', low=0.001,
+                             high=60.0)
+    change_drift: float = param(0.1, 'CUSUM drift per sample, in std of the ln c correction',
+                                low=1e-4, high=10.0, read_only=True)
+    change_threshold: float = param(8.0, 'CUSUM alarm level, same units', low=1e-3, high=1e6,
+                                    read_only=True)
+    change_log_std: float = param(0.5, 'on an alarm, added in quadrature to the std of ln c',
+                                  low=1e-4, high=10.0, read_only=True)
+    low_adhesion_threshold: float = param(0.5, 'low_adhesion turns on when c falls below this',
+                                          low=0.01, high=2.0)
+    low_adhesion_hysteresis: float = param(0.05, 'and off when c rises above threshold + this',
+                                           low=0.0, high=1.0)
 
     def __post_init__(self) -> None:
         if not isinstance(self.vehicle, RailVehicleParams):
@@ -266,8 +282,8 @@ class CreepEkfParams:
                     'track_noise', 'track_rate_noise',
                     'rediscretize_tolerance', 'speed_tolerance', 'gate_sigma',
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
-                    'bound_hold_s', 'change_drift', 'change_threshold', 'change_log_std',
-                    'low_adhesion_threshold')
+                    'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
+                    'change_log_std', 'low_adhesion_threshold')
         require_positive(self, positive)
         require_positive(self, ('low_adhesion_hysteresis',), allow_zero=True)
         if not self.min_creep_factor < self.max_creep_factor <= MAX_CREEP_FACTOR:
@@ -475,6 +491,10 @@ class CreepEkf:
         self.changes_detected = 0
         self.last_reset_reason = ''
         self._low_adhesion = False
+        self._period_ns = round(1e9 / p.sample_rate_hz)
+        self._last_stamp_ns: int | None = None
+        self.predicted_missing = 0
+        self.gap_resets = 0
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -518,6 +538,11 @@ class CreepEkf:
     def std_dev(self) -> float:
         """One-sigma uncertainty of c (delta method on ln c)."""
         return self.creep_factor * math.sqrt(max(self.P[self.i_theta, self.i_theta], 0.0))
+
+    @property
+    def n_measurements(self) -> int:
+        """Size of the pattern's measurement vector."""
+        return self._n_meas
 
     @property
     def speed(self) -> float:
@@ -643,6 +668,32 @@ class CreepEkf:
         return x_next, jac
 
     # -- filter --------------------------------------------------------------------------------
+
+    def advance_to(self, stamp_ns: int) -> None:
+        """Data time: bring the filter to the sample stamped ``stamp_ns`` (call before its step).
+
+        The first stamp only starts the clock. Samples missing since the previous stamp (the
+        gap over the sample period, rounded, less one) are bridged by prediction alone (no
+        estimate is built for them); a gap longer than ``max_gap_s``, or a stamp going back
+        (a time jump the caller accepted), resets the filter instead. Both are counted
+        (:attr:`predicted_missing`, :attr:`gap_resets`).
+        """
+        last, self._last_stamp_ns = self._last_stamp_ns, int(stamp_ns)
+        if last is None:
+            return
+        gap_ns = int(stamp_ns) - last
+        if gap_ns * 1e-9 > self.params.max_gap_s or gap_ns < 0:
+            self.gap_resets += 1
+            self.reset()
+            return
+        missing = max(0, round(gap_ns / self._period_ns) - 1)
+        self.predict_through_gap(missing)
+
+    def predict_through_gap(self, n_samples: int) -> None:
+        """Prediction only over ``n_samples`` missing samples (counted)."""
+        for _ in range(n_samples):
+            self._predict()
+        self.predicted_missing += n_samples
 
     def step(self, measurement: np.ndarray | None, track: np.ndarray | None = None,
              speed: float | None = None) -> CreepEstimate:

@@ -36,6 +36,8 @@ import math
 import numpy as np
 import scipy.linalg
 
+from vehicle_monitor_common.parameters import param
+
 # Manchester Benchmarks passenger coach (Iwnicki 1998, Vehicle System Dynamics 30(3-4),
 # 295-313): body 32 000 kg with yaw inertia 1.97e6 kg m^2, bogie centres 19 m apart. The paper's
 # half car carries mv = 11 000 kg per bogie, so the full car body is 22 000 kg; its yaw inertia
@@ -51,56 +53,63 @@ class RailVehicleParams:
 
     Defaults: Chonan & Tsunashima Table 1; body yaw inertia and bogie pivot semi-spacing from
     the Manchester Benchmarks passenger coach (Iwnicki 1998), which the paper does not give.
-
-    Attributes:
-        wheelset_mass: mw, kg.
-        wheelset_yaw_inertia: Iw, kg m^2.
-        bogie_mass: mb, kg.
-        bogie_yaw_inertia: Ib, kg m^2.
-        body_mass: mv, the body mass carried by one bogie (the half car's body), kg. The full
-            car body is twice this.
-        body_yaw_inertia: full car body yaw inertia, kg m^2.
-        primary_lateral_stiffness: Ky, per wheelset, N/m.
-        primary_yaw_stiffness: Kp, per wheelset, N m/rad.
-        secondary_lateral_stiffness_left: Kylb, per bogie, N/m.
-        secondary_lateral_stiffness_right: Kyrb, per bogie, N/m.
-        secondary_lateral_damping_left: Cylb, per bogie, N s/m.
-        secondary_lateral_damping_right: Cyrb, per bogie, N s/m.
-        anti_yaw_damping_left: per bogie, N m s/rad.
-        anti_yaw_damping_right: per bogie, N m s/rad.
-        longitudinal_creep_coefficient: f11, N.
-        lateral_creep_coefficient: f22, N.
-        semi_wheelbase: a0, m.
-        half_gauge: l0 (half the contact-point distance), m.
-        conicity: lambda, effective wheel conicity, 1.
-        wheel_radius: r0, m.
-        speed: v, forward speed, m/s.
-        bogie_pivot_semi_spacing: lv, body centre to bogie centre, m.
+    Each field's symbol, unit and range are its :func:`param` declaration (a node exposes them
+    as a parameter group); all are read-only on a running node but the speed. The names keep
+    the paper's quantities without unit suffixes (the unit is in each description): the
+    simulator's scenario files, the IMM and the estimators share them.
     """
 
-    wheelset_mass: float = 1250.0
-    wheelset_yaw_inertia: float = 700.0
-    bogie_mass: float = 2500.0
-    bogie_yaw_inertia: float = 2300.0
-    body_mass: float = 11000.0
-    body_yaw_inertia: float = (
-        _MANCHESTER_BODY_YAW_INERTIA / _MANCHESTER_BODY_MASS * 2.0 * 11000.0)
-    primary_lateral_stiffness: float = 4000e3
-    primary_yaw_stiffness: float = 2500e3
-    secondary_lateral_stiffness_left: float = 500e3
-    secondary_lateral_stiffness_right: float = 500e3
-    secondary_lateral_damping_left: float = 30e3
-    secondary_lateral_damping_right: float = 30e3
-    anti_yaw_damping_left: float = 500e3
-    anti_yaw_damping_right: float = 500e3
-    longitudinal_creep_coefficient: float = 7.44e6
-    lateral_creep_coefficient: float = 6.79e6
-    semi_wheelbase: float = 1.05
-    half_gauge: float = 0.75
-    conicity: float = 0.15
-    wheel_radius: float = 0.37
-    speed: float = 40.0
-    bogie_pivot_semi_spacing: float = _MANCHESTER_BOGIE_PIVOT_SEMI_SPACING
+    wheelset_mass: float = param(1250.0, 'mw, wheelset mass, kg', low=1.0, high=1e5,
+                                 read_only=True)
+    wheelset_yaw_inertia: float = param(700.0, 'Iw, wheelset yaw inertia, kg m^2', low=1.0,
+                                        high=1e5, read_only=True)
+    bogie_mass: float = param(2500.0, 'mb, bogie mass, kg', low=1.0, high=1e5, read_only=True)
+    bogie_yaw_inertia: float = param(2300.0, 'Ib, bogie yaw inertia, kg m^2', low=1.0,
+                                     high=1e6, read_only=True)
+    body_mass: float = param(11000.0, 'mv, body mass carried by one bogie (the half car body; '
+                             'the full car body is twice this), kg', low=1.0, high=1e6,
+                             read_only=True)
+    body_yaw_inertia: float = param(
+        _MANCHESTER_BODY_YAW_INERTIA / _MANCHESTER_BODY_MASS * 2.0 * 11000.0,
+        'full car body yaw inertia, kg m^2', low=1.0, high=1e8, read_only=True)
+    primary_lateral_stiffness: float = param(4000e3, 'Ky, primary lateral stiffness per '
+                                             'wheelset, N/m', low=1.0, high=1e9, read_only=True)
+    primary_yaw_stiffness: float = param(2500e3, 'Kp, primary yaw stiffness per wheelset, '
+                                         'N m/rad', low=1.0, high=1e9, read_only=True)
+    secondary_lateral_stiffness_left: float = param(500e3, 'Kylb, secondary lateral stiffness '
+                                                    'per bogie, left, N/m', low=1.0, high=1e9,
+                                                    read_only=True)
+    secondary_lateral_stiffness_right: float = param(500e3, 'Kyrb, secondary lateral '
+                                                     'stiffness per bogie, right, N/m', low=1.0,
+                                                     high=1e9, read_only=True)
+    secondary_lateral_damping_left: float = param(30e3, 'Cylb, secondary lateral damping per '
+                                                  'bogie, left, N s/m', low=0.0, high=1e8,
+                                                  read_only=True)
+    secondary_lateral_damping_right: float = param(30e3, 'Cyrb, secondary lateral damping per '
+                                                   'bogie, right, N s/m', low=0.0, high=1e8,
+                                                   read_only=True)
+    anti_yaw_damping_left: float = param(500e3, 'anti-yaw damping per bogie, left, N m s/rad',
+                                         low=0.0, high=1e8, read_only=True)
+    anti_yaw_damping_right: float = param(500e3, 'anti-yaw damping per bogie, right, '
+                                          'N m s/rad', low=0.0, high=1e8, read_only=True)
+    longitudinal_creep_coefficient: float = param(7.44e6, 'f11, nominal longitudinal creep '
+                                                  'coefficient, N', low=1.0, high=1e9,
+                                                  read_only=True)
+    lateral_creep_coefficient: float = param(6.79e6, 'f22, nominal lateral creep coefficient, '
+                                             'N', low=1.0, high=1e9, read_only=True)
+    semi_wheelbase: float = param(1.05, 'a0, half the bogie wheelbase, m', low=0.1, high=10.0,
+                                  read_only=True)
+    half_gauge: float = param(0.75, 'l0, half the contact-point distance, m', low=0.1,
+                              high=2.0, read_only=True)
+    conicity: float = param(0.15, 'lambda, effective wheel conicity, 1', low=1e-3, high=1.0,
+                            read_only=True)
+    wheel_radius: float = param(0.37, 'r0, wheel rolling radius, m', low=0.1, high=2.0,
+                                read_only=True)
+    speed: float = param(40.0, 'v, forward speed, m/s (no speed topic in the contract: set it '
+                         'at runtime; the model is rebuilt)', low=1.0, high=150.0)
+    bogie_pivot_semi_spacing: float = param(_MANCHESTER_BOGIE_PIVOT_SEMI_SPACING,
+                                            'lv, body centre to bogie centre, m', low=0.1,
+                                            high=50.0, read_only=True)
 
     # Damping may be zero (a failed or absent damper); everything else must be positive.
     _MAY_BE_ZERO = frozenset({
