@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import math
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from builtin_interfaces.msg import Time
 import numpy as np
@@ -31,9 +31,32 @@ from vehicle_monitor_common.node_helpers import (
     TypedParameters,
 )
 
-C = TypeVar('C')        # the core's parameter dataclass
-N = TypeVar('N')        # the node's own parameter dataclass
-E = TypeVar('E', bound=Calibratable)   # the core estimator
+
+class _CoreParams(Protocol):
+    @property
+    def calibration_duration_s(self) -> float: ...
+
+
+class _NodeParams(Protocol):
+    @property
+    def calibrate_on_start(self) -> bool: ...
+
+    @property
+    def calibration_file(self) -> str: ...
+
+    @property
+    def diagnostics_period_s(self) -> float: ...
+
+
+class _Core(Calibratable, Protocol):
+    params: Any
+
+    def indication(self, stamp_s: float) -> TpmsIndication: ...
+
+
+C = TypeVar('C', bound=_CoreParams)     # the core's parameter dataclass
+N = TypeVar('N', bound=_NodeParams)     # the node's own parameter dataclass
+E = TypeVar('E', bound=_Core)           # the core estimator
 
 
 class CalibratingTpmsNode(Node, Generic[C, N, E]):
@@ -62,7 +85,7 @@ class CalibratingTpmsNode(Node, Generic[C, N, E]):
         self._last_known = np.zeros(N_TIRES, dtype=bool)
         self._last_flags = np.zeros(N_TIRES, dtype=bool)
 
-        p: Any = self._typed.value
+        p = self._typed.value
         self._calibration = CalibrationManager(self._analyzer, p.calibration_file, method)
         self._calibration.load()
         if self._calibration.state == 'file_corrupt':
