@@ -95,19 +95,20 @@ class SuspensionMonitorProcessor:
         node_params: pairing, input checks and diagnostics.
     """
 
-    outputs = {MODES: 'vehicle_monitor_msgs/msg/ModeProbabilities'}
+    # Typed as the Processor protocol declares them (its attributes are invariant).
+    inputs: Mapping[str, Input]
+    outputs: Mapping[str, str] = {MODES: 'vehicle_monitor_msgs/msg/ModeProbabilities'}
 
     def __init__(self, params: SuspensionImmParams,
                  node_params: SuspensionMonitorNodeParams) -> None:
         self.params = params
         self.node_params = n = node_params
-        self.inputs: dict[str, Input] = {BOGIE_IMU: Input('sensor_msgs/msg/Imu'),
-                                         BODY_IMU: Input('sensor_msgs/msg/Imu')}
+        inputs = {BOGIE_IMU: Input('sensor_msgs/msg/Imu'), BODY_IMU: Input('sensor_msgs/msg/Imu')}
         if n.use_track_irregularity:
-            self.inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity',
-                                       optional=True)
+            inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
         if n.use_creep_factor:
-            self.inputs[CREEP] = Input('vehicle_monitor_msgs/msg/CreepFactor', optional=True)
+            inputs[CREEP] = Input('vehicle_monitor_msgs/msg/CreepFactor', optional=True)
+        self.inputs = inputs
         self.imm = SuspensionImm(params)
         self._mode_names = [m.name for m in self.imm.modes]
         self._rejected: Counter[str] = Counter()
