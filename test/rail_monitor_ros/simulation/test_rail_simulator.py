@@ -277,8 +277,8 @@ def _with(path: tuple[Any, ...], value: Any) -> dict[str, Any]:
 
 
 @pytest.mark.parametrize('data, match', [
-    (_with(('colour',), 'red'), "'colour'"),
-    (_with(('vehicle', 'wheel_mass'), 1.0), "'vehicle.wheel_mass'"),
+    (_with(('colour',), 'red'), 'colour: unknown key'),
+    (_with(('vehicle', 'wheel_mass'), 1.0), 'vehicle.wheel_mass: unknown key'),
     (_with(('vehicle', 'wheelset_mass'), -1250.0), 'wheelset_mass'),
     (_with(('vehicle', 'primary_lateral_stiffness'), 0.0), 'primary_lateral_stiffness'),
     (_with(('vehicle', 'conicity'), 0.0), 'conicity'),
@@ -287,11 +287,11 @@ def _with(path: tuple[Any, ...], value: Any) -> dict[str, Any]:
     (_with(('initial', 'speed'), -10.0), 'initial.speed'),
     (_with(('initial', 'spring_ratio'), 6.0), 'initial.spring_ratio'),
     (_with(('initial', 'damper_ratio'), [1.0, 0.0]), 'initial.damper_ratio'),
-    (_with(('sensors', 'gyro_noise'), 0.1), "'sensors.gyro_noise'"),
+    (_with(('sensors', 'gyro_noise'), 0.1), 'sensors.gyro_noise: unknown key'),
     (_with(('sensors', 'body_accel_noise'), -0.1), 'sensors.body_accel_noise'),
     (_with(('track', 'spectrum'), 'fra_class_9'), 'track.spectrum'),
     (_with(('track', 'max_wavelength'), 0.5), 'track.max_wavelength'),
-    (_with(('events', 0, 'colour'), 1), "'events\\[0\\].colour'"),
+    (_with(('events', 0, 'colour'), 1), 'events\\[0\\].colour: unknown key'),
     (_with(('events', 0, 'time'), 7.0), 'events\\[1\\].time'),
     (_with(('events', 0, 'spring_ratio'), 0.0), 'events\\[0\\].spring_ratio'),
     (_with(('events', 0, 'spring_ratio'), 5.5), 'events\\[0\\].spring_ratio'),
@@ -302,7 +302,7 @@ def _with(path: tuple[Any, ...], value: Any) -> dict[str, Any]:
     (_with(('duration',), -1.0), 'duration'),
     (_with(('seed',), 1.5), 'seed'),
     (_with(('internal_rate',), 1100.0), 'internal_rate'),
-    ({'seed': 1}, "'duration'"),
+    ({'seed': 1}, 'duration: is required'),
     ([1, 2], 'mapping'),
 ])
 def test_bad_scenarios_are_refused(data: Any, match: str) -> None:
@@ -336,6 +336,26 @@ def test_shipped_scenarios_load(tmp_path: Path) -> None:
     bad = tmp_path / 'bad.yaml'
     bad.write_text('duration: 5\nevents:\n  - {time: 1, speed: 0}\n')
     with pytest.raises(ValueError, match='events\\[0\\].speed'):
+        load_rail_scenario(bad)
+
+
+def test_scenario_errors_name_file_and_line(tmp_path: Path) -> None:
+    """A scenario file's errors carry its path and the line of the offending key (the reader
+    shared with the road domain, vehicle_monitor_common.scenario_yaml)."""
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('duration: 5\nvehicle:\n  conicity: 0.15\n  wheel_mass: 1\nevents:\n'
+                   '  - time: 1\n    spring_ratio: 1.2\n  - time: 0.5\n    damper_ratio: 0.5\n')
+    with pytest.raises(ValueError, match=f'^{bad}:4: vehicle.wheel_mass: unknown key$'):
+        load_rail_scenario(bad)
+    bad.write_text('duration: 5\nevents:\n  - time: 1\n    spring_ratio: 1.2\n'
+                   '  - time: 0.5\n    damper_ratio: 0.5\n')
+    with pytest.raises(ValueError, match=f'^{bad}:5: events\\[1\\].time: .*time order'):
+        load_rail_scenario(bad)
+    bad.write_text('duration: 5\nvehicle:\n  wheelset_mass: -3\n')
+    with pytest.raises(ValueError, match=f'^{bad}:3: vehicle.wheelset_mass: .*> 0'):
+        load_rail_scenario(bad)
+    bad.write_text('duration: 5\nduration: 6\n')
+    with pytest.raises(ValueError, match=f'^{bad}:2: duration: duplicate key'):
         load_rail_scenario(bad)
 
 

@@ -3,19 +3,17 @@
 A scenario fixes the vehicle, the track, the sensors and the events (steps and ramps of the
 secondary lateral spring and damper ratios per bogie, the creep factor and the speed). The
 schema is documented in ``docs/rail_scenario_schema.md``; every unknown key, non-physical value
-or out-of-order event is refused with a ValueError naming the key. No ROS import.
+or out-of-order event is refused with a ValueError naming ``file:line: key.path``
+(:mod:`vehicle_monitor_common.scenario_yaml`, the reader both domains share). No ROS import.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, fields
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
@@ -24,6 +22,7 @@ from rail_monitor_ros.core.rail_model import (
 )
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 from vehicle_monitor_common.resources import share_dir, shipped_file
+from vehicle_monitor_common.scenario_yaml import MappingNode, mapping_from_data, read_mapping
 
 MAX_SPEED = 150.0  # m/s; beyond any rail vehicle, and far beyond the linear model's validity
 EVENT_QUANTITIES = ('spring_ratio', 'damper_ratio', 'creep_factor', 'speed')
@@ -171,17 +170,10 @@ class ParameterProfiles:
     damper_ratio: np.ndarray
 
 
-_TOP_KEYS = {'name', 'description', 'duration', 'seed', 'output_rate', 'internal_rate',
-             'warm_up', 'vehicle', 'track', 'sensors', 'initial', 'events'}
-_EVENT_KEYS = {'time', 'ramp', 'bogie', *EVENT_QUANTITIES}
-
-
 def load_rail_scenario(path: str | Path) -> RailScenario:
-    """Read and validate a scenario YAML file."""
+    """Read and validate a scenario YAML file (errors name ``file:line: key.path``)."""
     path = Path(path)
-    with path.open(encoding='utf-8') as stream:
-        data = yaml.safe_load(stream)
-    return rail_scenario_from_dict(data)
+    return parse_rail_scenario(path.read_text(encoding='utf-8'), str(path))
 
 
 def shipped_scenario(name: str) -> RailScenario:
@@ -193,191 +185,148 @@ def shipped_scenario(name: str) -> RailScenario:
     return load_rail_scenario(path)
 
 
-def rail_scenario_from_dict(data: Any) -> RailScenario:
-    """Validate a parsed scenario mapping (the YAML document) into a :class:`RailScenario`.
+def parse_rail_scenario(text: str, source: str = '<scenario>') -> RailScenario:
+    """Validate scenario YAML text into a :class:`RailScenario`.
 
     Raises:
-        ValueError: naming the offending key.
+        ValueError: naming ``source:line: key.path`` of the offending entry.
     """
-    top = _mapping(data, 'scenario')
-    _no_unknown(top, _TOP_KEYS, '')
-    duration = _number(top, 'duration', None, lo=0.0, lo_open=True, hi=24 * 3600.0)
-    seed = top.get('seed', 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f'seed must be a non-negative integer, got {seed!r}')
-    output_rate = _number(top, 'output_rate', 200.0, lo=0.0, lo_open=True, hi=10000.0)
-    internal_rate = _number(top, 'internal_rate', 1000.0, lo=0.0, lo_open=True, hi=100000.0)
+    return _scenario(read_mapping(text, source))
+
+
+def rail_scenario_from_dict(data: Any) -> RailScenario:
+    """Validate a parsed scenario mapping (e.g. built in code) into a :class:`RailScenario`.
+
+    Raises:
+        ValueError: naming the offending key path.
+    """
+    return _scenario(mapping_from_data(data))
+
+
+def _scenario(top: MappingNode) -> RailScenario:
+    duration = top.number('duration', low=0.0, low_open=True, high=24 * 3600.0)
+    seed = top.integer('seed', 0, low=0)
+    output_rate = top.number('output_rate', 200.0, low=0.0, low_open=True, high=10000.0)
+    internal_rate = top.number('internal_rate', 1000.0, low=0.0, low_open=True, high=100000.0)
     substeps = internal_rate / output_rate
     if abs(substeps - round(substeps)) > 1e-9 or round(substeps) < 1:
-        raise ValueError(
-            f'internal_rate must be an integer multiple of output_rate, got {internal_rate} and '
-            f'{output_rate}')
-    warm_up = _number(top, 'warm_up', 5.0, lo=0.0, hi=600.0)
-    initial = _initial(top.get('initial', {}))
-    vehicle = _vehicle(top.get('vehicle', {}), initial.speed)
-    track = _track(top.get('track', {}))
-    sensors = _sensors(top.get('sensors', {}))
-    events = _events(top.get('events', []), duration)
-    name = top.get('name', 'unnamed')
-    description = top.get('description', '')
-    for key, text in (('name', name), ('description', description)):
-        if not isinstance(text, str):
-            raise ValueError(f'{key} must be a string, got {text!r}')
+        raise top.error('internal_rate', f'must be an integer multiple of output_rate, got '
+                                         f'{internal_rate:g} and {output_rate:g}')
+    warm_up = top.number('warm_up', 5.0, low=0.0, high=600.0)
+    initial = _initial(top.child('initial'))
+    vehicle = _vehicle(top.child('vehicle'), initial.speed)
+    track = _track(top.child('track'))
+    sensors = _sensors(top.child('sensors'))
+    events = _events(top.items('events'), duration)
+    name = top.text('name', 'unnamed')
+    description = top.text('description', '')
+    top.finish()
     return RailScenario(name, description, duration, seed, output_rate, internal_rate, warm_up,
                         vehicle, track, sensors, initial, events)
 
 
-def _mapping(value: Any, where: str) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise ValueError(f'{where} must be a mapping, got {type(value).__name__}')
-    return value
-
-
-def _no_unknown(section: Mapping[str, Any], allowed: set[str], prefix: str) -> None:
-    unknown = sorted(set(map(str, section)) - allowed)
-    if unknown:
-        raise ValueError(f"unknown key '{prefix}{unknown[0]}'; allowed: {sorted(allowed)}")
-
-
-def _as_float(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f'{key} must be a number, got {value!r}')
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f'{key} must be finite, got {value}')
-    return value
-
-
-def _number(section: Mapping[str, Any], key: str, default: float | None, *, lo: float,
-            hi: float, lo_open: bool = False, prefix: str = '') -> float:
-    if key not in section:
-        if default is None:
-            raise ValueError(f'missing required key {prefix}{key!r}')
-        return default
-    value = _as_float(section[key], f'{prefix}{key}')
-    if value < lo or (lo_open and value == lo) or value > hi:
-        bracket = '(' if lo_open else '['
-        raise ValueError(f'{prefix}{key} must be in {bracket}{lo}, {hi}], got {value}')
-    return value
-
-
-def _ratio_pair(value: Any, key: str) -> tuple[float, float]:
+def _ratio_pair(node: MappingNode, key: str) -> tuple[float, float]:
+    """A suspension ratio for both bogies, or [front, rear], each in (0, MAX_SUSPENSION_RATIO]."""
+    if not node.has(key):
+        return 1.0, 1.0
+    value = node.raw(key)
     items = list(value) if isinstance(value, (list, tuple)) else [value, value]
     if len(items) != 2:
-        raise ValueError(f'{key} must be a number or [front, rear], got {value!r}')
-    pair = tuple(_check_range(_as_float(v, key), key, MAX_SUSPENSION_RATIO) for v in items)
+        raise node.error(key, f'must be a number or [front, rear], got {value!r}')
+    pair = []
+    for item in items:
+        if isinstance(item, bool) or not isinstance(item, (int, float)) \
+                or not 0.0 < item <= MAX_SUSPENSION_RATIO:
+            raise node.error(key, f'must be in (0, {MAX_SUSPENSION_RATIO:g}], got {value!r}')
+        pair.append(float(item))
     return pair[0], pair[1]
 
 
-def _check_range(value: float, key: str, upper: float) -> float:
-    if not 0.0 < value <= upper:
-        raise ValueError(f'{key} must be in (0, {upper}], got {value}')
-    return value
-
-
-def _initial(section: Any) -> InitialConditions:
-    section = _mapping(section, 'initial')
-    _no_unknown(section, {'speed', 'creep_factor', 'spring_ratio', 'damper_ratio'}, 'initial.')
-    speed = _number(section, 'speed', 40.0, lo=0.0, lo_open=True, hi=MAX_SPEED,
-                    prefix='initial.')
-    creep = _number(section, 'creep_factor', 1.0, lo=0.0, lo_open=True, hi=MAX_CREEP_FACTOR,
-                    prefix='initial.')
-    spring = _ratio_pair(section.get('spring_ratio', 1.0), 'initial.spring_ratio')
-    damper = _ratio_pair(section.get('damper_ratio', 1.0), 'initial.damper_ratio')
+def _initial(node: MappingNode) -> InitialConditions:
+    speed = node.number('speed', 40.0, low=0.0, low_open=True, high=MAX_SPEED)
+    creep = node.number('creep_factor', 1.0, low=0.0, low_open=True, high=MAX_CREEP_FACTOR)
+    spring = _ratio_pair(node, 'spring_ratio')
+    damper = _ratio_pair(node, 'damper_ratio')
+    node.finish()
     return InitialConditions(speed, creep, spring, damper)
 
 
-def _vehicle(section: Any, speed: float) -> RailVehicleParams:
-    section = _mapping(section, 'vehicle')
-    allowed = {f.name for f in fields(RailVehicleParams)} - {'speed'}
-    if 'speed' in section:
-        raise ValueError('vehicle.speed is not a vehicle key: set initial.speed or speed events')
-    _no_unknown(section, allowed, 'vehicle.')
-    values = {key: _as_float(value, f'vehicle.{key}') for key, value in section.items()}
+def _vehicle(node: MappingNode, speed: float) -> RailVehicleParams:
+    if node.has('speed'):
+        raise node.error('speed', 'is not a vehicle key: set initial.speed or speed events')
+    names = [f.name for f in fields(RailVehicleParams) if f.name != 'speed']
+    values = {name: node.number(name) for name in names if node.has(name)}
+    node.finish()
     try:
         return RailVehicleParams(**values, speed=speed)
     except ValueError as error:
-        raise ValueError(f'vehicle: {error}') from None
+        # The model's own rules (positive masses ...): located at the key they name.
+        key = next((k for k in values if f'.{k} ' in str(error)), None)
+        raise node.error(key, str(error)) from None
 
 
-def _track(section: Any) -> TrackConfig:
-    section = _mapping(section, 'track')
-    _no_unknown(section, {f.name for f in fields(TrackConfig)}, 'track.')
-    spectrum = section.get('spectrum', 'german_low')
-    if spectrum not in TRACK_SPECTRA:
-        raise ValueError(f'track.spectrum must be one of {sorted(TRACK_SPECTRA)}, got '
-                         f'{spectrum!r}')
-    min_wl = _number(section, 'min_wavelength', 1.0, lo=0.1, hi=1000.0, prefix='track.')
-    max_wl = _number(section, 'max_wavelength', 120.0, lo=0.1, hi=1000.0, prefix='track.')
+def _track(node: MappingNode) -> TrackConfig:
+    spectrum = node.text('spectrum', 'german_low', choices=sorted(TRACK_SPECTRA))
+    min_wl = node.number('min_wavelength', 1.0, low=0.1, high=1000.0)
+    max_wl = node.number('max_wavelength', 120.0, low=0.1, high=1000.0)
     if max_wl <= min_wl:
-        raise ValueError(f'track.max_wavelength ({max_wl}) must exceed track.min_wavelength '
-                         f'({min_wl})')
-    scale = _number(section, 'scale', 1.0, lo=0.0, hi=100.0, prefix='track.')
+        raise node.error('max_wavelength', f'({max_wl:g}) must exceed min_wavelength '
+                                           f'({min_wl:g})')
+    scale = node.number('scale', 1.0, low=0.0, high=100.0)
+    node.finish()
     return TrackConfig(spectrum, min_wl, max_wl, scale)
 
 
-def _sensors(section: Any) -> SensorConfig:
-    section = _mapping(section, 'sensors')
+def _sensors(node: MappingNode) -> SensorConfig:
     defaults = SensorConfig()
-    spec = {f.name: float(getattr(defaults, f.name)) for f in fields(SensorConfig)}
-    _no_unknown(section, set(spec), 'sensors.')
     values: dict[str, float] = {}
-    for key, default in spec.items():
-        if key.endswith('_bias'):
-            values[key] = _number(section, key, default, lo=-1e3, hi=1e3, prefix='sensors.')
-        else:
-            values[key] = _number(section, key, default, lo=0.0, hi=1e3, prefix='sensors.')
+    for f in fields(SensorConfig):
+        default = float(getattr(defaults, f.name))
+        low = -1e3 if f.name.endswith('_bias') else 0.0
+        values[f.name] = node.number(f.name, default, low=low, high=1e3)
+    node.finish()
     return SensorConfig(**values)
 
 
-def _events(items: Any, duration: float) -> tuple[RailEvent, ...]:
-    if not isinstance(items, list):
-        raise ValueError(f'events must be a list, got {type(items).__name__}')
+def _events(items: list[MappingNode], duration: float) -> tuple[RailEvent, ...]:
     events: list[RailEvent] = []
-    for k, item in enumerate(items):
-        where = f'events[{k}].'
-        item = _mapping(item, f'events[{k}]')
-        _no_unknown(item, _EVENT_KEYS, where)
-        quantities = [q for q in EVENT_QUANTITIES if q in item]
+    for item in items:
+        quantities = [q for q in EVENT_QUANTITIES if item.has(q)]
         if len(quantities) != 1:
-            raise ValueError(f'{where[:-1]} must set exactly one of {EVENT_QUANTITIES}, got '
-                             f'{quantities}')
+            raise item.error(None, f'must set exactly one of {EVENT_QUANTITIES}, got '
+                                   f'{quantities}')
         quantity = quantities[0]
-        time = _number(item, 'time', None, lo=0.0, hi=duration, prefix=where)
-        ramp = _number(item, 'ramp', 0.0, lo=0.0, hi=duration, prefix=where)
+        time = item.number('time', low=0.0, high=duration)
+        ramp = item.number('ramp', 0.0, low=0.0, high=duration)
         if time + ramp > duration + 1e-9:
-            raise ValueError(f'{where}ramp ends at {time + ramp} s, after duration {duration} s')
-        value = _as_float(item[quantity], where + quantity)
+            raise item.error('ramp', f'ends at {time + ramp:g} s, after duration {duration:g} s')
         upper = {'creep_factor': MAX_CREEP_FACTOR, 'speed': MAX_SPEED}.get(
             quantity, MAX_SUSPENSION_RATIO)
-        _check_range(value, where + quantity, upper)
+        value = item.number(quantity, low=0.0, low_open=True, high=upper)
         bogies: tuple[int, ...] = ()
         if quantity in ('spring_ratio', 'damper_ratio'):
-            bogie = item.get('bogie', 'both')
-            if bogie not in BOGIE_NAMES:
-                raise ValueError(f'{where}bogie must be one of {sorted(BOGIE_NAMES)}, got '
-                                 f'{bogie!r}')
-            bogies = BOGIE_NAMES[bogie]
-        elif 'bogie' in item:
-            raise ValueError(f'{where}bogie applies only to spring_ratio and damper_ratio')
+            bogies = BOGIE_NAMES[item.text('bogie', 'both', choices=sorted(BOGIE_NAMES))]
+        elif item.has('bogie'):
+            raise item.error('bogie', 'applies only to spring_ratio and damper_ratio')
         if events and time < events[-1].time:
-            raise ValueError(f'{where}time {time} s is before the previous event '
-                             f'({events[-1].time} s): events must be in time order')
+            raise item.error('time', f'{time:g} s is before the previous event '
+                                     f'({events[-1].time:g} s): events must be in time order')
         event = RailEvent(time, quantity, value, ramp, bogies)
-        _check_no_overlap(events, event, where)
+        _check_no_overlap(events, event, item)
+        item.finish()
         events.append(event)
     return tuple(events)
 
 
-def _check_no_overlap(previous: list[RailEvent], event: RailEvent, where: str) -> None:
+def _check_no_overlap(previous: list[RailEvent], event: RailEvent, item: MappingNode) -> None:
     """A change of a quantity must not start while a ramp of the same quantity still runs."""
     for other in previous:
         same_target = other.quantity == event.quantity and (
             not event.bogies or set(other.bogies) & set(event.bogies))
         if same_target and event.time < other.time + other.ramp - 1e-9:
-            raise ValueError(
-                f'{where}time {event.time} s starts during the ramp of {event.quantity} that '
-                f'runs from {other.time} s to {other.time + other.ramp} s')
+            raise item.error('time', f'{event.time:g} s starts during the ramp of '
+                                     f'{event.quantity} that runs from {other.time:g} s to '
+                                     f'{other.time + other.ramp:g} s')
 
 
 def evaluate_profiles(scenario: RailScenario, time: np.ndarray) -> ParameterProfiles:

@@ -15,7 +15,7 @@ any time grid; the simulator (``road_simulator``) calls them. No ROS import.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 import dataclasses
 from dataclasses import dataclass, field
 import math
@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.simulation.vehicle_dynamics import VehicleParams, max_stable_step
+from vehicle_monitor_common.scenario_yaml import MappingNode as _Node
+from vehicle_monitor_common.scenario_yaml import read_mapping
 
 WHEEL_NAMES: tuple[str, ...] = ('FL', 'FR', 'RL', 'RR')
 
@@ -304,134 +305,6 @@ class Scenario:
 
 # ----------------------------------------------------------------------------------------------
 # Loading and validation
-
-
-def _located_error(source: str, line: int, path: str, message: str) -> ValueError:
-    return ValueError(f'{source}:{line}: {path}: {message}')
-
-
-class _Node:
-    """A YAML mapping being read: its values, its key path, and the lines of its keys."""
-
-    def __init__(self, values: Mapping[str, Any], path: str, lines: Mapping[str, int],
-                 source: str, line: int) -> None:
-        self.values = values
-        self.path = path
-        self.lines = lines
-        self.source = source
-        self.line = line
-        self.used: set[str] = set()
-
-    def key_path(self, key: str) -> str:
-        return f'{self.path}.{key}' if self.path else key
-
-    def error(self, key: str | None, message: str) -> ValueError:
-        path = self.key_path(key) if key is not None else (self.path or '<top level>')
-        line = self.lines.get(self.key_path(key), self.line) if key is not None else self.line
-        return _located_error(self.source, line, path, message)
-
-    def has(self, key: str) -> bool:
-        return key in self.values
-
-    def raw(self, key: str) -> Any:
-        self.used.add(key)
-        return self.values[key]
-
-    def number(self, key: str, default: float | None = None, *, low: float | None = None,
-               high: float | None = None, low_open: bool = False) -> float:
-        """A finite float within [low, high] (``low_open``: strictly above low)."""
-        if key not in self.values:
-            if default is None:
-                raise self.error(key, 'is required')
-            return default
-        value = self.raw(key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(key, f'must be a number, got {value!r}')
-        number = float(value)
-        if not math.isfinite(number):
-            raise self.error(key, f'must be finite, got {value!r}')
-        if low is not None and (number <= low if low_open else number < low):
-            relation = '>' if low_open else '>='
-            raise self.error(key, f'must be {relation} {low:g}, got {number:g}')
-        if high is not None and number > high:
-            raise self.error(key, f'must be <= {high:g}, got {number:g}')
-        return number
-
-    def integer(self, key: str, default: int, *, low: int) -> int:
-        if key not in self.values:
-            return default
-        value = self.raw(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise self.error(key, f'must be an integer >= {low}, got {value!r}')
-        return int(value)
-
-    def text(self, key: str, default: str | None = None,
-             choices: Sequence[str] | None = None) -> str:
-        if key not in self.values:
-            if default is None:
-                raise self.error(key, 'is required')
-            return default
-        value = self.raw(key)
-        if not isinstance(value, str):
-            raise self.error(key, f'must be a string, got {value!r}')
-        if choices is not None and value not in choices:
-            raise self.error(key, f'unknown value {value!r}; expected one of {sorted(choices)}')
-        return value
-
-    def child(self, key: str) -> _Node:
-        """The mapping under ``key`` (an empty one when absent)."""
-        if key not in self.values:
-            return _Node({}, self.key_path(key), self.lines, self.source, self.line)
-        value = self.raw(key)
-        if value is None:
-            value = {}
-        if not isinstance(value, Mapping):
-            raise self.error(key, 'must be a mapping')
-        return _Node(value, self.key_path(key), self.lines, self.source,
-                     self.lines.get(self.key_path(key), self.line))
-
-    def items(self, key: str) -> list[_Node]:
-        """The list of mappings under ``key`` (empty when absent)."""
-        if key not in self.values:
-            return []
-        value = self.raw(key)
-        if value is None:
-            return []
-        if not isinstance(value, list):
-            raise self.error(key, 'must be a list')
-        nodes = []
-        for index, item in enumerate(value):
-            path = f'{self.key_path(key)}[{index}]'
-            line = self.lines.get(path, self.line)
-            if not isinstance(item, Mapping):
-                raise _located_error(self.source, line, path, 'must be a mapping')
-            nodes.append(_Node(item, path, self.lines, self.source, line))
-        return nodes
-
-    def finish(self) -> None:
-        """Refuse keys nobody read: they are typos or unsupported options."""
-        for key in self.values:
-            if key not in self.used:
-                raise self.error(str(key), 'unknown key')
-
-
-def _key_lines(node: yaml.Node, path: str, lines: dict[str, int]) -> None:
-    """Record the 1-based line of every key and list item, keyed by its dotted path."""
-    if isinstance(node, yaml.MappingNode):
-        seen: set[str] = set()
-        for key_node, value_node in node.value:
-            key = str(key_node.value)
-            child = f'{path}.{key}' if path else key
-            if key in seen:
-                raise ValueError(f'{key_node.start_mark.line + 1}: {child}: duplicate key')
-            seen.add(key)
-            lines[child] = key_node.start_mark.line + 1
-            _key_lines(value_node, child, lines)
-    elif isinstance(node, yaml.SequenceNode):
-        for index, item in enumerate(node.value):
-            child = f'{path}[{index}]'
-            lines[child] = item.start_mark.line + 1
-            _key_lines(item, child, lines)
 
 
 def _tire_indices(node: _Node, key: str) -> tuple[int, ...]:
@@ -726,19 +599,7 @@ def parse_scenario(text: str, source: str = '<scenario>') -> Scenario:
         ValueError: on any invalid, unknown or inconsistent entry; the message names
             ``source:line: key.path``.
     """
-    try:
-        root_node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ValueError(f'{source}: not valid YAML: {error}') from error
-    if not isinstance(data, Mapping) or root_node is None:
-        raise ValueError(f'{source}: a scenario must be a YAML mapping')
-    lines: dict[str, int] = {}
-    try:
-        _key_lines(root_node, '', lines)
-    except ValueError as error:
-        raise ValueError(f'{source}:{error}') from None
-    root = _Node(data, '', lines, source, 1)
+    root = read_mapping(text, source)
 
     name = root.text('name', Path(source).stem)
     description = root.text('description', '')
