@@ -5,7 +5,7 @@ ROS-free (numpy, rosbags through :mod:`bag_io`). A domain package describes itse
 to evaluate a recording) and registers a factory under the ``vehicle_monitor.evaluations``
 entry-point group of its setup.py::
 
-    'vehicle_monitor.evaluations': ['road = tpms_ros.evaluation:domain'],
+    'vehicle_monitor.evaluations': ['road = tpms_ros.offline.evaluation:domain'],
 
 The main job (``monitor_demo``) and the evaluation CLI (``evaluate``) discover the domains
 through that group, so this package never imports a domain package. An evaluation yields one
