@@ -274,8 +274,8 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
     (result,) = node.set_parameters([Parameter('fault_threshold', value=0.8)])
     assert result.successful and node.processor.imm.decision.threshold == 0.8
     f_before = node.processor.imm._f.copy()
-    (result,) = node.set_parameters([Parameter('vehicle.speed_mps', value=30.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.speed', value=30.0)])
     assert result.successful and node.processor.imm.vehicle.speed == 30.0
     assert not np.allclose(node.processor.imm._f, f_before)
-    (result,) = node.set_parameters([Parameter('vehicle.body_mass_kg', value=9000.0)])
+    (result,) = node.set_parameters([Parameter('vehicle.body_mass', value=9000.0)])
     assert not result.successful

@@ -150,70 +150,6 @@ _SHARED_DISCRETIZATIONS_MAX = 512
 _SPD_TOLERANCE = 1e-9
 
 
-# The reference car of the rail model (Chonan & Tsunashima Table 1): the estimation model's
-# defaults are its values, not copies of them.
-_TABLE_1 = RailVehicleParams()
-
-
-@dataclass(frozen=True)
-class SuspensionVehicleParams:
-    """The estimation model's vehicle, the quantities a user sets (per bogie; each pair of
-    left and right elements split evenly); the others are :class:`RailVehicleParams`'s.
-    Only ``speed_mps`` may change at run time (the full car is re-discretised)."""
-
-    body_mass_kg: float = param(_TABLE_1.body_mass, 'body mass carried by one bogie (half '
-                                'the body), kg', low=1.0, high=1e6, read_only=True)
-    body_yaw_inertia_kg_m2: float = param(_TABLE_1.body_yaw_inertia, 'body yaw inertia (full '
-                                          'car model), kg m^2', low=1.0, high=1e9,
-                                          read_only=True)
-    bogie_pivot_semi_spacing_m: float = param(_TABLE_1.bogie_pivot_semi_spacing, 'body centre '
-                                              'to bogie centre (full car model), m', low=0.1,
-                                              high=50.0, read_only=True)
-    bogie_mass_kg: float = param(_TABLE_1.bogie_mass, 'bogie mass, kg', low=1.0, high=1e5,
-                                 read_only=True)
-    bogie_yaw_inertia_kg_m2: float = param(_TABLE_1.bogie_yaw_inertia, 'bogie yaw inertia, '
-                                           'kg m^2', low=1.0, high=1e6, read_only=True)
-    primary_lateral_stiffness_n_m: float = param(_TABLE_1.primary_lateral_stiffness, 'primary '
-                                                 'lateral stiffness per wheelset, N/m',
-                                                 low=1.0, high=1e10, read_only=True)
-    primary_yaw_stiffness_nm_rad: float = param(_TABLE_1.primary_yaw_stiffness, 'primary yaw '
-                                                'stiffness per wheelset, N m/rad', low=1.0,
-                                                high=1e10, read_only=True)
-    secondary_lateral_stiffness_n_m: float = param(_TABLE_1.secondary_lateral_stiffness,
-                                                   'nominal secondary lateral stiffness (both '
-                                                   'sides), N/m', low=1.0, high=1e10,
-                                                   read_only=True)
-    secondary_lateral_damping_ns_m: float = param(_TABLE_1.secondary_lateral_damping,
-                                                  'nominal secondary lateral damping (both '
-                                                  'sides), N s/m', low=1.0, high=1e9,
-                                                  read_only=True)
-    anti_yaw_damping_nms_rad: float = param(_TABLE_1.anti_yaw_damping_left
-                                            + _TABLE_1.anti_yaw_damping_right, 'anti-yaw '
-                                            'damping (both sides), N m s/rad', low=0.0,
-                                            high=1e10, read_only=True)
-    semi_wheelbase_m: float = param(_TABLE_1.semi_wheelbase, 'semi-wheelbase a0, m', low=0.01,
-                                    high=10.0, read_only=True)
-    speed_mps: float = param(_TABLE_1.speed, 'forward speed (full car: creep forces, track '
-                             'bandwidth and delays, re-discretised on change; half car: known '
-                             'inputs), m/s', low=0.1, high=150.0)
-
-    def rail_vehicle(self) -> RailVehicleParams:
-        """The rail model's parameters: these values, sides split evenly, the rest Table 1."""
-        return replace(
-            _TABLE_1, body_mass=self.body_mass_kg, body_yaw_inertia=self.body_yaw_inertia_kg_m2,
-            bogie_pivot_semi_spacing=self.bogie_pivot_semi_spacing_m,
-            bogie_mass=self.bogie_mass_kg, bogie_yaw_inertia=self.bogie_yaw_inertia_kg_m2,
-            primary_lateral_stiffness=self.primary_lateral_stiffness_n_m,
-            primary_yaw_stiffness=self.primary_yaw_stiffness_nm_rad,
-            secondary_lateral_stiffness_left=0.5 * self.secondary_lateral_stiffness_n_m,
-            secondary_lateral_stiffness_right=0.5 * self.secondary_lateral_stiffness_n_m,
-            secondary_lateral_damping_left=0.5 * self.secondary_lateral_damping_ns_m,
-            secondary_lateral_damping_right=0.5 * self.secondary_lateral_damping_ns_m,
-            anti_yaw_damping_left=0.5 * self.anti_yaw_damping_nms_rad,
-            anti_yaw_damping_right=0.5 * self.anti_yaw_damping_nms_rad,
-            semi_wheelbase=self.semi_wheelbase_m, speed=self.speed_mps)
-
-
 @dataclass(frozen=True)
 class SuspensionImmParams:
     """Parameters of the IMM suspension monitor (defaults: paper, Table 1, SPEC §5); each
@@ -303,7 +239,9 @@ class SuspensionImmParams:
         max_gap_s: a gap in the data longer than this restarts the bank's states (mode
             probabilities kept); a shorter one is bridged by
             :meth:`SuspensionImm.predict_through_gap`.
-        vehicle: the estimation model's vehicle (:class:`SuspensionVehicleParams`).
+        vehicle: the estimation model's vehicle (the rail model's :class:`RailVehicleParams`,
+            the same definition the creep estimator and the simulator use); only its speed
+            may change at run time (the full car is re-discretised).
     """
 
     sample_rate_hz: float = param(200.0, 'IMU sample rate (the models are discretised at its '
@@ -410,8 +348,8 @@ class SuspensionImmParams:
                                  low=0.005, high=600.0, read_only=True)
     max_gap_s: float = param(0.5, 'a longer gap in the data restarts the filter states (a '
                              'shorter one is bridged by prediction), s', low=1e-3, high=3600.0)
-    vehicle: SuspensionVehicleParams = group(SuspensionVehicleParams,
-                                             'the estimation model\'s vehicle (Table 1)')
+    vehicle: RailVehicleParams = group(RailVehicleParams,
+                                       'the estimation model\'s vehicle (Table 1)')
 
     _NON_NEGATIVE = frozenset({'probability_floor', 'model_lateral_accel_noise_mps2',
                                'model_yaw_accel_noise_rad_s2'})
@@ -519,8 +457,8 @@ class SuspensionImm:
 
     Args:
         params: the IMM's parameters (defaults: ``SuspensionImmParams()``).
-        vehicle: the model's vehicle parameters, to study a vehicle beyond what
-            ``params.vehicle`` sets (default: ``params.vehicle.rail_vehicle()``). Full car: its
+        vehicle: the model's vehicle parameters in place of ``params.vehicle`` (offline
+            studies of a vehicle other than the configured one). Full car: its
             speed sets the creep forces, the track bandwidth and the delays (change it with
             :meth:`set_speed`); the half car does not use it.
     """
@@ -528,7 +466,7 @@ class SuspensionImm:
     def __init__(self, params: SuspensionImmParams | None = None,
                  vehicle: RailVehicleParams | None = None) -> None:
         self.params = params if params is not None else SuspensionImmParams()
-        self.vehicle = vehicle if vehicle is not None else self.params.vehicle.rail_vehicle()
+        self.vehicle = vehicle if vehicle is not None else self.params.vehicle
         self.creep_factor = 1.0
         params = self.params
         self.modes = params.modes()
@@ -671,12 +609,12 @@ class SuspensionImm:
 
     def update_runtime_params(self, params: SuspensionImmParams) -> None:
         """The parameters settable at run time changed (``fault_threshold``, ``hold_time_s``,
-        ``max_gap_s``, ``vehicle.speed_mps``; the others are read-only): a new decision rule
+        ``max_gap_s``, ``vehicle.speed``; the others are read-only): a new decision rule
         (nothing pending), the new gap limit, the new speed (:meth:`set_speed`)."""
         self.decision = FaultDecision(params.fault_threshold, params.hold_time_s,
                                       self.params.dt)
         self._max_gap_s = params.max_gap_s
-        self.set_speed(params.vehicle.speed_mps)
+        self.set_speed(params.vehicle.speed)
 
     def set_speed(self, speed: float) -> None:
         """The forward speed changed (full car: creep forces, track bandwidth and delays

@@ -225,7 +225,7 @@ class SuspensionMonitorProcessor:
         # Half car: the monitored bogie's [y_lead, y_trail, psi_lead, psi_trail].
         return wheelset_inputs_from_track(alignment[None, :2],
                                           None if rate is None else rate[None, :2],
-                                          self.params.vehicle.speed_mps)[0]
+                                          self.params.vehicle.speed)[0]
 
     def _process(self, stamp: int, z: np.ndarray) -> Output:
         problem = self._check(z)
