@@ -1,0 +1,104 @@
+"""The creep estimator's processor, ROS-free: built from parameter values, fed a recording's
+messages as the offline engine feeds them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams, lateral_states_measurement
+from rail_monitor_ros.processing.creep_estimator import (
+    CREEP,
+    LATERAL_FIELDS,
+    LATERAL_STATES,
+    TRACK,
+    make_processor,
+)
+from vehicle_monitor_common.bag_io import read_messages
+from vehicle_monitor_common.parameters import ConfigurationError
+
+BAG = Path(__file__).resolve().parents[3] / 'bags' / 'rail_creep_steps'
+N = 600        # 3 s of the recording
+
+
+def _stamp(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
+
+
+def _recording(topics: list[str]) -> list[tuple[str, Any]]:
+    out, count = [], 0
+    for topic, _, _, msg in read_messages(BAG, topics):
+        count += topic in ('/rail/lateral_states', '/rail/bogie/imu')
+        if count > N:
+            break
+        out.append((topic.lstrip('/'), msg))
+    return out
+
+
+def test_processor_is_the_core_on_the_recorded_samples() -> None:
+    """Pattern C: one output per lateral-states sample with its stamp, equal to the core fed
+    the same measurement and track vectors (the track of a sample paired by stamp; the first
+    sample is recorded before the first track message, when the track stream is not yet
+    alive, so it goes on without)."""
+    processor = make_processor({}, '/creep_estimator')
+    messages = _recording(['/rail/lateral_states', '/rail/track_irregularity'])
+    outputs = [o for topic, msg in messages for o in processor.process(topic, msg)]
+    lateral = [m for t, m in messages if t == LATERAL_STATES]
+    tracks = {_stamp(m): m for t, m in messages if t == TRACK}
+    assert [o.stamp_ns for o in outputs] == [_stamp(m) for m in lateral]
+    assert all(o.topic == CREEP for o in outputs)
+    ekf = CreepEkf(CreepEkfParams())
+    expected = []
+    for k, msg in enumerate(lateral):
+        fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
+                  for name in LATERAL_FIELDS}
+        z = lateral_states_measurement(fields, 'C')[0]
+        track = tracks.get(_stamp(msg)) if k > 0 else None
+        u = None if track is None else np.concatenate(
+            [track.lateral_alignment[:2], track.lateral_alignment_rate[:2]])
+        expected.append(ekf.step(z, u).creep_factor)
+    np.testing.assert_allclose([o.fields['creep_factor'] for o in outputs], expected,
+                               rtol=1e-12)
+    counts = processor.counts
+    assert counts['known_input'] == len(lateral) - 1 and counts['unpaired'] == 0
+    assert processor.status(0).values['track_input'] == 'known'
+
+
+def test_pattern_d_pairs_the_imus() -> None:
+    """Pattern D: bogie and body IMU paired by stamp (imu_pairing), one output per bogie
+    sample, none unpaired, the track known."""
+    processor = make_processor({'pattern': 'D'}, '/creep_estimator_imu')
+    messages = _recording(['/rail/bogie/imu', '/rail/body/imu', '/rail/track_irregularity'])
+    outputs = [o for topic, msg in messages for o in processor.process(topic, msg)]
+    bogie = [_stamp(m) for t, m in messages if t == 'rail/bogie/imu']
+    # The last sample waits for a later stamp of the body stream.
+    assert [o.stamp_ns for o in outputs] == bogie[:len(outputs)] and len(outputs) >= N - 1
+    assert processor.counts['unpaired'] == 0 and processor.counts['unknown_input'] <= 1
+    assert all(0.05 <= o.fields['creep_factor'] <= 2.0 for o in outputs)
+
+
+def test_missing_samples_bridged_and_long_gap_resets() -> None:
+    """Data time is the core's: 5 missing samples are predicted through, a 1 s gap resets."""
+    processor = make_processor({'use_track_input': False}, '/creep_estimator')
+    lateral = [m for t, m in _recording(['/rail/lateral_states'])]
+    for k, msg in enumerate(lateral):
+        if 100 <= k < 105:
+            continue
+        if k >= 300:
+            msg.header.stamp.sec += 1
+        processor.process(LATERAL_STATES, msg)
+    counts = processor.counts
+    assert counts['predicted_missing'] == 5 and counts['gap_resets'] == 1
+    assert counts['processed'] == len(lateral) - 5
+
+
+def test_bad_values_are_refused() -> None:
+    """A value its definition refuses, or an inconsistent set, is a ConfigurationError naming
+    the node and the parameter."""
+    with pytest.raises(ConfigurationError, match='/creep_estimator.*min_creep_factor'):
+        make_processor({'min_creep_factor': 1.5, 'max_creep_factor': 1.0}, '/creep_estimator')
+    with pytest.raises(ConfigurationError, match='/creep_estimator.*wheelset_mass must be > 0'):
+        make_processor({'vehicle.wheelset_mass': -1.0}, '/creep_estimator')
