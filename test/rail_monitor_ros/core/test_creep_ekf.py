@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from rail_monitor_ros.core.creep_ekf import (
 )
 from rail_monitor_ros.core.rail_model import car_end_state_space, full_car_state_space
 from rail_monitor_ros.offline.creep_runs import (
-    plot_creep,
     run_on_simulation,
     simulation_inputs,
     step_metrics,
@@ -338,8 +336,24 @@ def test_lateral_states_measurement_body_channels() -> None:
     np.testing.assert_allclose(a[:, 7], fields['wheelset_yaw_rate'][:, 3])
 
 
-def test_plot_creep_writes_png(known_runs: dict[str, CreepRun], tmp_path: Path) -> None:
-    """plot_creep writes a PNG with one panel per run."""
-    path = plot_creep({f'pattern {p}': r for p, r in known_runs.items()}, tmp_path / 'c.png')
-    assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
-    assert path.stat().st_size > 10_000
+def test_predict_through_gap_is_prediction_steps(creep_steps: RailSimulationResult) -> None:
+    """Data time in the core: stamped samples with 7 missing ones give the same state,
+    covariance and estimates as prediction-only steps in their place; a gap beyond max_gap_s
+    resets; both counted."""
+    z, track, _ = simulation_inputs(creep_steps, 'C')
+    period = 5_000_000
+    stepped, stamped = CreepEkf(CreepEkfParams()), CreepEkf(CreepEkfParams())
+    for k in range(300):
+        missing = 150 <= k < 157
+        a = stepped.step(None if missing else z[k], None if missing else track[k])
+        if missing:
+            continue
+        stamped.advance_to(k * period)
+        b = stamped.step(z[k], track[k])
+        assert a.creep_factor == b.creep_factor and a.low_adhesion == b.low_adhesion
+    np.testing.assert_array_equal(stepped.x, stamped.x)
+    np.testing.assert_array_equal(stepped.P, stamped.P)
+    assert stamped.predicted_missing == 7 and stamped.gap_resets == 0
+    stamped.x[stamped.i_theta] = math.log(0.5)
+    stamped.advance_to(300 * period + 10**9)
+    assert stamped.gap_resets == 1 and stamped.creep_factor == pytest.approx(1.0)
