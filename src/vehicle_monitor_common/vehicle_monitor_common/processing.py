@@ -68,10 +68,13 @@ class Status:
 class Processor(Protocol):
     """What a node does with its inputs (see the module docstring)."""
 
-    inputs: Mapping[str, Input]
-    """Relative topic -> how it arrives."""
-    outputs: Mapping[str, str]
-    """Relative topic -> message type published there."""
+    @property
+    def inputs(self) -> Mapping[str, Input]:
+        """Relative topic -> how it arrives."""
+
+    @property
+    def outputs(self) -> Mapping[str, str]:
+        """Relative topic -> message type published there."""
 
     def process(self, topic: str, message: Any) -> list[Output]:
         """Take one input message (bytes for a raw input); the outputs it makes due."""
