@@ -42,6 +42,12 @@ setup(
             'lateral_force_observer = '
             'tpms_ros.nodes.lateral_force_observer_node:LateralForceObserverNode',
         ],
+        # Node logic for the offline engine (vehicle_monitor_common.offline_engine).
+        'vehicle_monitor.processors': [
+            'tpms_voter = tpms_ros.processing.tpms_voter:make_processor',
+            'tire_stiffness_observer = '
+            'tpms_ros.processing.tire_stiffness_observer:make_processor',
+        ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [
             'road = tpms_ros.offline.evaluation:domain',

@@ -61,7 +61,8 @@ def _shipped(name: str) -> list[Parameter]:
     such as 0.000001 into strings (it re-parses str(value) = '1e-06', not a YAML 1.1 float).
     """
     document = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
-    assert list(document) == [name]
+    (key,) = document
+    assert key in (name, '/**')
 
     def flatten(prefix: str, table: dict[str, Any]) -> list[Parameter]:
         out = []
@@ -72,7 +73,7 @@ def _shipped(name: str) -> list[Parameter]:
                 out.append(Parameter(f'{prefix}{key}', value=value))
         return out
 
-    return flatten('', document[name]['ros__parameters'])
+    return flatten('', document[key]['ros__parameters'])
 
 
 def _time(ns: int) -> Time:
