@@ -286,8 +286,8 @@ def test_outputs_scale_nominal_coefficients() -> None:
     ({'pattern': 'E'}, 'pattern'),
     ({'min_creep_factor': 1.5, 'max_creep_factor': 1.0}, 'min_creep_factor'),
     ({'max_creep_factor': 3.0}, 'max_creep_factor'),
-    ({'displacement_noise': -1.0}, 'displacement_noise'),
-    ({'creep_walk_std': math.nan}, 'creep_walk_std'),
+    ({'displacement_noise_m': -1.0}, 'displacement_noise_m'),
+    ({'creep_walk_std_per_sqrt_s': math.nan}, 'creep_walk_std_per_sqrt_s'),
     ({'initial_creep_factor': 0.01}, 'initial_creep_factor'),
 ])
 def test_bad_parameters_refused(kwargs: dict[str, object], match: str) -> None:

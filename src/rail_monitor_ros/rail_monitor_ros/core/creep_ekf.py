@@ -28,19 +28,19 @@ Choices and why:
   from c = 0.5). The output std of c is c sqrt(P_theta) (delta method). ln c is also clipped to
   [min_creep_factor, max_creep_factor]: each clip is counted, and an estimate pinned to a bound
   for ``bound_hold_s`` counts as divergence (reset and reported), so the clip never hides it.
-* **Slow random walk plus change detection**: a quiet walk (``creep_walk_std``) keeps the
-  estimate steady; a two-sided CUSUM on the normalised ln c corrections detects a change of c
-  and widens P_theta once (``change_log_std``), so steps are followed within a fraction of a
-  second (Gustafsson 2000, change detection with covariance increase). A single fast walk
-  cannot do both: at 0.15 / sqrt(s) B-D wandered by 5-10 %, at 0.05 they took seconds to
-  follow the 0.4 -> 0.6 step.
+* **Slow random walk plus change detection**: a quiet walk (``creep_walk_std_per_sqrt_s``)
+  keeps the estimate steady; a two-sided CUSUM on the normalised ln c corrections detects a
+  change of c and widens P_theta once (``change_log_std``), so steps are followed within a
+  fraction of a second (Gustafsson 2000, change detection with covariance increase). A single
+  fast walk cannot do both: at 0.15 / sqrt(s) B-D wandered by 5-10 %, at 0.05 they took
+  seconds to follow the 0.4 -> 0.6 step.
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
   the track), so the discretisation sees the track move within a sample (a first-order hold).
   Holding it over the sample (zero-order hold) delays it by half a sample, about 4 degrees of
   phase at the 4.7 Hz kinematic frequency at 40 m/s, which biased c by 1-6 %. When
   ``/rail/track_irregularity`` is given (known-input mode), the alignment (and its rate when
-  given) is observed with ``track_noise`` (``track_rate_noise``) in the same update as the
+  given) is observed with ``track_noise_m`` (``track_rate_noise_mps``) in the same update as the
   vehicle measurements; when it is missing or stale the same filter runs on with the track as
   process noise (unknown-input mode). One filter covers both modes without a transient.
 * **The other bogie as Gauss-Markov forces** (end model): d = [Ksy y_b2 + Csy y_b2',
@@ -152,9 +152,9 @@ class CreepEkfParams:
     ``vehicle.*``). All are read-only on a running node but the vehicle speed and the
     low-adhesion flag's threshold and hysteresis. Why some values are what they are:
 
-    * creep_walk_std: how fast c drifts between detected changes (slow ramps); steps are
+    * creep_walk_std_per_sqrt_s: how fast c drifts between detected changes (slow ramps); steps are
       caught by the change detector (change_drift, change_threshold, change_log_std).
-    * body_accel_process_std: the half car's body ignores the other bogie and the body yaw of
+    * body_accel_process_std_mps2: the half car's body ignores the other bogie and the body yaw of
       the real car, its largest model error: give it several m/s^2 there.
     * max_outlier_run_s: more than half of the samples outliers over about this long counts as
       divergence (not only an unbroken run: a diverged filter lets the odd sample through).
@@ -181,59 +181,59 @@ class CreepEkfParams:
                                         high=2.0, read_only=True)
     initial_log_creep_std: float = param(0.3, 'initial standard deviation of ln c, 1',
                                          low=1e-4, high=10.0, read_only=True)
-    creep_walk_std: float = param(0.05, 'random walk of ln c between detected changes, '
-                                  '1/sqrt(s)', low=1e-6, high=10.0, read_only=True)
+    creep_walk_std_per_sqrt_s: float = param(0.05, 'random walk of ln c between detected changes, '
+                                             '1/sqrt(s)', low=1e-6, high=10.0, read_only=True)
     min_creep_factor: float = param(0.05, 'lower bound of c (clip, counted), 1', low=1e-3,
                                     high=2.0, read_only=True)
     max_creep_factor: float = param(MAX_CREEP_FACTOR, "upper bound of c (clip, counted), at "
                                     "most the model's 2.0, 1", low=1e-3, high=2.0,
                                     read_only=True)
-    lateral_accel_process_std: float = param(0.5, 'model error as white lateral acceleration '
-                                             'on the wheelsets and the bogie, m/s^2',
-                                             low=1e-6, high=100.0, read_only=True)
-    yaw_accel_process_std: float = param(1.0, 'model error on the yaw coordinates, rad/s^2',
-                                         low=1e-6, high=100.0, read_only=True)
-    body_accel_process_std: float = param(0.5, 'model error on the body lateral (its yaw: '
-                                          'this over lv), m/s^2', low=1e-6, high=100.0,
-                                          read_only=True)
-    other_bogie_force_std: float = param(5e3, "end model: std of the other bogie's lateral "
-                                         'force on the body beyond a still bogie, '
-                                         "Ksy y_b2 + Csy y_b2', N", low=1e-3, high=1e7,
-                                         read_only=True)
-    other_bogie_moment_std: float = param(5e3, "end model: std of the other bogie's anti-yaw "
-                                          "moment Cpsi psi_b2', N m", low=1e-3, high=1e7,
-                                          read_only=True)
+    lateral_accel_process_std_mps2: float = param(0.5, 'model error as white lateral acceleration '
+                                                  'on the wheelsets and the bogie, m/s^2',
+                                                  low=1e-6, high=100.0, read_only=True)
+    yaw_accel_process_std_rad_s2: float = param(1.0, 'model error on the yaw coordinates, rad/s^2',
+                                                low=1e-6, high=100.0, read_only=True)
+    body_accel_process_std_mps2: float = param(0.5, 'model error on the body lateral (its yaw: '
+                                               'this over lv), m/s^2', low=1e-6, high=100.0,
+                                               read_only=True)
+    other_bogie_force_std_n: float = param(5e3, "end model: std of the other bogie's lateral "
+                                           'force on the body beyond a still bogie, '
+                                           "Ksy y_b2 + Csy y_b2', N", low=1e-3, high=1e7,
+                                           read_only=True)
+    other_bogie_moment_std_nm: float = param(5e3, "end model: std of the other bogie's anti-yaw "
+                                             "moment Cpsi psi_b2', N m", low=1e-3, high=1e7,
+                                             read_only=True)
     other_bogie_correlation_s: float = param(0.05, 'end model: correlation time of both '
                                              '(first-order Gauss-Markov), s', low=1e-4,
                                              high=100.0, read_only=True)
-    track_slope_std: float = param(1e-3, 'std of the track alignment slope, rad (the initial '
-                                   'spread of the track rate states is this times the speed)',
-                                   low=1e-7, high=0.1, read_only=True)
-    track_slope_walk: float = param(3e-4, 'random walk of the track slope along the track '
-                                    '(rate states: v^3 walk^2 per second), rad/sqrt(m)',
-                                    low=1e-8, high=0.1, read_only=True)
-    initial_track_std: float = param(5e-3, 'initial std of the track alignment states, m',
-                                     low=1e-6, high=1.0, read_only=True)
-    displacement_noise: float = param(2e-4, 'measurement noise std of lateral displacements, '
-                                      'm', low=1e-7, high=1.0, read_only=True)
-    velocity_noise: float = param(2e-3, 'measurement noise std of lateral velocities, m/s',
-                                  low=1e-7, high=10.0, read_only=True)
-    yaw_noise: float = param(2e-4, 'measurement noise std of yaw angles, rad', low=1e-8,
-                             high=1.0, read_only=True)
-    yaw_rate_noise: float = param(2e-3, 'measurement noise std of yaw rates (patterns A-B), '
-                                  'rad/s', low=1e-8, high=10.0, read_only=True)
-    accel_noise: float = param(0.05, 'lateral accelerometer noise std (pattern D), m/s^2',
-                               low=1e-6, high=100.0, read_only=True)
-    gyro_noise: float = param(2e-3, 'bogie yaw-rate gyro noise std (pattern D), rad/s',
-                              low=1e-8, high=10.0, read_only=True)
-    track_noise: float = param(2e-4, 'noise std of the measured track alignment (known-input '
-                               'mode), m', low=1e-7, high=1.0, read_only=True)
-    track_rate_noise: float = param(2e-3, 'noise std of its measured rate, m/s', low=1e-7,
-                                    high=10.0, read_only=True)
+    track_slope_std_rad: float = param(1e-3, 'std of the track alignment slope, rad (the initial '
+                                       'spread of the track rate states is this times the speed)',
+                                       low=1e-7, high=0.1, read_only=True)
+    track_slope_walk_rad_sqrt_m: float = param(
+        3e-4, 'random walk of the track slope along the track (rate states: v^3 walk^2 per '
+        'second), rad/sqrt(m)', low=1e-8, high=0.1, read_only=True)
+    initial_track_std_m: float = param(5e-3, 'initial std of the track alignment states, m',
+                                       low=1e-6, high=1.0, read_only=True)
+    displacement_noise_m: float = param(2e-4, 'measurement noise std of lateral displacements, '
+                                        'm', low=1e-7, high=1.0, read_only=True)
+    velocity_noise_mps: float = param(2e-3, 'measurement noise std of lateral velocities, m/s',
+                                      low=1e-7, high=10.0, read_only=True)
+    yaw_noise_rad: float = param(2e-4, 'measurement noise std of yaw angles, rad', low=1e-8,
+                                 high=1.0, read_only=True)
+    yaw_rate_noise_rad_s: float = param(2e-3, 'measurement noise std of yaw rates (patterns A-B), '
+                                        'rad/s', low=1e-8, high=10.0, read_only=True)
+    accel_noise_mps2: float = param(0.05, 'lateral accelerometer noise std (pattern D), m/s^2',
+                                    low=1e-6, high=100.0, read_only=True)
+    gyro_noise_rad_s: float = param(2e-3, 'bogie yaw-rate gyro noise std (pattern D), rad/s',
+                                    low=1e-8, high=10.0, read_only=True)
+    track_noise_m: float = param(2e-4, 'noise std of the measured track alignment (known-input '
+                                 'mode), m', low=1e-7, high=1.0, read_only=True)
+    track_rate_noise_mps: float = param(2e-3, 'noise std of its measured rate, m/s', low=1e-7,
+                                        high=10.0, read_only=True)
     rediscretize_tolerance: float = param(0.01, 'spacing of the cached discretisation grid in '
                                           'ln c, 1', low=1e-5, high=0.5, read_only=True)
-    speed_tolerance: float = param(0.05, 'a speed change beyond this rebuilds the model, m/s',
-                                   low=1e-4, high=10.0, read_only=True)
+    speed_tolerance_mps: float = param(0.05, 'a speed change beyond this rebuilds the model, m/s',
+                                       low=1e-4, high=10.0, read_only=True)
     cache_size: int = param(256, 'most discretisations kept', low=1, high=100000,
                             read_only=True)
     gate_sigma: float = param(10.0, 'an innovation beyond this many standard deviations in any '
@@ -273,14 +273,15 @@ class CreepEkfParams:
         if self.bogie not in BOGIES:
             raise ValueError(f'bogie must be one of {BOGIES}, got {self.bogie!r}')
         positive = ('sample_rate_hz', 'initial_creep_factor', 'initial_log_creep_std',
-                    'creep_walk_std', 'min_creep_factor', 'max_creep_factor',
-                    'lateral_accel_process_std', 'yaw_accel_process_std',
-                    'body_accel_process_std', 'other_bogie_force_std',
-                    'other_bogie_moment_std', 'other_bogie_correlation_s', 'track_slope_std',
-                    'track_slope_walk', 'initial_track_std', 'displacement_noise',
-                    'velocity_noise', 'yaw_noise', 'yaw_rate_noise', 'accel_noise', 'gyro_noise',
-                    'track_noise', 'track_rate_noise',
-                    'rediscretize_tolerance', 'speed_tolerance', 'gate_sigma',
+                    'creep_walk_std_per_sqrt_s', 'min_creep_factor', 'max_creep_factor',
+                    'lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
+                    'body_accel_process_std_mps2', 'other_bogie_force_std_n',
+                    'other_bogie_moment_std_nm', 'other_bogie_correlation_s',
+                    'track_slope_std_rad', 'track_slope_walk_rad_sqrt_m', 'initial_track_std_m',
+                    'displacement_noise_m', 'velocity_noise_mps', 'yaw_noise_rad',
+                    'yaw_rate_noise_rad_s', 'accel_noise_mps2', 'gyro_noise_rad_s',
+                    'track_noise_m', 'track_rate_noise_mps',
+                    'rediscretize_tolerance', 'speed_tolerance_mps', 'gate_sigma',
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
                     'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
                     'change_log_std', 'low_adhesion_threshold')
@@ -468,10 +469,11 @@ class CreepEkf:
         # The body above the bogie (half car) is y_v +/- lv psi_v: the body yaw's noise enters
         # times lv (1e-4 rad at lv = 9.5 m is 1 mm, five times the displacement noise).
         lv = p.vehicle.bogie_pivot_semi_spacing
-        noise = {'displacement': p.displacement_noise, 'velocity': p.velocity_noise,
-                 'yaw': p.yaw_noise, 'yaw_rate': p.yaw_rate_noise, 'accel': p.accel_noise,
-                 'gyro': p.gyro_noise, 'body': math.hypot(p.displacement_noise, lv * p.yaw_noise),
-                 'body_rate': math.hypot(p.velocity_noise, lv * p.yaw_rate_noise)}
+        noise = {'displacement': p.displacement_noise_m, 'velocity': p.velocity_noise_mps,
+                 'yaw': p.yaw_noise_rad, 'yaw_rate': p.yaw_rate_noise_rad_s,
+                 'accel': p.accel_noise_mps2, 'gyro': p.gyro_noise_rad_s,
+                 'body': math.hypot(p.displacement_noise_m, lv * p.yaw_noise_rad),
+                 'body_rate': math.hypot(p.velocity_noise_mps, lv * p.yaw_rate_noise_rad_s)}
         self._r_meas = np.array([noise[k] ** 2 for k in kinds])
         self._n_meas = len(kinds)
         self._cache: OrderedDict[int, Discretization] = OrderedDict()
@@ -502,12 +504,12 @@ class CreepEkf:
     def _disturbance_std(self) -> np.ndarray:
         """Stationary std of the disturbance states (scaled units, see _SpeedModel)."""
         p = self.params
-        return np.array([p.other_bogie_force_std, p.other_bogie_moment_std])[
+        return np.array([p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])[
             :self.n_disturbances] / self._model.disturbance_scale
 
     def _track_rate_std(self) -> float:
         """Stationary spread of the track's lateral rate seen by a wheelset, m/s."""
-        return self.params.track_slope_std * self._model.speed
+        return self.params.track_slope_std_rad * self._model.speed
 
     def reset(self, creep_factor: float | None = None) -> None:
         """Start over: model states 0, input states 0, c = creep_factor (or initial)."""
@@ -521,7 +523,7 @@ class CreepEkf:
         # States start at rest with the spread of a running vehicle: a few mm, a few cm/s.
         scale = np.tile([5e-3, 5e-2], self.n_model // 2)
         self.P = np.diag(np.concatenate([
-            scale ** 2, np.full(N_U, p.initial_track_std ** 2),
+            scale ** 2, np.full(N_U, p.initial_track_std_m ** 2),
             np.full(N_U, self._track_rate_std() ** 2), self._disturbance_std() ** 2,
             [p.initial_log_creep_std ** 2]]))
         self._nis_average = 1.0
@@ -550,10 +552,10 @@ class CreepEkf:
         return self._model.speed
 
     def set_speed(self, speed: float) -> None:
-        """Use the model at another speed (rebuilt only beyond speed_tolerance)."""
+        """Use the model at another speed (rebuilt only beyond speed_tolerance_mps)."""
         if not (math.isfinite(speed) and speed > 0.0):
             raise ValueError(f'speed must be finite and > 0, got {speed}')
-        if abs(speed - self._model.speed) > self.params.speed_tolerance:
+        if abs(speed - self._model.speed) > self.params.speed_tolerance_mps:
             self._model = _SpeedModel(self.params, speed)
             self._cache.clear()
             self._build_observation()
@@ -569,7 +571,7 @@ class CreepEkf:
         h[:, :self.i_theta] = self._model.h
         h_track = np.zeros((2 * N_U, self.dim_x))
         h_track[:, self.n_model:self.n_model + 2 * N_U] = np.eye(2 * N_U)
-        r_track = np.repeat([p.track_noise ** 2, p.track_rate_noise ** 2], N_U)
+        r_track = np.repeat([p.track_noise_m ** 2, p.track_rate_noise_mps ** 2], N_U)
         self._h = {k: np.vstack([h, h_track[:k]]) for k in (0, N_U, 2 * N_U)}
         self._h_track = {k: h_track[:k] for k in (N_U, 2 * N_U)}
         self._r_track = {k: r_track[:k] for k in (N_U, 2 * N_U)}
@@ -588,19 +590,20 @@ class CreepEkf:
         for i in range(0, n_q, 2):
             name = self.state_names[i]
             if name == 'y_v':
-                sigma = p.body_accel_process_std
+                sigma = p.body_accel_process_std_mps2
             elif name == 'psi_v':
-                sigma = p.body_accel_process_std / p.vehicle.bogie_pivot_semi_spacing
+                sigma = p.body_accel_process_std_mps2 / p.vehicle.bogie_pivot_semi_spacing
             elif 'psi' in name:
-                sigma = p.yaw_accel_process_std
+                sigma = p.yaw_accel_process_std_rad_s2
             else:
-                sigma = p.lateral_accel_process_std
+                sigma = p.lateral_accel_process_std_mps2
             q[i:i + 2, i:i + 2] = block * sigma ** 2
         # Track: the rate y_r' = v dY/dx wanders as the slope dY/dx does along the track, a
-        # random walk of track_slope_walk per sqrt(m), i.e. v^3 track_slope_walk^2 per second;
+        # random walk of track_slope_walk_rad_sqrt_m per sqrt(m), i.e. v^3 times its square per
+        # second;
         # the alignment integrates it (integrated random walk).
         v = self._model.speed
-        rate_intensity = v ** 3 * p.track_slope_walk ** 2
+        rate_intensity = v ** 3 * p.track_slope_walk_rad_sqrt_m ** 2
         track_block = rate_intensity * np.array([[dt ** 3 / 3.0, dt ** 2 / 2.0],
                                                  [dt ** 2 / 2.0, dt]])
         for i in range(N_U):
@@ -609,7 +612,7 @@ class CreepEkf:
         decay = math.exp(-dt / p.other_bogie_correlation_s)
         gm = self._disturbance_std() ** 2 * (1.0 - decay ** 2)
         q[n_q + 2 * N_U:i_theta, n_q + 2 * N_U:i_theta] = np.diag(gm)
-        q[i_theta, i_theta] = p.creep_walk_std ** 2 * dt
+        q[i_theta, i_theta] = p.creep_walk_std_per_sqrt_s ** 2 * dt
         return q
 
     def discretization(self, creep_factor: float, exact: bool = False) -> Discretization:
