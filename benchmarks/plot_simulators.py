@@ -9,8 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rail_monitor_ros.offline.acceleration_spectra import plot_acceleration_psd
 from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
-from rail_monitor_ros.simulation.rail_simulator import plot_acceleration_psd, simulate
+from rail_monitor_ros.simulation.rail_simulator import simulate
 from tpms_ros.offline.wheel_speed_spectra import plot_wheel_speed_psd
 from tpms_ros.simulation.road_scenario import parse_scenario
 from tpms_ros.simulation.road_simulator import simulate_scenario

@@ -15,6 +15,7 @@ import scipy.signal
 
 from rail_monitor_ros.core.rail_model import full_car_state_space, vehicle_modes
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from rail_monitor_ros.offline.acceleration_spectra import acceleration_psd, plot_acceleration_psd
 from rail_monitor_ros.simulation.rail_scenario import (
     SCENARIO_DIR,
     evaluate_profiles,
@@ -24,8 +25,6 @@ from rail_monitor_ros.simulation.rail_scenario import (
 )
 from rail_monitor_ros.simulation.rail_simulator import (
     RailSimulationResult,
-    acceleration_psd,
-    plot_acceleration_psd,
     simulate,
     to_topic_series,
 )
