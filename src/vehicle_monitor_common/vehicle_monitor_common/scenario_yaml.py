@@ -40,17 +40,21 @@ class MappingNode:
         self.used: set[str] = set()
 
     def key_path(self, key: str) -> str:
+        """The dotted path of ``key`` in this mapping."""
         return f'{self.path}.{key}' if self.path else key
 
     def error(self, key: str | None, message: str) -> ValueError:
+        """A ValueError located at ``key`` (its line and path), or at this mapping (None)."""
         path = self.key_path(key) if key is not None else (self.path or '<top level>')
         line = self.lines.get(self.key_path(key), self.line) if key is not None else self.line
         return located_error(self.source, line, path, message)
 
     def has(self, key: str) -> bool:
+        """Whether the mapping sets ``key`` (does not mark it read)."""
         return key in self.values
 
     def raw(self, key: str) -> Any:
+        """The value of ``key`` as parsed, marked read (the caller checks it)."""
         self.used.add(key)
         return self.values[key]
 
@@ -75,6 +79,7 @@ class MappingNode:
         return number
 
     def integer(self, key: str, default: int, *, low: int) -> int:
+        """An integer >= low (not a bool, not a float)."""
         if key not in self.values:
             return default
         value = self.raw(key)
@@ -84,6 +89,7 @@ class MappingNode:
 
     def text(self, key: str, default: str | None = None,
              choices: Sequence[str] | None = None) -> str:
+        """A string, one of ``choices`` when given."""
         if key not in self.values:
             if default is None:
                 raise self.error(key, 'is required')
