@@ -156,6 +156,7 @@ class CreepEstimatorProcessor:
     def counts(self) -> dict[str, int]:
         """Input, pairing and rejection counters (core ones: ``ekf``)."""
         return {**self._counts, 'unpaired': self._pairer.unpaired['bogie'],
+                'unpaired_body': self._pairer.unpaired['body'],
                 'predicted_missing': self.ekf.predicted_missing,
                 'gap_resets': self.ekf.gap_resets}
 
