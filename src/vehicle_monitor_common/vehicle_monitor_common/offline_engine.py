@@ -25,10 +25,19 @@ import importlib
 from importlib.metadata import entry_points
 import os
 from pathlib import Path
+import tempfile
 import time
 from typing import Any
 
-from vehicle_monitor_common.bag_io import BagWriter, bag_topics, build_message, iter_raw, typestore
+from vehicle_monitor_common.bag_io import (
+    BAG_RTOL,
+    BagWriter,
+    bag_topics,
+    build_message,
+    compare_bags,
+    iter_raw,
+    typestore,
+)
 from vehicle_monitor_common.graph_spec import (
     GraphSpec,
     fully_qualified_name,
@@ -220,3 +229,32 @@ def write_outputs(graph: OfflineGraph, bag: str | os.PathLike[str],
     with BagWriter(Path(out), overwrite=True) as writer:
         return graph.run(bag, lambda topic, msgtype, stamp, msg:
                          writer.write(topic, msgtype, stamp, msg))
+
+
+def compare_outputs(expected: str | os.PathLike[str], actual: str | os.PathLike[str],
+                    topics: Iterable[str], *, rtol: float = BAG_RTOL) -> list[str]:
+    """What differs between two recordings' messages on ``topics``, each topic on its own and
+    by header stamp (empty when they agree), as :func:`bag_io.compare_bags` judges values.
+
+    A live recording logs each output at its arrival, interleaved with the other topics as
+    DDS delivered them; the engine logs it at its header stamp. Per topic, in header-stamp
+    order, both say the same: this is how the engine's outputs are checked against the live
+    graph's.
+    """
+    store = typestore()
+    problems = []
+    with tempfile.TemporaryDirectory(prefix='compare-') as scratch:
+        for index, topic in enumerate(sorted(topics)):
+            rewritten = []
+            for side, bag in (('expected', expected), ('actual', actual)):
+                path = Path(scratch) / f'{index}_{side}'
+                with BagWriter(path) as writer:
+                    if topic in bag_topics(bag):
+                        for _, msgtype, _, data in iter_raw(bag, [topic]):
+                            message = store.deserialize_cdr(data, msgtype)
+                            stamp = message.header.stamp
+                            writer.write_raw(topic, msgtype,
+                                             stamp.sec * 1_000_000_000 + stamp.nanosec, data)
+                rewritten.append(path)
+            problems += compare_bags(rewritten[0], rewritten[1], rtol=rtol)
+    return problems

@@ -1,0 +1,73 @@
+"""The offline engine gives what the live graph records: every output message of the shipped
+bags, the same stamps, values to 1e-9 of each field's scale (bag_io.BAG_RTOL).
+
+The rail bags run here; the road bags' live replays take minutes each, so the benchmark
+(benchmarks/bench_offline_engine.py) checks every shipped bag, road included, in the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from vehicle_monitor_common.evaluation import Domain, domains
+from vehicle_monitor_common.graph_spec import load_graph
+from vehicle_monitor_common.offline_engine import (
+    OfflineGraph,
+    compare_outputs,
+    factory_for,
+    processor_factories,
+    write_outputs,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+# The suspension monitor's outputs are not yet reproducible: two SuspensionImm instances in one
+# process share their mode discretisations (SuspensionImm._discretized, with a mutable steady-state
+# dict filled during a run), so a second run in the same process differs from the first, and the
+# live node's differ from the engine's. Reported to the suspension monitor's owner; remove this
+# once fixed and the test asserts equality on every topic.
+KNOWN_DIFFERENCE = '/rail/suspension/modes'
+RAIL_BAGS = ('rail_imm_spring_damper_fault', 'rail_creep_steps', 'rail_healthy')
+
+
+def _domain(name: str) -> Domain:
+    return next(d for d in domains() if d.name == name)
+
+
+def offline_ready(domain: Domain) -> bool:
+    """Whether every estimator node of the domain's graph has a registered processor."""
+    factories = processor_factories()
+    spec = load_graph(domain.graph)
+    estimators = [n for n in spec.nodes
+                  if (n.name or n.plugin) not in (domain.player, domain.recorder)]
+    return all(factory_for(n.plugin, factories) is not None for n in estimators)
+
+
+def engine_vs_live(domain: Domain, bag: Path, tmp_path: Path) -> tuple[list[str], set[str]]:
+    """Run the bag through the live graph and the engine; the differences and the topics."""
+    from vehicle_monitor_common.main_job import run_graph_on_bag
+
+    recorded, stats = run_graph_on_bag(domain, bag, tmp_path / 'live', executor='single',
+                                       log=lambda line: None, timeout_s=600.0)
+    assert stats.dropped == 0
+    graph = OfflineGraph.from_spec(load_graph(domain.graph),
+                                   domain.run_parameters(tmp_path / 'offline'))
+    engine = write_outputs(graph, bag, tmp_path / 'offline' / 'outputs')
+    topics = set(engine.published)
+    return compare_outputs(recorded, tmp_path / 'offline' / 'outputs', topics), topics
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize('name', RAIL_BAGS)
+def test_engine_equals_live_graph_on_shipped_rail_bags(name: str, tmp_path: Path) -> None:
+    """Every output topic of the rail graph: same messages, stamps and values as live."""
+    rail = _domain('rail')
+    if not offline_ready(rail):
+        pytest.skip('the rail processors are not all registered yet')
+    problems, topics = engine_vs_live(rail, ROOT / 'bags' / name, tmp_path)
+    assert {'/rail/suspension/modes', '/rail/creep_factor', '/rail/creep_factor_imu'} <= topics
+    known = [p for p in problems if p.startswith(KNOWN_DIFFERENCE)]
+    assert [p for p in problems if p not in known] == []
+    if known:
+        pytest.xfail(f'{KNOWN_DIFFERENCE}: {len(known)} field(s) differ (see KNOWN_DIFFERENCE)')
