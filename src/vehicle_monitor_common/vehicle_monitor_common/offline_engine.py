@@ -251,7 +251,7 @@ def compare_outputs(expected: str | os.PathLike[str], actual: str | os.PathLike[
                 with BagWriter(path) as writer:
                     if topic in bag_topics(bag):
                         for _, msgtype, _, data in iter_raw(bag, [topic]):
-                            message = store.deserialize_cdr(data, msgtype)
+                            message: Any = store.deserialize_cdr(data, msgtype)
                             stamp = message.header.stamp
                             writer.write_raw(topic, msgtype,
                                              stamp.sec * 1_000_000_000 + stamp.nanosec, data)
