@@ -45,6 +45,7 @@ from vehicle_monitor_common.parameters import param
 _MANCHESTER_BODY_MASS = 32000.0
 _MANCHESTER_BODY_YAW_INERTIA = 1.97e6
 _MANCHESTER_BOGIE_PIVOT_SEMI_SPACING = 9.5
+_TABLE_1_BODY_MASS = 11000.0     # mv, the paper's body mass per bogie
 
 
 @dataclass(frozen=True)
@@ -66,11 +67,11 @@ class RailVehicleParams:
     bogie_mass: float = param(2500.0, 'mb, bogie mass, kg', low=1.0, high=1e5, read_only=True)
     bogie_yaw_inertia: float = param(2300.0, 'Ib, bogie yaw inertia, kg m^2', low=1.0,
                                      high=1e6, read_only=True)
-    body_mass: float = param(11000.0, 'mv, body mass carried by one bogie (the half car body; '
-                             'the full car body is twice this), kg', low=1.0, high=1e6,
-                             read_only=True)
+    body_mass: float = param(_TABLE_1_BODY_MASS, 'mv, body mass carried by one bogie (the half '
+                             'car body; the full car body is twice this), kg', low=1.0,
+                             high=1e6, read_only=True)
     body_yaw_inertia: float = param(
-        _MANCHESTER_BODY_YAW_INERTIA / _MANCHESTER_BODY_MASS * 2.0 * 11000.0,
+        _MANCHESTER_BODY_YAW_INERTIA / _MANCHESTER_BODY_MASS * 2.0 * _TABLE_1_BODY_MASS,
         'full car body yaw inertia, kg m^2', low=1.0, high=1e8, read_only=True)
     primary_lateral_stiffness: float = param(4000e3, 'Ky, primary lateral stiffness per '
                                              'wheelset, N/m', low=1.0, high=1e9, read_only=True)
