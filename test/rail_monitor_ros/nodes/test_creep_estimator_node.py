@@ -58,7 +58,7 @@ def _flatten(data: dict[str, Any], prefix: str = '') -> dict[str, Any]:
 
 
 def _shipped() -> dict[str, Any]:
-    return _flatten(yaml.safe_load(CONFIG.read_text())['creep_estimator']['ros__parameters'])
+    return _flatten(yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters'])
 
 
 def _config_parameters(**overrides: Any) -> list[Parameter]:
