@@ -88,7 +88,8 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-def _markdown(table: pd.DataFrame) -> list[str]:
+def markdown_table(table: pd.DataFrame) -> list[str]:
+    """A table as Markdown lines (floats to 3 significant digits, NaN empty)."""
     if table.empty:
         return ['(none)']
     lines = ['| ' + ' | '.join(table.columns) + ' |', '|' + ' --- |' * len(table.columns)]
@@ -169,7 +170,7 @@ def write_report(out: str | os.PathLike[str]) -> Path:
     lines = ['# Fleet report', '',
              f'{summary["recording"].nunique()} recording(s) of {summary["vehicle"].nunique()} '
              f'vehicle(s), {len(events)} episode(s).', '',
-             '## Vehicles ranked by concern', '', *_markdown(concern), '']
+             '## Vehicles ranked by concern', '', *markdown_table(concern), '']
     worth = concern[concern['score'] > 0] if not concern.empty else concern
     if not worth.empty:
         lines += ['## Recordings worth a look', '']
