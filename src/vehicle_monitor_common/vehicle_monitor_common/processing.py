@@ -21,11 +21,34 @@ processor reads attributes only, so both work.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
+
+from vehicle_monitor_common.parameters import ConfigurationError, build
 
 OK, WARN, ERROR = 0, 1, 2
+T = TypeVar('T')
+
+
+def header_stamp_ns(message: Any) -> int:
+    """``header.stamp`` of an input message (rclpy's or rosbags') in ns."""
+    stamp = message.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def build_processor(fqn: str, make: Callable[..., T], values: Mapping[str, Any],
+                    *parameter_classes: type[Any]) -> T:
+    """``make(*instances)`` with each parameter class built from a node's flat parameter
+    values (the definitions the node declares): the body of every ``make_processor``.
+
+    Raises:
+        ConfigurationError: naming the node, for a value its definition refuses.
+    """
+    try:
+        return make(*(build(cls, values) for cls in parameter_classes))
+    except (TypeError, ValueError) as exc:
+        raise ConfigurationError(f'{fqn}: invalid parameters: {exc}') from None
 
 
 @dataclass(frozen=True)
