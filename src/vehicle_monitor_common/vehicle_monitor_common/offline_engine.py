@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 import importlib
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 import os
 from pathlib import Path
 import tempfile
@@ -53,9 +53,21 @@ Sink = Callable[[str, str, int, Any], None]
 
 
 def processor_factories() -> dict[str, ProcessorFactory]:
-    """``package/node`` -> the function that builds that node's processor."""
-    return {f'{ep.dist.name if ep.dist else ""}/{ep.name}': ep.load()
+    """``package/node`` -> the function that builds that node's processor.
+
+    Each is imported when first called, so a registration whose module cannot be imported
+    fails only the graphs that use it, with its error, not every graph.
+    """
+    return {f'{ep.dist.name if ep.dist else ""}/{ep.name}': _lazy(ep)
             for ep in entry_points(group=PROCESSOR_GROUP)}
+
+
+def _lazy(entry_point: EntryPoint) -> ProcessorFactory:
+    def factory(values: Mapping[str, Any], fqn: str) -> Processor:
+        made: Processor = entry_point.load()(values, fqn)
+        return made
+
+    return factory
 
 
 def factory_for(plugin: str, factories: Mapping[str, ProcessorFactory],
