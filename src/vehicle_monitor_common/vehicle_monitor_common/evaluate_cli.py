@@ -10,6 +10,14 @@ Inputs, any mix of:
   simulator (same synthesis as the simulator nodes), written to a bag, then as above. With
   ``--seeds N`` it is simulated N times with seeds ``--seed-start`` ... (Monte Carlo).
 
+The vehicle: ``--params FILE`` (a ROS params file, as the nodes take it: keys ``/**`` or a
+node's name) and ``--calibration FILE`` (a stored calibration, node name -> state, as the fleet
+job keeps it) configure the graph's estimator nodes, or ``--manifest M --vehicle ID`` takes a
+fleet manifest's vehicle entry (its params files, per-node values and calibration). Without
+them the graph runs with the shipped parameters and calibrates on the recording itself. A
+stored calibration is put in force from the start (the node's calibration file in the run
+folder, ``calibrate_on_start`` off), as on a car that calibrated on an earlier drive.
+
 Runs go in parallel over the machine's cores (``--jobs``), one process each (a graph is one
 process). Writes ``results.json`` (every run's metrics, plus per scenario and metric the mean,
 min, max and pass rate over the seeds), ``report.md`` and per run its recording and figures into
@@ -24,7 +32,7 @@ from __future__ import annotations
 import argparse
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 import math
 import multiprocessing
 import os
@@ -35,6 +43,7 @@ import time
 from typing import Any
 
 from vehicle_monitor_common.bag_io import BagError, write_bag
+from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,
@@ -46,9 +55,90 @@ from vehicle_monitor_common.evaluation import (
     write_report,
     write_results,
 )
+from vehicle_monitor_common.graph_spec import (
+    fully_qualified_name,
+    load_graph,
+    node_parameter_values,
+)
 from vehicle_monitor_common.parameters import ConfigurationError
 
 DEFAULT_OUT = Path('out/evaluate')
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """The vehicle a run is configured for (empty: the graph's shipped parameters).
+
+    Attributes:
+        params: ROS params files applied to every estimator node of the graph (rcl's
+            matching: ``/**``, ``/**/<name>``, the node's fully qualified name).
+        parameters: values by node name on top of them.
+        calibration: stored calibration, node name (or fully qualified name) -> state.
+    """
+
+    params: tuple[str, ...] = ()
+    parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
+    calibration: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def run_parameters(self, domain: Domain, run_dir: Path) -> dict[str, dict[str, Any]]:
+        """Per node name of the domain's graph: its run parameters with the vehicle's values,
+        and the stored calibration written to the node's calibration file in ``run_dir``."""
+        spec = load_graph(domain.graph)
+        result = {node: dict(values) for node, values in domain.run_parameters(run_dir).items()}
+        for node in spec.nodes:
+            name = node.name or node.plugin.split('/')[-1]
+            if name in (domain.player, domain.recorder):
+                continue
+            fqn = fully_qualified_name(node.namespace, name)
+            values = node_parameter_values(fqn, self.params, {}) if self.params else {}
+            values.update(self.parameters.get(name, {}))
+            values.update(self.parameters.get(fqn, {}))
+            state = self.calibration.get(name, self.calibration.get(fqn))
+            if state is not None:
+                file = result.get(name, {}).get('calibration_file') or str(
+                    run_dir / f'{name}_calibration.yaml')
+                problem = save_calibration(file, state, comment='stored vehicle calibration')
+                if problem:
+                    raise ConfigurationError(f'{name}: {problem}')
+                values['calibration_file'] = file
+                values['calibrate_on_start'] = False
+            if values:
+                result.setdefault(name, {}).update(values)
+        return result
+
+
+def read_vehicle(params: Sequence[str] = (), calibration: str | None = None,
+                 manifest: str | None = None, vehicle_id: str | None = None) -> Vehicle:
+    """The vehicle from params files and a calibration file, or a fleet manifest's entry.
+
+    Raises:
+        ConfigurationError: a file that cannot be read, a vehicle the manifest lacks.
+    """
+    parameters: dict[str, dict[str, Any]] = {}
+    files = list(params)
+    if manifest is not None:
+        from vehicle_monitor_common.fleet.manifest import read_manifest
+
+        fleet = read_manifest(manifest)
+        if vehicle_id not in fleet.vehicles:
+            raise ConfigurationError(f'{manifest}: no vehicle {vehicle_id!r}')
+        entry = fleet.vehicle(str(vehicle_id))
+        files = [*entry.params, *files]
+        parameters = {k: dict(v) for k, v in entry.parameters.items()}
+        calibration = calibration or entry.calibration
+    for path in files:
+        if not os.path.isfile(path):
+            raise ConfigurationError(f'no params file {path}')
+    states: dict[str, dict[str, Any]] = {}
+    if calibration is not None:
+        loaded = load_calibration(calibration)
+        if loaded.state is None:
+            raise ConfigurationError(f'calibration {calibration}: '
+                                     f'{loaded.problem or "no such file"}')
+        if not all(isinstance(v, dict) for v in loaded.state.values()):
+            raise ConfigurationError(f'calibration {calibration}: expected node -> state')
+        states = {str(k): dict(v) for k, v in loaded.state.items()}
+    return Vehicle(tuple(files), parameters, states)
 
 
 @dataclass(frozen=True)
@@ -61,6 +151,7 @@ class Task:
     kind: str               # 'bag', 'recorded' or 'scenario'
     seed: int | None = None
     base: str = ''          # scenario the run belongs to (Monte Carlo groups by it)
+    vehicle: Vehicle = field(default_factory=Vehicle)
 
 
 def _is_bag(path: Path) -> bool:
@@ -110,6 +201,11 @@ def run_task(task: Task, out_dir: Path, executor: str | None = None,
     from vehicle_monitor_common.main_job import evaluate_recording, run_graph_on_bag
 
     domain = next(d for d in domains() if d.name == task.domain)
+    vehicle = task.vehicle
+    if vehicle != Vehicle():
+        shipped = domain
+        domain = replace(domain, run_parameters=lambda run_dir: vehicle.run_parameters(
+            shipped, run_dir))
     run_dir = out_dir / task.name
     if run_dir.exists():
         shutil.rmtree(run_dir)
@@ -204,12 +300,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--as-recorded', action='store_true',
                         help='score bags as they are, without replaying them through a graph')
     parser.add_argument('--executor', choices=('events', 'single', 'multi'), default=None)
+    parser.add_argument('--params', action='append', default=[], metavar='PARAMS_FILE',
+                        help="the vehicle's ROS params file (repeatable; later wins)")
+    parser.add_argument('--calibration', default=None, metavar='FILE',
+                        help="the vehicle's stored calibration (node name -> state)")
+    parser.add_argument('--manifest', default=None,
+                        help='fleet manifest to take the vehicle from (with --vehicle)')
+    parser.add_argument('--vehicle', default=None, metavar='ID',
+                        help="the manifest's vehicle whose parameters and calibration to use")
     args = parser.parse_args(argv)
     if args.seeds is not None and args.seeds < 1:
         parser.error('--seeds must be at least 1')
+    if (args.manifest is None) != (args.vehicle is None):
+        parser.error('--manifest and --vehicle go together')
     try:
         registered = domains()
-        tasks = plan(args.inputs, registered, args.seeds, args.seed_start, args.as_recorded)
+        vehicle = read_vehicle(args.params, args.calibration, args.manifest, args.vehicle)
+        if vehicle != Vehicle() and args.as_recorded:
+            raise ConfigurationError('--as-recorded scores outputs already recorded: the '
+                                     'vehicle options do not apply')
+        tasks = [replace(t, vehicle=vehicle) for t in
+                 plan(args.inputs, registered, args.seeds, args.seed_start, args.as_recorded)]
         jobs = max(1, min(args.jobs or os.cpu_count() or 1, len(tasks)))
         started = time.monotonic()
         print(f'{len(tasks)} run(s) on {jobs} process(es) into {args.out}/', flush=True)
