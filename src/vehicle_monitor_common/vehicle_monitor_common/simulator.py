@@ -21,7 +21,7 @@ from typing import Any
 from vehicle_monitor_common.bag_io import BagError, write_bag
 from vehicle_monitor_common.parameters import ConfigurationError, param
 from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer
-from vehicle_monitor_common.resources import shipped_file
+from vehicle_monitor_common.resources import share_dir, shipped_file
 from vehicle_monitor_common.series import TopicSeries
 
 # (scenario file, seed override or None) -> topics with their samples.
@@ -56,13 +56,16 @@ class SimulatorNode(ScenarioPlayer):
         if p.bag and p.scenario:
             raise ConfigurationError('give either bag (replay) or scenario (synthesis), not both')
         if p.bag:
-            return p.bag
+            return str(self._find_bag(p.bag))
         if not p.scenario:
             raise ConfigurationError(
                 'parameter scenario (a scenario to synthesise) or bag (a recording to replay) '
                 'is required')
         try:
             path = shipped_file(self.package, 'scenarios', p.scenario)
+            # a long drive takes tens of seconds to synthesise: say so before, not only after
+            self.get_logger().info(f'synthesising scenario {path.stem} (seed '
+                                   f'{"of the file" if p.seed < 0 else p.seed}) ...')
             started = time.monotonic()
             series = self._synthesis(path, None if p.seed < 0 else p.seed)
         except (FileNotFoundError, ValueError) as exc:
@@ -80,6 +83,24 @@ class SimulatorNode(ScenarioPlayer):
             f'synthesised {path.stem} ({sum(len(s) for s in series.values())} messages) in '
             f'{time.monotonic() - started:.1f} s -> {bag}')
         return str(bag)
+
+    def _find_bag(self, bag: str) -> Path:
+        """A recording to replay: a path as given, else a bag the package ships by name
+        (``road_puncture_15pct_fl`` or ``bags/road_puncture_15pct_fl``), from any directory.
+
+        Raises:
+            ConfigurationError: naming the shipped bags when there is no such recording.
+        """
+        given = Path(bag)
+        if given.exists():
+            return given
+        shipped = share_dir(self.package, 'bags')
+        candidate = shipped / given.name
+        if candidate.is_dir():
+            return candidate
+        available = ', '.join(sorted(p.name for p in shipped.glob('*') if p.is_dir()))
+        raise ConfigurationError(f'bag {bag}: no such recording, nor a bag {self.package} '
+                                 f'ships (available: {available or "none"})')
 
     def destroy_node(self) -> None:
         """Stop the replay, then remove a temporary bag."""
