@@ -73,3 +73,36 @@ def test_adapter_publishes_outputs_and_reports_silence(
     assert spin_until(lambda: (send(0.5), any(s.level == OK for s in statuses))[1],
                       5.0)
     assert node.processor.status(0).values == {'n': 1}
+
+
+def test_backward_ros_time_jump_restarts_the_silence_watch(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+    """With use_sim_time, /clock going back (a replay restarted) is counted and reported, and
+    the inputs are not reported silent for it."""
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    node = make_node(EchoNode, parameter_overrides=[Parameter('use_sim_time', value=True)])
+    probe = make_node('clock_probe')
+    clock_pub = probe.create_publisher(Clock, '/clock', 10)
+
+    def publish_clock(sec: int) -> None:
+        msg = Clock()
+        msg.clock.sec = sec
+        clock_pub.publish(msg)
+
+    assert spin_until(lambda: (publish_clock(100), node.get_clock().now().nanoseconds
+                               == 100 * 10**9)[1], 5.0)
+    node.deliver('imu', _imu(0.1))
+    assert spin_until(lambda: (publish_clock(40), node.time_jumps >= 1)[1], 5.0)
+    node._update_diagnostics()
+    status = node._diagnostics._status
+    values = {kv.key: kv.value for kv in status.values}
+    assert values['ros_time_jumps'] == '1' and float(values['last_ros_time_jump_s']) == -60.0
+    assert status.level != ERROR and float(values['imu.age_s']) == 0.0
+
+
+def _imu(ay: float) -> Any:
+    msg = Imu()
+    msg.linear_acceleration.y = ay
+    return msg

@@ -10,7 +10,11 @@ Input silence is watched here, once for every node: each input's message count a
 its last message (node clock) go on the diagnostics; an input silent for longer than
 ``silence_timeout_s`` after it was flowing raises the status to ERROR naming it, and the status
 returns to the processor's own as soon as messages flow again. A required input never received
-is a WARN ("waiting for ..."); an optional one is only listed.
+is a WARN ("waiting for ..."); an optional one is only listed. A jump of the node's ROS time
+(``/clock`` going backwards, or stepping forward past the silence timeout: a replay restarted
+or looped with ``use_sim_time``) restarts the silence watch instead of reporting every input
+silent or none, and is counted and reported on the diagnostics; the estimates follow the data
+stamps, which the processors check for jumps of their own.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ import importlib
 from typing import Any
 
 import numpy as np
+from rclpy.clock import JumpThreshold, TimeJump
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
@@ -58,9 +64,14 @@ class ProcessorNode(Node):
         """Wire the processor to the graph: inputs, outputs, diagnostics, ``~/calibrate``."""
         self.processor = processor
         self.silence_timeout_s = silence_timeout_s
-        self._started_ns = self.get_clock().now().nanoseconds
         self._last_arrival_ns: dict[str, int] = {}
         self._arrivals = dict.fromkeys(processor.inputs, 0)
+        self.time_jumps = 0
+        self._last_time_jump_s = 0.0
+        self._jump_handle = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=Duration(seconds=silence_timeout_s),
+                          min_backward=Duration(nanoseconds=-1)),
+            post_callback=self._on_time_jump)
         self._message_classes = {topic: message_class(msgtype)
                                  for topic, msgtype in processor.outputs.items()}
         self._publishers_by_topic = {
@@ -91,6 +102,15 @@ class ProcessorNode(Node):
         message.header.stamp = time_msg(output.stamp_ns)
         self._publishers_by_topic[output.topic].publish(message)
 
+    def _on_time_jump(self, jump: TimeJump) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        if now_ns == jump.delta.nanoseconds:
+            return  # the first /clock message: simulated time starts, nothing jumped
+        self.time_jumps += 1
+        self._last_time_jump_s = jump.delta.nanoseconds * 1e-9
+        for topic in self._last_arrival_ns:
+            self._last_arrival_ns[topic] = now_ns
+
     def _on_calibrate(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self.processor.request_calibration()  # type: ignore[attr-defined]
         return response
@@ -114,5 +134,8 @@ class ProcessorNode(Node):
             if age_s > self.silence_timeout_s:
                 level = ERROR
                 problems.append(f'{topic} silent for {age_s:.1f} s')
+        if self.time_jumps:
+            values['ros_time_jumps'] = self.time_jumps
+            values['last_ros_time_jump_s'] = self._last_time_jump_s
         message = '; '.join(problems + [status.message]) if problems else status.message
         self._diagnostics.set(level, message, values)
