@@ -1,8 +1,21 @@
 from glob import glob
+import os
 
 from setuptools import find_packages, setup
 
 package_name = 'tpms_ros'
+BAGS = os.path.join('..', '..', 'bags')  # relative to this package folder, as colcon wants
+
+
+def shipped_bags(prefix: str) -> list[tuple[str, list[str]]]:
+    """The workspace's scenario bags of this domain, installed to share/<package>/bags/<bag>/,
+    so `-p bag:=<name>` finds them from any directory."""
+    if not os.path.isdir(BAGS):  # a package built outside this workspace ships none
+        return []
+    return [('share/' + package_name + '/bags/' + name,
+             sorted(glob(os.path.join(BAGS, name, '*'))))
+            for name in sorted(os.listdir(BAGS)) if name.startswith(prefix)]
+
 
 setup(
     name=package_name,
@@ -14,6 +27,7 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.yaml')),
         ('share/' + package_name + '/scenarios', glob('scenarios/*.yaml')),
+        *shipped_bags('road_'),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -47,6 +61,10 @@ setup(
             'tpms_voter = tpms_ros.processing.tpms_voter:make_processor',
             'tire_stiffness_observer = '
             'tpms_ros.processing.tire_stiffness_observer:make_processor',
+            'vibration_analyzer = tpms_ros.processing.vibration_analyzer:make_processor',
+            'wheel_radius_analyzer = tpms_ros.processing.wheel_radius_analyzer:make_processor',
+            'lateral_force_observer = '
+            'tpms_ros.processing.lateral_force_observer:make_processor',
         ],
         # Scenarios and scoring for monitor_demo / evaluate (vehicle_monitor_common.evaluation).
         'vehicle_monitor.evaluations': [

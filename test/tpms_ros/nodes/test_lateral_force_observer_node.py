@@ -60,7 +60,7 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     assert default.vehicle_parameters.m == 1814.0 and default.vehicle_parameters.tf == 0.784
     node = make_node(LateralForceObserverNode, node_name='lateral_force_observer',
                      cli_args=['--ros-args', '--params-file', str(CONFIG)])
-    shipped = yaml.safe_load(CONFIG.read_text())['lateral_force_observer']['ros__parameters']
+    shipped = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']
     groups = (node.vehicle_parameters, node.tuning_parameters, node.parameters)
     owner = {f.name: group for group in groups for f in dataclasses.fields(group)}
     assert set(shipped) == set(owner)
@@ -192,7 +192,9 @@ class Feeder:
                 self.driver.publish(drv)
             imu = Imu()
             imu.header.stamp = _stamp(base)
-            imu.linear_acceleration.y = float('nan') if k in imu_nan else ay
+            # a real IMU's noise: exactly repeated values are a frozen sensor
+            imu.linear_acceleration.y = float('nan') if k in imu_nan else \
+                ay + rng.normal(0, 1e-3)
             imu.angular_velocity.z = ay / 19.5
             self.imu.publish(imu)
             self.sent += 11 + (k not in driver_off)
@@ -233,5 +235,6 @@ def test_bad_input_stale_topics_and_validity(
     feeder.send(node, 90, 100, ay=6.0)   # 0.61 g
     assert spin_until(lambda: len(feeder.outputs) >= 90, 5.0)
     assert not feeder.outputs[-1].within_validity
-    assert spin_until(lambda: any('above 0.5 g' in s.message and s.level == bytes([1])
+    # WARN, or ERROR while the bad wheel speeds of the same period are reported with it
+    assert spin_until(lambda: any('above 0.5 g' in s.message and s.level >= bytes([1])
                                   for s in feeder.status), 5.0)

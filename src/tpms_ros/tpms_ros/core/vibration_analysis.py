@@ -371,6 +371,33 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._cal_sum = np.zeros((3, N_TIRES))          # count, sum f, sum f^2
         self._cal_seen = 0
 
+    def reset_wheel(self, wheel: int) -> None:
+        """Restart one wheel's pre-processing and RLS (its sensor recovered from a fault: the
+        tooth-error pattern was learned against a wheel angle integrated from held values, and
+        the band-pass and regression sums hold the fault's transient); keeps the calibration and
+        the other wheels. On a compensated driven axle the partner's cross products restart with
+        it on the next kept sample (the pair's weight needs both wheels valid)."""
+        w = wheel
+        self._sos_state[:, :, w] = 0.0
+        self._angle[w] = 0.0
+        self._lp_state[:, :, w] = 0.0
+        self._tooth_sum[:, w] = 0.0
+        self._wheel_started[w] = False
+        self._wheel_state[:, w] = (np.nan, 0.0, np.nan, float(self._guard_samples))
+        self._y_hist[:, w] = 0.0
+        self._v_hist[:, w] = False
+        reg = self.params.rls_regularization
+        self._ls_state[:, w] = 0.0
+        self._ls_state[0, w] = self._lambda * reg
+        self._ls_state[2, w] = self._lambda * reg
+        self._latest[w] = np.nan
+        self._latest_a[:, w] = 0.0
+        self._latest_known[w] = False
+
+    def known_wheels(self) -> np.ndarray:
+        """(4,) whether each wheel's latest resonance estimate is known."""
+        return self._latest_known.copy()
+
     def start_calibration(self) -> None:
         """Start learning the nominal frequencies from the data processed from now on."""
         self._calibrating = True

@@ -634,6 +634,10 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self._last_smooth = np.zeros(N_TIRES)
         self._last_good_w = np.full(N_TIRES, np.nan)
 
+    def last_bad_wheel_s(self) -> np.ndarray:
+        """(4,) stamp of each wheel's latest bad sample, s (-inf: none since the reset)."""
+        return self._last_bad_wheel.copy()
+
     # ----------------------------------------------------------- calibration
     def start_calibration(self) -> None:
         """Start learning the nominal pair offsets from the data processed from now on."""
