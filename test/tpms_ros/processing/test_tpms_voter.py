@@ -99,3 +99,22 @@ def test_future_stamp_and_replay_keep_it_voting(indications: Path,
     assert all(sorted(o.fields['methods']) == sorted(METHODS) for o in second[-100:])
     node.processor.status(0)     # the rejections of the replay's first samples are reported
     assert node.processor.status(0).level == 0      # ... and clear when no more come
+
+
+def test_clock_jump_back_reanchors_the_periodic_output(indications: Path) -> None:
+    """A /clock reset between indications (the node's jump callback calls clock_jumped): the
+    periodic output goes on extrapolating data time from the reset, so a method that stops
+    still ages out after max_age_s instead of the vote freezing until the clock catches up."""
+    processor = make_processor({}, '/tpms_voter')
+    clock = [10**12]
+    processor._clock = lambda: clock[0]
+    for topic, _, _, data in iter_raw(indications):
+        processor.process(topic.lstrip('/'),
+                          deserialize_message(data, TpmsIndication))
+    assert processor.tick(clock[0])[0].fields['methods']
+    clock[0] = 5 * 10**9                       # the clock went back 995 s
+    processor.clock_jumped(clock[0])
+    # Every method silent: 3 s of node clock later they are all stale (max_age_s 2 s).
+    (output,) = processor.tick(clock[0] + 3 * 10**9)
+    assert output.fields['methods'] == []
+    assert processor.status(0).message == 'no fresh indication from any enabled method'
