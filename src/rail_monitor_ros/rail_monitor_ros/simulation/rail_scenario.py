@@ -40,12 +40,17 @@ class TrackConfig:
         min_wavelength: shortest wavelength, m.
         max_wavelength: longest wavelength, m.
         scale: amplitude multiplier on the published spectrum.
+        map_error_rms: rms error of the published track map, m (0 = the published alignment is
+            the true track plus ``sensors.track_noise``). Otherwise /rail/track_irregularity is
+            the true track plus a seeded error profile with the spectrum's shape in the same
+            wavelength band, scaled to this rms (a track known as in service, from a survey).
     """
 
     spectrum: str = 'german_low'
     min_wavelength: float = 1.0
     max_wavelength: float = 120.0
     scale: float = 1.0
+    map_error_rms: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,10 @@ class SensorConfig:
         yaw_rate_noise: yaw rates, rad/s.
         track_noise: track alignment on /rail/track_irregularity, m.
         track_rate_noise: its rate, m/s.
+        displacement_bias: constant offset of the lateral displacements in RailLateralStates, m.
+        velocity_bias: of the lateral velocities, m/s.
+        yaw_bias: of the yaw angles, rad.
+        yaw_rate_bias: of the yaw rates, rad/s.
     """
 
     bogie_accel_noise: float = 0.02
@@ -79,6 +88,10 @@ class SensorConfig:
     yaw_rate_noise: float = 1e-3
     track_noise: float = 0.0
     track_rate_noise: float = 0.0
+    displacement_bias: float = 0.0
+    velocity_bias: float = 0.0
+    yaw_bias: float = 0.0
+    yaw_rate_bias: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -273,8 +286,9 @@ def _track(node: MappingNode) -> TrackConfig:
         raise node.error('max_wavelength', f'({max_wl:g}) must exceed min_wavelength '
                                            f'({min_wl:g})')
     scale = node.number('scale', 1.0, low=0.0, high=100.0)
+    map_error = node.number('map_error_rms', 0.0, low=0.0, high=0.1)
     node.finish()
-    return TrackConfig(spectrum, min_wl, max_wl, scale)
+    return TrackConfig(spectrum, min_wl, max_wl, scale, map_error)
 
 
 def _sensors(node: MappingNode) -> SensorConfig:

@@ -56,8 +56,9 @@ class RailSimulationResult:
         measured_state: (N, 28) state with measurement noise (RailLateralStates).
         track_alignment: (N, 4) true track alignment under wheelsets 1..4, m.
         track_alignment_rate: (N, 4) its time derivative, m/s.
-        measured_track_alignment: (N, 4) with measurement noise, m.
-        measured_track_alignment_rate: (N, 4) with measurement noise, m/s.
+        measured_track_alignment: (N, 4) as published: the track map (the true track plus
+            the map error when ``track.map_error_rms`` > 0) with measurement noise, m.
+        measured_track_alignment_rate: (N, 4) its rate, likewise, m/s.
         speed: (N,) m/s.
         creep_factor: (N,).
         spring_ratio: (N, 2) front, rear bogie.
@@ -196,8 +197,26 @@ def simulate(scenario: RailScenario) -> RailSimulationResult:
     imu = sensor_truth[:, :3] + imu_bias + imu_noise
     state_noise_std = np.array([_state_noise(name, sensors) for name in names])
     measured_state = state + noise_rng.standard_normal(state.shape) * state_noise_std
-    measured_u = u_samples + noise_rng.standard_normal(u_samples.shape) * sensors.track_noise
-    measured_u_rate = u_rate + noise_rng.standard_normal(u_rate.shape) * sensors.track_rate_noise
+    state_bias = np.array([_state_bias(name, sensors) for name in names])
+    if np.any(state_bias != 0.0):    # opt-in: without offsets the arrays stay bit-identical
+        measured_state = measured_state + state_bias
+    published_u, published_rate = u_samples, u_rate
+    if track_cfg.map_error_rms > 0.0:
+        # A third stream (children 0 and 1 are unchanged by spawning more), drawn only when asked.
+        map_rng = np.random.default_rng(np.random.SeedSequence(scenario.seed).spawn(3)[2])
+        spectrum = TRACK_SPECTRA[track_cfg.spectrum]
+        band_std = math.sqrt(spectrum.variance(track_cfg.min_wavelength,
+                                               track_cfg.max_wavelength))
+        error = generate_track_profile(
+            spectrum, start=profile.start, length=length, rng=map_rng,
+            min_wavelength=track_cfg.min_wavelength, max_wavelength=track_cfg.max_wavelength,
+            scale=track_cfg.map_error_rms / band_std)
+        positions = s_samples[:, None] - offsets
+        published_u = u_samples + error.at(positions)
+        published_rate = u_rate + unique_keys[sample_key, 0][:, None] * error.slope_at(positions)
+    measured_u = published_u + noise_rng.standard_normal(u_samples.shape) * sensors.track_noise
+    measured_u_rate = (published_rate
+                       + noise_rng.standard_normal(u_rate.shape) * sensors.track_rate_noise)
 
     # Truth is the parameter set the model used from each sample on, as for sensor_truth.
     sample_params = unique_keys[sample_key]
@@ -240,6 +259,15 @@ def _state_noise(name: str, sensors: SensorConfig) -> float:
     yaw = 'psi' in name
     key = {(False, False): 'displacement_noise', (True, False): 'velocity_noise',
            (False, True): 'yaw_noise', (True, True): 'yaw_rate_noise'}[(rate, yaw)]
+    return float(getattr(sensors, key))
+
+
+def _state_bias(name: str, sensors: SensorConfig) -> float:
+    """Constant offset of a state by its kind, as :func:`_state_noise`."""
+    rate = name.startswith('d')
+    yaw = 'psi' in name
+    key = {(False, False): 'displacement_bias', (True, False): 'velocity_bias',
+           (False, True): 'yaw_bias', (True, True): 'yaw_rate_bias'}[(rate, yaw)]
     return float(getattr(sensors, key))
 
 
