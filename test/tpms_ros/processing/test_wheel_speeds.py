@@ -9,7 +9,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from vehicle_monitor_msgs.msg import WheelSpeeds
 
-from tpms_ros.nodes.wheel_speed_input import decode_wheel_speeds
+from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.bag_io import typestore
 
 
