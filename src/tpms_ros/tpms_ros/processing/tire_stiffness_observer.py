@@ -49,6 +49,16 @@ from tpms_ros.core.stiffness_observer import (
     TireStiffnessObserver,
 )
 from tpms_ros.core.tires import TIRE_NAMES
+from tpms_ros.processing.calibrating_tpms import (
+    ProcessAhead,
+    calibrate_on_start_param,
+    calibration_file_param,
+    jump_horizon_param,
+    offline_calibration_file,
+    output_phase_param,
+    process_ahead_param,
+    silence_timeout_param,
+)
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.input_health import StampCheck
@@ -64,21 +74,6 @@ INDICATION = 'tpms/indication/stiffness'
 SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
 
 
-def process_ahead_param() -> Any:
-    """The ``process_ahead_s`` parameter (the same definition as node_helpers')."""
-    return param(0.02, 'the buffered input also goes to the core this long (data time) before '
-                 'each output falls due, so little work is left when it does: lower output '
-                 'latency for one more core call per output, s (0: off)', low=0.0, high=10.0)
-
-
-def output_phase_param() -> Any:
-    """The ``output_phase_s`` parameter (the same definition as node_helpers')."""
-    return param(0.0, 'the first output comes this much data time later than otherwise, and '
-                 'every later one with it (the period stays): nodes composed in one process '
-                 'take different phases so that the work of their outputs does not coincide, s',
-                 low=0.0, high=10.0)
-
-
 @dataclass(frozen=True)
 class TireStiffnessObserverNodeParams:
     """The node's own parameters (the method's are :class:`StiffnessObserverParams`)."""
@@ -88,12 +83,8 @@ class TireStiffnessObserverNodeParams:
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
                                            'stale (torque and cornering gates skipped), s',
                                            low=1e-3, high=10.0)
-    calibrate_on_start: bool = param(False, 'start a calibration at start when no usable '
-                                     'calibration file was loaded', read_only=True)
-    calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from '
-                                  'at start; empty: $ROS_HOME/vehicle_monitor/calibration/'
-                                  '<namespace>/<node>.yaml; none: not persisted',
-                                  read_only=True)
+    calibrate_on_start: bool = calibrate_on_start_param()
+    calibration_file: str = calibration_file_param()
     publish_rate_hz: float = param(4.0, 'output rate in data time, Hz', low=0.01, high=100.0)
     process_period_s: float = param(0.25, 'wheel speeds go to the core in chunks of this much '
                                     'data time, s (no effect on the result; shorter: less '
@@ -101,15 +92,10 @@ class TireStiffnessObserverNodeParams:
                                     'overhead)', low=0.001, high=10.0)
     process_ahead_s: float = process_ahead_param()
     output_phase_s: float = output_phase_param()
-    jump_horizon_s: float = param(10.0, 'a wheel-speed stamp more than this ahead of the last '
-                                  '(or any behind it) is a time jump: a lone one is dropped, '
-                                  'a confirmed one restarts the filters (calibration kept), s',
-                                  low=0.01, high=1e6, read_only=True)
+    jump_horizon_s: float = jump_horizon_param()
     diagnostics_period_s: float = param(1.0, '/diagnostics period, s', low=0.01, high=60.0,
                                         read_only=True)
-    silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
-                                     'error on /diagnostics, s', low=0.01, high=3600.0,
-                                     read_only=True)
+    silence_timeout_s: float = silence_timeout_param()
 
 
 def chunk_problem(process_period_s: float, sample_rate_hz: float) -> str:
@@ -138,23 +124,6 @@ def _to_go_s(first_ns: int, last_ns: int, count: int, rate_hz: float,
     else:
         spanned_s = (last_ns - first_ns) * 1e-9 * count / (count - 1)
     return 0.999 / rate_hz - spanned_s
-
-
-class _ProcessAhead:
-    """Once per output, at the first sample within the lead before it falls due: the ROS-free
-    twin of ``node_helpers.ProcessAhead`` (which imports rclpy; to move to a ROS-free module)."""
-
-    def __init__(self) -> None:
-        self._armed = True
-
-    def due(self, remaining_s: float, lead_s: float) -> bool:
-        if not self._armed or remaining_s <= 1e-9 or remaining_s > lead_s + 1e-9:
-            return False
-        self._armed = False
-        return True
-
-    def published(self) -> None:
-        self._armed = True
 
 
 def _stamp_ns(message: Any) -> int:
@@ -201,7 +170,7 @@ class TireStiffnessObserverProcessor:
         # Samples since the last output and the first of them (outputs every publish period).
         self._window_count = 0
         self._window_first_ns = 0
-        self._ahead = _ProcessAhead()
+        self._ahead = ProcessAhead()
         # (stamp ns, wheel torques, steering angle) of the driver inputs, for the gates.
         self._driver: deque[tuple[int, np.ndarray, float]] = deque(maxlen=1000)
         self._origin_ns: int | None = None
@@ -546,6 +515,5 @@ def make_processor(values: Mapping[str, Any], fqn: str) -> TireStiffnessObserver
     del fqn
     params = build(StiffnessObserverParams, values)
     node_params = build(TireStiffnessObserverNodeParams, values)
-    configured = node_params.calibration_file
-    path = '' if configured in ('', 'none') else configured
-    return TireStiffnessObserverProcessor(params, node_params, path)
+    return TireStiffnessObserverProcessor(
+        params, node_params, offline_calibration_file(node_params.calibration_file))
