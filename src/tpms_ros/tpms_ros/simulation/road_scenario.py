@@ -40,6 +40,10 @@ MIN_TORSION_SAMPLES_PER_PERIOD = 20.0
 # With f ~ sqrt(K) and K/K0 = 1 - s (1 - p/p0): s = (1 - (35/40)^2) / (1 - 120/200).
 DEFAULT_STIFFNESS_PRESSURE_SLOPE = (1.0 - (35.0 / 40.0) ** 2) / (1.0 - 120.0 / 200.0)
 
+STIFFNESS_LAWS = ('linear', 'power')
+SPEED_METHODS = ('tooth_period', 'window_average')
+DRIVELINE_WHEELS = ('driven', 'all')
+
 
 @dataclass(frozen=True)
 class Surface:
@@ -97,7 +101,13 @@ class TireSpec:
         nominal_damping: torsional damping D0 at nominal pressure, N m s/rad.
         nominal_pressure_kpa: p0, kPa (gauge).
         initial_pressure_kpa: pressure of FL, FR, RL, RR at t = 0, kPa.
-        stiffness_pressure_slope: s in K/K0 = 1 - s (1 - p/p0).
+        stiffness_pressure_slope: s in K/K0 = 1 - s (1 - p/p0) (``stiffness_law`` linear).
+        stiffness_law: ``linear`` (the line above, the paper's) or ``power``
+            (K/K0 = (p/p0)^n with n = ``stiffness_pressure_exponent``).
+        stiffness_pressure_exponent: n of the power law.
+        stiffness_spread: standard deviation of each tire's relative K0 offset (tire-to-tire
+            spread of the same model), drawn once per run from the seed; 0: identical tires.
+        damping_spread: the same for D0.
         damping_pressure_slope: s_d in D/D0 = 1 - s_d (1 - p/p0).
         radius_loss_at_30pct: relative rolling-radius drop at 30 % pressure loss (linear).
         radius_spread: standard deviation of the tire-to-tire relative radius offset (wear,
@@ -114,6 +124,10 @@ class TireSpec:
     nominal_pressure_kpa: float = 200.0
     initial_pressure_kpa: tuple[float, float, float, float] = (200.0, 200.0, 200.0, 200.0)
     stiffness_pressure_slope: float = DEFAULT_STIFFNESS_PRESSURE_SLOPE
+    stiffness_law: str = 'linear'
+    stiffness_pressure_exponent: float = 0.5
+    stiffness_spread: float = 0.0
+    damping_spread: float = 0.0
     damping_pressure_slope: float = 0.0
     radius_loss_at_30pct: float = 0.003
     radius_spread: float = 0.001
@@ -128,6 +142,8 @@ class TireSpec:
     def stiffness(self, pressure_kpa: np.ndarray) -> np.ndarray:
         """Torsional stiffness K at the given pressures, N m/rad."""
         ratio = np.asarray(pressure_kpa, dtype=float) / self.nominal_pressure_kpa
+        if self.stiffness_law == 'power':
+            return self.nominal_tire.k * np.maximum(ratio, 0.0) ** self.stiffness_pressure_exponent
         return self.nominal_tire.k * (1.0 - self.stiffness_pressure_slope * (1.0 - ratio))
 
     def damping(self, pressure_kpa: np.ndarray) -> np.ndarray:
@@ -173,6 +189,10 @@ class DrivelineSpec:
     conditions. Here each mode's frequency is
     ``f0 + span/2 * tanh((v - v_ref)/v_scale + n(t))`` with ``n`` a seeded Ornstein-Uhlenbeck
     wander, so it moves with speed and drifts on its own.
+
+    ``wheels``: ``driven`` (the vehicle's driven axle, both rims in phase) or ``all``
+    (all-wheel drive: each axle gets its own independent realisation of the modes, in phase
+    on its two rims; the handling model still drives the vehicle's ``driven_axle``).
     """
 
     modes: tuple[DrivelineMode, ...] = (
@@ -184,6 +204,7 @@ class DrivelineSpec:
     wander_speed_scale_kmh: float = 30.0
     wander_random_std: float = 0.5
     wander_time_constant_s: float = 10.0
+    wheels: str = 'driven'
 
 
 @dataclass(frozen=True)
@@ -263,6 +284,11 @@ class SensorSpec:
         tooth_error_rms: rms tooth-spacing error as a fraction of the tooth pitch (fixed per
             tooth and wheel, drawn from the seed).
         timer_resolution_s: resolution of the ECU timer that stamps tooth edges.
+        speed_method: how the ECU forms the speed from the edges: ``tooth_period`` (pitch /
+            last tooth period, held until the next edge) or ``window_average`` (teeth passed
+            over the edge-to-edge time spanning the last ``speed_window_s``: an average of the
+            tooth periods in the window).
+        speed_window_s: averaging window of ``window_average``, s.
         gyro_yaw_offset_rad_s, gyro_roll_offset_rad_s: constant gyro offsets.
         gyro_noise_rad_s: white gyro noise, rms per sample.
         accel_noise_m_s2: white accelerometer noise, rms per sample.
@@ -271,6 +297,8 @@ class SensorSpec:
     teeth: int = 48
     tooth_error_rms: float = 0.001
     timer_resolution_s: float = 1.0e-6
+    speed_method: str = 'tooth_period'
+    speed_window_s: float = 0.005
     gyro_yaw_offset_rad_s: float = 0.004
     gyro_roll_offset_rad_s: float = 0.0
     gyro_noise_rad_s: float = 0.002
@@ -375,6 +403,13 @@ def _parse_tire(node: _Node) -> TireSpec:
                                    low=0.0, low_open=True),
         stiffness_pressure_slope=node.number('stiffness_pressure_slope',
                                              d.stiffness_pressure_slope, low=0.0, high=1.0),
+        stiffness_law=node.text('stiffness_law', d.stiffness_law, choices=STIFFNESS_LAWS),
+        stiffness_pressure_exponent=node.number('stiffness_pressure_exponent',
+                                                d.stiffness_pressure_exponent, low=0.0,
+                                                high=3.0),
+        stiffness_spread=node.number('stiffness_spread', d.stiffness_spread, low=0.0,
+                                     high=0.2),
+        damping_spread=node.number('damping_spread', d.damping_spread, low=0.0, high=0.5),
         damping_pressure_slope=node.number('damping_pressure_slope', d.damping_pressure_slope,
                                            low=0.0, high=1.0),
         radius_loss_at_30pct=node.number('radius_loss_at_30pct', d.radius_loss_at_30pct,
@@ -412,7 +447,8 @@ def _parse_driveline(node: _Node) -> DrivelineSpec:
                                            low=0.0, low_open=True),
         wander_random_std=node.number('wander_random_std', d.wander_random_std, low=0.0),
         wander_time_constant_s=node.number('wander_time_constant_s', d.wander_time_constant_s,
-                                           low=0.0, low_open=True))
+                                           low=0.0, low_open=True),
+        wheels=node.text('wheels', d.wheels, choices=DRIVELINE_WHEELS))
     for index, mode in enumerate(spec.modes):
         if mode.frequency_hz - spec.wander_span_hz / 2.0 <= 0.0:
             raise node.error(f'modes[{index}].frequency_hz',
@@ -554,6 +590,9 @@ def _parse_sensors(node: _Node) -> SensorSpec:
                                        high=0.05),
         timer_resolution_s=encoder.number('timer_resolution_s', d.timer_resolution_s,
                                           low=0.0, high=1e-3),
+        speed_method=encoder.text('speed_method', d.speed_method, choices=SPEED_METHODS),
+        speed_window_s=encoder.number('speed_window_s', d.speed_window_s, low=0.0,
+                                      low_open=True, high=0.1),
         gyro_yaw_offset_rad_s=gyro.number('yaw_offset_rad_s', d.gyro_yaw_offset_rad_s),
         gyro_roll_offset_rad_s=gyro.number('roll_offset_rad_s', d.gyro_roll_offset_rad_s),
         gyro_noise_rad_s=gyro.number('noise_rad_s', d.gyro_noise_rad_s, low=0.0),
@@ -653,7 +692,7 @@ def _check_consistency(scenario: Scenario, root: _Node) -> None:
     highest = max(tire.initial_pressure_kpa + (tire.nominal_pressure_kpa,)
                   + tuple(e.to_kpa for e in scenario.events if math.isfinite(e.to_kpa)))
     fastest = float(tire.resonance_hz(np.array(highest)))
-    if tire.stiffness_pressure_slope > 0.0:
+    if tire.stiffness_law == 'linear' and tire.stiffness_pressure_slope > 0.0:
         lowest_ok = tire.nominal_pressure_kpa * (1.0 - 1.0 / tire.stiffness_pressure_slope)
         for index, event in enumerate(scenario.events):
             if math.isfinite(event.to_kpa) and event.to_kpa <= lowest_ok:

@@ -35,7 +35,9 @@ from scipy.signal import lfilter
 
 from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.simulation.road_scenario import (
+    DrivelineSpec,
     Scenario,
+    TireSpec,
     friction_multiplier,
     load_scenario,
     road_surface,
@@ -59,8 +61,10 @@ LATERAL_VALIDITY_G = 0.5
 HandlingModel = Callable[[VehicleParams, HandlingInputs, float], HandlingResult]
 
 # Independent random streams, one per source, so that changing one (e.g. more teeth) does not
-# reshuffle the others.
-_STREAMS = ('radius', 'teeth', 'phase', 'road', 'driveline', 'wander', 'imu')
+# reshuffle the others. New streams go at the end: a SeedSequence child depends only on its
+# index, so the existing ones (and every shipped bag) stay bit-identical.
+_STREAMS = ('radius', 'teeth', 'phase', 'road', 'driveline', 'wander', 'imu', 'spread',
+            'driveline_front')
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,20 @@ class RoadSimulationResult:
     imu_t: np.ndarray
     imu_accel: np.ndarray
     imu_gyro: np.ndarray
+
+
+def tire_scales(tire: TireSpec, rng: np.random.Generator
+                ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Per-tire factors on K0 and D0 (tire-to-tire spread); None where the spread is 0.
+
+    Drawn from the run's ``spread`` stream: K first, then D, four each.
+    """
+    k_draw = rng.standard_normal(4)
+    d_draw = rng.standard_normal(4)
+    stiffness = 1.0 + tire.stiffness_spread * k_draw if tire.stiffness_spread > 0.0 else None
+    damping = np.maximum(1.0 + tire.damping_spread * d_draw, 0.05) \
+        if tire.damping_spread > 0.0 else None
+    return stiffness, damping
 
 
 def _grid(duration_s: float, rate_hz: float) -> np.ndarray:
@@ -196,9 +214,55 @@ def _leaky_rigid_mode(a: np.ndarray, leak: float) -> np.ndarray:
     return rebuilt.real
 
 
+def _driveline_torque(spec: DrivelineSpec, count: int, starts: np.ndarray, piece_len: int,
+                      rate_hz: float, speed: np.ndarray, speed_factor: np.ndarray,
+                      wander_rng: np.random.Generator, noise_rng: np.random.Generator
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of the driveline mode torques on one driven axle's rims and the mode frequencies.
+
+    Returns:
+        (torque (N,), frequencies (C, M) of each mode per parameter piece).
+    """
+    dt = 1.0 / rate_hz
+    mid = np.minimum(starts + piece_len // 2, count - 1)
+    frequencies = np.zeros((starts.size, len(spec.modes)))
+    driveline_torque = np.zeros(count)
+    # Ornstein-Uhlenbeck wander sampled per piece (exact discretisation of the OU process).
+    piece_dt = piece_len * dt
+    decay = math.exp(-piece_dt / spec.wander_time_constant_s)
+    kicks = wander_rng.standard_normal(starts.size) * spec.wander_random_std \
+        * math.sqrt(1.0 - decay ** 2)
+    wander = lfilter([1.0], [1.0, -decay], kicks,
+                     zi=np.array([decay * spec.wander_random_std
+                                  * wander_rng.standard_normal()]))[0]
+    condition = (speed[mid] * 3.6 - spec.wander_reference_speed_kmh) \
+        / spec.wander_speed_scale_kmh + wander
+    for index, mode in enumerate(spec.modes):
+        frequencies[:, index] = mode.frequency_hz \
+            + 0.5 * spec.wander_span_hz * np.tanh(condition)
+        omega = 2.0 * np.pi * frequencies[:, index]
+        a = np.zeros((starts.size, 2, 2))
+        a[:, 0, 1] = 1.0
+        a[:, 1, 0] = -omega ** 2
+        a[:, 1, 1] = -2.0 * mode.damping_ratio * omega
+        b = np.zeros((starts.size, 2, 1))
+        b[:, 1, 0] = omega ** 2
+        # Unit-gain resonator on white noise of one-sided PSD G has variance
+        # G * omega_n / (8 zeta); choose G for the mode's rms at its centre frequency.
+        omega_0 = 2.0 * np.pi * mode.frequency_hz
+        psd = 8.0 * mode.damping_ratio * mode.torque_rms_nm ** 2 / omega_0
+        noise = noise_rng.standard_normal(count) \
+            * math.sqrt(psd * rate_hz / 2.0) * speed_factor
+        states = run_piecewise_lti(a, b, noise[:, None], starts, dt)
+        driveline_torque += states[:, 0]
+    return driveline_torque, frequencies
+
+
 def _torsional_vibration(scenario: Scenario, t: np.ndarray, pressure: np.ndarray,
                          speed: np.ndarray, driven: tuple[int, ...],
-                         rngs: Mapping[str, np.random.Generator]
+                         rngs: Mapping[str, np.random.Generator],
+                         stiffness_scale: np.ndarray | None = None,
+                         damping_scale: np.ndarray | None = None,
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rim-speed vibration of the four wheels on the torsion grid.
 
@@ -207,6 +271,8 @@ def _torsional_vibration(scenario: Scenario, t: np.ndarray, pressure: np.ndarray
         pressure: (N, 4) tire pressures on that grid, kPa.
         speed: (N,) vehicle speed, m/s (sets the excitation level).
         driven: indices of the driven wheels.
+        stiffness_scale, damping_scale: (4,) per-tire factors on K and D (tire-to-tire
+            spread), None: identical tires.
 
     Returns:
         (vibration (N, 4) rad/s, piece start times (C,), driveline mode frequencies (C, M)).
@@ -226,42 +292,33 @@ def _torsional_vibration(scenario: Scenario, t: np.ndarray, pressure: np.ndarray
     road_std = np.sqrt(roughness_psd * rates.torsion_hz / 2.0) * speed_factor
     road_torque = road_std[:, None] * rngs['road'].standard_normal((t.size, 4))
 
-    driveline_torque = np.zeros(t.size)
     spec = scenario.driveline
     frequencies = np.zeros((starts.size, len(spec.modes)))
+    driveline_torque = np.zeros(t.size)
+    front_torque = np.zeros(t.size)
     if driven and spec.modes:
-        # Ornstein-Uhlenbeck wander sampled per piece (exact discretisation of the OU process).
-        piece_dt = piece_len * dt
-        decay = math.exp(-piece_dt / spec.wander_time_constant_s)
-        kicks = rngs['wander'].standard_normal(starts.size) * spec.wander_random_std \
-            * math.sqrt(1.0 - decay ** 2)
-        wander = lfilter([1.0], [1.0, -decay], kicks,
-                         zi=np.array([decay * spec.wander_random_std
-                                      * rngs['wander'].standard_normal()]))[0]
-        condition = (speed[mid] * 3.6 - spec.wander_reference_speed_kmh) \
-            / spec.wander_speed_scale_kmh + wander
-        for index, mode in enumerate(spec.modes):
-            frequencies[:, index] = mode.frequency_hz \
-                + 0.5 * spec.wander_span_hz * np.tanh(condition)
-            omega = 2.0 * np.pi * frequencies[:, index]
-            a = np.zeros((starts.size, 2, 2))
-            a[:, 0, 1] = 1.0
-            a[:, 1, 0] = -omega ** 2
-            a[:, 1, 1] = -2.0 * mode.damping_ratio * omega
-            b = np.zeros((starts.size, 2, 1))
-            b[:, 1, 0] = omega ** 2
-            # Unit-gain resonator on white noise of one-sided PSD G has variance
-            # G * omega_n / (8 zeta); choose G for the mode's rms at its centre frequency.
-            omega_0 = 2.0 * np.pi * mode.frequency_hz
-            psd = 8.0 * mode.damping_ratio * mode.torque_rms_nm ** 2 / omega_0
-            noise = rngs['driveline'].standard_normal(t.size) \
-                * math.sqrt(psd * rates.torsion_hz / 2.0) * speed_factor
-            states = run_piecewise_lti(a, b, noise[:, None], starts, dt)
-            driveline_torque += states[:, 0]
+        driveline_torque, frequencies = _driveline_torque(
+            spec, t.size, starts, piece_len, rates.torsion_hz, speed, speed_factor,
+            rngs['wander'], rngs['driveline'])
+        if spec.wheels == 'all':
+            # All-wheel drive: the other axle's differential/member modes, independent.
+            front_torque, _ = _driveline_torque(
+                spec, t.size, starts, piece_len, rates.torsion_hz, speed, speed_factor,
+                rngs['driveline_front'], rngs['driveline_front'])
+    rim_torques: list[np.ndarray]
+    if spec.wheels == 'all':
+        rim_torques = [front_torque, front_torque, driveline_torque, driveline_torque]
+    else:
+        rim_torques = [driveline_torque if wheel in driven else np.zeros(t.size)
+                       for wheel in range(4)]
 
     # Per-piece torsional parameters from each tire's pressure at the piece middle.
     stiffness = tire_spec.stiffness(pressure[mid])          # (C, 4)
     damping = tire_spec.damping(pressure[mid])
+    if stiffness_scale is not None:
+        stiffness = stiffness * stiffness_scale
+    if damping_scale is not None:
+        damping = damping * damping_scale
     leak = 2.0 * np.pi * tire_spec.rigid_mode_corner_hz
     vibration = np.empty((t.size, 4))
     for wheel in range(4):
@@ -272,15 +329,15 @@ def _torsional_vibration(scenario: Scenario, t: np.ndarray, pressure: np.ndarray
                                  float(damping[piece, wheel]))
             a[piece], b[piece] = tire.state_space()
         a = _leaky_rigid_mode(a, leak)
-        rim_torque = driveline_torque if wheel in driven else np.zeros(t.size)
-        inputs = np.column_stack([rim_torque, road_torque[:, wheel]])
+        inputs = np.column_stack([rim_torques[wheel], road_torque[:, wheel]])
         vibration[:, wheel] = run_piecewise_lti(a, b, inputs, starts, dt)[:, 0]
     return vibration, t[starts], frequencies
 
 
 def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
                         tooth_error: np.ndarray, phase: float,
-                        timer_resolution_s: float) -> np.ndarray:
+                        timer_resolution_s: float, method: str = 'tooth_period',
+                        window_s: float = 0.005) -> np.ndarray:
     """Wheel speed as an ABS ECU measures it from a toothed ring, for one wheel.
 
     Tooth edges are where the rim angle crosses ``k * pitch + tooth_error[k mod teeth]``; the
@@ -289,6 +346,11 @@ def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
     When no edge comes for 1.5 periods the report falls as ``1.5 pitch / elapsed``, so a
     stopping wheel reads zero.
 
+    With ``method='window_average'`` the ECU instead reports the teeth passed between the last
+    edge before ``t_out - window_s`` and the last edge before ``t_out`` over the time between
+    them (the mean of the tooth periods over the window, at least one period): a tooth's
+    spacing error then enters only through the two end edges, divided by the teeth counted.
+
     Args:
         t: (N,) fine time grid, s.
         rim_speed: (N,) true rim angular speed on that grid, rad/s.
@@ -296,6 +358,8 @@ def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
         tooth_error: (teeth,) edge angle error of each tooth, rad.
         phase: ring angle at t[0], rad.
         timer_resolution_s: ECU timer resolution, s (0: exact).
+        method: ``tooth_period`` or ``window_average`` (see above).
+        window_s: averaging window of ``window_average``, s.
 
     Returns:
         (M,) measured wheel speed, rad/s.
@@ -320,9 +384,12 @@ def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
         edge_t = np.floor(edge_t / timer_resolution_s) * timer_resolution_s
     if edge_t.size < 2:
         return np.zeros(t_out.size)
+    last_edge = np.searchsorted(edge_t, t_out, side='right') - 1
+    if method == 'window_average':
+        return _window_average_speed(edge_t, t_out, last_edge, pitch, timer_resolution_s,
+                                     window_s)
     period = np.maximum(np.diff(edge_t), max(timer_resolution_s, 1e-12))
     tooth_speed = pitch / period                      # valid from edge 1 on
-    last_edge = np.searchsorted(edge_t, t_out, side='right') - 1
     # Before the second edge the ECU has no period yet: report the first one (start-up).
     held = tooth_speed[np.clip(last_edge - 1, 0, tooth_speed.size - 1)]
     held_period = pitch / held
@@ -330,6 +397,21 @@ def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
     stale = (last_edge >= 0) & (elapsed > 1.5 * held_period)
     out = np.where(stale, 1.5 * pitch / np.maximum(elapsed, 1e-12), held)
     return out
+
+
+def _window_average_speed(edge_t: np.ndarray, t_out: np.ndarray, last_edge: np.ndarray,
+                          pitch: float, timer_resolution_s: float,
+                          window_s: float) -> np.ndarray:
+    """Edge-to-edge mean speed over the window ending at each output time (see above)."""
+    last = np.clip(last_edge, 1, edge_t.size - 1)
+    first = np.searchsorted(edge_t, t_out - window_s, side='right') - 1
+    first = np.clip(np.minimum(first, last - 1), 0, edge_t.size - 2)
+    span = np.maximum(edge_t[last] - edge_t[first], max(timer_resolution_s, 1e-12))
+    held = pitch * (last - first) / span
+    held_period = span / (last - first)
+    elapsed = t_out - edge_t[np.clip(last_edge, 0, edge_t.size - 1)]
+    stale = (last_edge >= 0) & (elapsed > 1.5 * held_period)
+    return np.where(stale, 1.5 * pitch / np.maximum(elapsed, 1e-12), held)
 
 
 def simulate_scenario(scenario: Scenario,
@@ -370,8 +452,10 @@ def simulate_scenario(scenario: Scenario,
     rigid = _interp_columns(t_s, handling.t, np.asarray(handling.omega))
     speed_s = np.interp(t_s, handling.t, np.asarray(handling.vx))
     driven = (0, 1) if params.driven_axle == 'front' else (2, 3)
+    stiffness_scale, damping_scale = tire_scales(tire, rngs['spread'])
     vibration, piece_t, frequencies = _torsional_vibration(
-        scenario, t_s, tire_pressure(scenario, t_s), speed_s, driven, rngs)
+        scenario, t_s, tire_pressure(scenario, t_s), speed_s, driven, rngs,
+        stiffness_scale, damping_scale)
     rim_s = rigid + vibration
 
     # 3. Encoder.
@@ -384,7 +468,8 @@ def simulate_scenario(scenario: Scenario,
     t_w = _grid(scenario.duration_s, rates.wheel_speed_hz)
     wheel_speed = np.column_stack([
         encoder_wheel_speed(t_s, rim_s[:, w], t_w, tooth_error[w], float(phases[w]),
-                            sensors.timer_resolution_s) for w in range(4)])
+                            sensors.timer_resolution_s, sensors.speed_method,
+                            sensors.speed_window_s) for w in range(4)])
     rim_w = _interp_columns(t_w, t_s, rim_s)
 
     # 4. IMU.
@@ -397,10 +482,18 @@ def simulate_scenario(scenario: Scenario,
         + np.array([sensors.gyro_roll_offset_rad_s, sensors.gyro_yaw_offset_rad_s]) \
         + sensors.gyro_noise_rad_s * noise[:, 2:]
 
+    stiffness_h = tire.stiffness(pressure_h)
+    damping_h = tire.damping(pressure_h)
+    resonance_h = tire.resonance_hz(pressure_h)
+    if stiffness_scale is not None:
+        stiffness_h = stiffness_h * stiffness_scale
+        resonance_h = resonance_h * np.sqrt(stiffness_scale)
+    if damping_scale is not None:
+        damping_h = damping_h * damping_scale
     return RoadSimulationResult(
         scenario=scenario, handling=handling, pressure_kpa=pressure_h,
-        stiffness=tire.stiffness(pressure_h), damping=tire.damping(pressure_h),
-        resonance_hz=tire.resonance_hz(pressure_h), rolling_radius=rolling_radius,
+        stiffness=stiffness_h, damping=damping_h,
+        resonance_hz=resonance_h, rolling_radius=rolling_radius,
         friction_scale=friction, radius_offset=radius_offset, wheel_speed_t=t_w,
         wheel_speed=wheel_speed, rim_speed=rim_w, driveline_t=piece_t,
         driveline_frequency_hz=frequencies, tooth_error=tooth_error, imu_t=t_i,
