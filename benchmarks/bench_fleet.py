@@ -66,6 +66,8 @@ def main() -> None:
             print(f'| {workers} | {start_s:.1f} | {run.wall_s:.1f} | {run.throughput:.2f} | '
                   f'{cost:.2f} | {run.data_s / max(run.task_wall_s, 1e-9):.1f} | '
                   f'{base / run.wall_s:.2f} |', flush=True)
+            if run.errors:
+                print(f'  {run.failed} recording(s) failed, e.g. {run.errors[0]}', flush=True)
         if (fleet / 'truth.yaml').is_file():
             table = score(out, fleet / 'truth.yaml')
             print('\n' + table.to_string(index=False))
