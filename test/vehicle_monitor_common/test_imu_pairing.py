@@ -111,3 +111,16 @@ def test_bad_settings_are_refused() -> None:
         ImuPairer(tolerance_s=-1.0, timeout_s=0.1)
     with pytest.raises(ValueError, match='timeout_s'):
         ImuPairer(tolerance_s=0.0, timeout_s=0.0)
+
+
+def test_reset_starts_a_new_time_line() -> None:
+    """After reset (a time jump), samples stamped before the old ones pair again; waiting
+    samples are forgotten, the counters kept."""
+    pairer = ImuPairer(tolerance_s=1e-3, timeout_s=0.1)
+    _feed(pairer, [('bogie', 100 * PERIOD), ('body', 100 * PERIOD), ('bogie', 101 * PERIOD)])
+    assert pairer.add('bogie', PERIOD, 'old') == []          # behind: refused
+    pairer.reset()
+    assert pairer.pending == 0
+    out = _feed(pairer, [('bogie', PERIOD), ('body', PERIOD)])
+    assert [p.stamp_ns for p in out] == [PERIOD]
+    assert pairer.rejected == {'bogie_out_of_order': 1}

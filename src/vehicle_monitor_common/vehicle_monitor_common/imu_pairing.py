@@ -67,6 +67,13 @@ class ImuPairer:
         self._queues: dict[str, deque[tuple[int, Any]]] = {s: deque() for s in STREAMS}
         self._latest: dict[str, int | None] = dict.fromkeys(STREAMS)
 
+    def reset(self) -> None:
+        """Forget the waiting samples and the streams' last stamps (after a time jump: the
+        next samples start a new time line). The counters are kept."""
+        for queue in self._queues.values():
+            queue.clear()
+        self._latest = dict.fromkeys(STREAMS)
+
     @property
     def pending(self) -> int:
         """Samples waiting for a partner (both streams)."""

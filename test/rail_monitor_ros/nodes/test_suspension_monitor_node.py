@@ -76,7 +76,7 @@ def _flatten(mapping: dict[str, Any], prefix: str = '') -> dict[str, Any]:
 
 def _config_parameters(**overrides: Any) -> list[Parameter]:
     """The shipped YAML (what --params-file gives), reliable inputs, with overrides."""
-    data = _flatten(yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters'])
+    data = _flatten(yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters'])
     data.update(overrides)
     params = [Parameter(k, value=v) for k, v in data.items()]
     params += [Parameter(f'qos_overrides./{t}.subscription.reliability', value='reliable')
@@ -133,7 +133,7 @@ def _setup(make_node: Callable[..., Any], **overrides: Any) -> tuple[Any, _Feede
 def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) -> None:
     """Every key of the shipped YAML is a declared parameter with the same default, and every
     declared parameter (the method's and the node's) is in it."""
-    data = _flatten(yaml.safe_load(CONFIG.read_text())['suspension_monitor']['ros__parameters'])
+    data = _flatten(yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters'])
     node = make_node(SuspensionMonitorNode)
     for key, value in data.items():
         assert node.has_parameter(key), key
@@ -217,16 +217,23 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
         paper_bag: Path) -> None:
     """Fresh track irregularity -> known-input model (held up to track_max_age_s = 20 ms, four
     samples); after that the process-noise model and a 'stale' diagnostic; a wrongly sized
-    track message is counted."""
+    track message is counted. A pair waits for its track sample while the track stream is
+    alive (pair_timeout_s = 0.1 s of data time, 20 samples), so once the track stops the
+    outputs come 20 samples late, then at once."""
     data = _imu_from_bag(paper_bag)
     monitor, feeder, got, _ = _setup(make_node)
     for k in range(60):
         stamp = START_NS + k * DT_NS
         if k < 30:
-            feeder.alignment(stamp, [1e-3, 2e-3, 0.0, 0.0], [0.01, 0.0, 0.0, 0.0])
-            assert spin_until(lambda: monitor.processor._track is not None)
+            feeder.alignment(stamp, [1e-3 + k * 1e-6, 2e-3, 0.0, 0.0],   # not frozen
+                             [0.01, 0.0, 0.0, 0.0])
+            assert spin_until(lambda s=stamp: monitor.processor._track.latest == s)
         feeder.imu(stamp, data.measurements[k])
-        assert spin_until(lambda n=k + 1: len(got) >= n)
+        if k < 30 or k >= 50:
+            assert spin_until(lambda n=k + 1: len(got) >= n)
+        else:
+            assert spin_until(lambda: monitor.processor._pairer.pending == 0)
+            assert len(got) == 30
     assert monitor.processor.known_input_samples == 30 + 4
     assert 'stale' in monitor.processor._track_state
     feeder.alignment(START_NS + 60 * DT_NS, [1e-3], [])
@@ -237,17 +244,24 @@ def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
                                           spin_until: Callable[..., bool]) -> None:
     """A confident creep factor estimate re-discretises the full-car bank at that factor; an
     uncertain one is not used (said on diagnostics), an invalid one is counted."""
-    monitor, _, _, _ = _setup(make_node)
+    monitor, feeder, _, _ = _setup(make_node, use_track_irregularity=False)
     publisher = make_node('creep_feeder').create_publisher(CreepFactor, 'rail/creep_factor',
                                                            DEEP)
     assert spin_until(lambda: publisher.get_subscription_count() > 0)
     f_before = monitor.processor.imm._f.copy()
 
+    sent = [0]
+
     def send(c: float, std: float) -> None:
+        """A creep estimate and the IMU pair at its stamp (the model follows the estimate at
+        the next pair not older than it: data time)."""
+        k = sent[0] = sent[0] + 1
         msg = CreepFactor()
-        msg.header.stamp = _stamp(START_NS)
+        msg.header.stamp = _stamp(START_NS + k * DT_NS)
         msg.creep_factor, msg.std_dev = c, std
         publisher.publish(msg)
+        assert spin_until(lambda: monitor.processor._creep.latest == START_NS + k * DT_NS)
+        feeder.imu(START_NS + k * DT_NS, np.array([0.01 * k, 0.001 * k, 0.02 * k]))
 
     send(0.5, 0.5)
     assert spin_until(lambda: 'uncertain' in monitor.processor._creep_state)

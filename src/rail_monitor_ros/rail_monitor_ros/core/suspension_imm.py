@@ -689,8 +689,10 @@ class SuspensionImm:
 
     # ----------------------------------------------------------------------- state
     def reset(self) -> None:
-        """Restart: mode 1 (normal) with probability 1, states at rest with the prior P."""
+        """Restart: mode 1 (normal) with probability 1, states at rest with the prior P; data
+        time starts again with the next stamp (after a time jump)."""
         params = self.params
+        self._last_stamp_ns = None
         if self.params.adaptive and self._damper_spring != 1.0:
             self._build_bank(1.0)
         self.mu = np.zeros(self.n_modes)

@@ -10,31 +10,44 @@ first two into wheelset inputs) and ``rail/creep_factor`` (CreepFactor). Output:
 :class:`rail_monitor_ros.core.suspension_imm.SuspensionImm`, given ``SuspensionImmParams`` as
 they are; the node-only parameters are :class:`SuspensionMonitorNodeParams`.
 
-Time: the two IMUs are paired by stamp (:class:`vehicle_monitor_common.imu_pairing.ImuPairer`,
-``pair_tolerance_s``, ``pair_timeout_s``); a pair carries the bogie sample's stamp, which the
-output carries too. A bogie sample without partner is dropped and counted ('unpaired').
-Repeated and out-of-order stamps are rejected here; each pair's stamp goes to the core, which
-owns data time: it bridges missing samples by prediction and restarts its states after a gap
-longer than ``max_gap_s`` (probabilities kept).
+Time: every input stream's stamps are checked on arrival (``input_health.StampCheck``):
+repeated and out-of-order stamps are rejected, a lone stamp more than ``jump_horizon_s`` ahead
+is dropped and counted, and a confirmed jump of data time (a looped or repeated replay, a
+clock reset) restarts the IMM, the pairing and the held inputs (the status says so for
+``fault_recovery_s``). The two IMUs are paired by stamp
+(:class:`vehicle_monitor_common.imu_pairing.ImuPairer`, ``pair_tolerance_s``,
+``pair_timeout_s``); a pair carries the bogie sample's stamp, which the output carries too. A
+bogie sample without partner is dropped and counted ('unpaired'). Each pair's stamp goes to the
+core, which owns data time: it bridges missing samples by prediction and restarts its states
+after a gap longer than ``max_gap_s`` (probabilities kept).
 
-* Creep factor (full car): the model follows the latest confident estimate as it arrives
-  (re-discretised in steps of ``creep_resolution``, with hysteresis). Unmodelled, a creep change
-  looks like a suspension fault.
 * Track irregularity: sample-and-hold of the latest message not newer than the pair's stamp
   (plus ``pair_tolerance_s``); older than ``track_max_age_s``, it is stale and the
   process-noise model is used (the status says so).
+* Creep factor (full car): the model follows the latest confident estimate not newer than the
+  pair's stamp (re-discretised in steps of ``creep_resolution``, with hysteresis). Unmodelled,
+  a creep change looks like a suspension fault.
 
-Bad input (non-finite, saturated, frozen sensor, wrong array sizes) is rejected and counted;
-the IMM then only predicts, so no fault is declared from bad data; the status reports an input
-fault instead.
+Both are decided in data time, not by arrival: a pair waits until each of these streams has
+delivered its sample for the pair's stamp (or a later one), unless the stream is silent for
+more than ``pair_timeout_s`` of data time. So the node, whose inputs arrive from different
+publishers, and the offline engine give the same outputs.
+
+Input faults never become suspension faults. A bad IMU sample (non-finite, saturated, frozen
+sensor) is rejected and counted and the IMM is not stepped: its probabilities are held (the
+outputs repeat them with ``fault_detected`` false) and the status reports an input fault at
+WARN. A frozen, malformed or non-finite track message is rejected; a track stream that was in
+use and goes stale switches the IMM to the process-noise model. After an input fault or a
+switch of the track model, and after a time jump, ``fault_detected`` stays false for
+``fault_recovery_s`` of data time (the status says 'recovering'), the time the IMM needs to
+settle again (measured: docs/methods/suspension_monitor.md).
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass
-import math
 from typing import Any
 
 import numpy as np
@@ -43,8 +56,17 @@ from rail_monitor_ros.core.rail_model import MAX_CREEP_FACTOR, wheelset_inputs_f
 from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmParams
 from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
 from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
-from vehicle_monitor_common.parameters import ConfigurationError, build, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.parameters import param
+from vehicle_monitor_common.processing import (
+    ERROR,
+    OK,
+    WARN,
+    Input,
+    Output,
+    Status,
+    build_processor,
+    header_stamp_ns,
+)
 
 BOGIE_IMU = 'rail/bogie/imu'
 BODY_IMU = 'rail/body/imu'
@@ -75,6 +97,12 @@ class SuspensionMonitorNodeParams:
                                     low=0.01, high=1e3)
     frozen_samples: int = param(20, 'this many identical consecutive values = frozen sensor',
                                 low=2, high=100000)
+    jump_horizon_s: float = param(10.0, 'a stamp this far ahead of the last one (or any behind '
+                                  'it) is a time jump once confirmed, else dropped, s', low=0.01,
+                                  high=1e6, read_only=True)
+    fault_recovery_s: float = param(2.0, 'after an input fault, a track model switch or a time '
+                                    'jump, no fault is declared for this long (the IMM '
+                                    'settles), s', low=0.0, high=60.0)
     diagnostics_period_s: float = param(1.0, '/diagnostics period, s', low=0.01, high=60.0,
                                         read_only=True)
     silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
@@ -82,9 +110,61 @@ class SuspensionMonitorNodeParams:
                                      read_only=True)
 
 
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+class _Held:
+    """A stream sampled and held at the IMU pairs' stamps, decided in data time: the value
+    for a pair is the latest not newer than its stamp (plus the tolerance), and a pair is
+    settled once the stream has delivered a stamp at or after it, or has fallen silent (its
+    newest stamp a wait horizon behind the newest IMU pair)."""
+
+    def __init__(self) -> None:
+        self.samples: deque[tuple[int, Any]] = deque()
+        self.latest: int | None = None      # newest stamp seen (valid or not)
+
+    def seen(self, stamp_ns: int) -> None:
+        self.latest = stamp_ns
+
+    def add(self, stamp_ns: int, value: Any) -> None:
+        self.samples.append((stamp_ns, value))
+
+    def settled(self, stamp_ns: int, newest_ns: int, tolerance_ns: int, wait_ns: int) -> bool:
+        """Whether the value for ``stamp_ns`` is known: the stream delivered that stamp or a
+        later one, or it is silent (``wait_ns`` behind the newest IMU pair ``newest_ns``)."""
+        return (self.latest is None or self.latest >= stamp_ns - tolerance_ns
+                or self.latest < newest_ns - wait_ns)
+
+    def at(self, stamp_ns: int, tolerance_ns: int) -> tuple[int, Any] | None:
+        """The latest sample not newer than ``stamp_ns + tolerance_ns`` (older ones are
+        forgotten: the pairs come in stamp order)."""
+        while len(self.samples) > 1 and self.samples[1][0] <= stamp_ns + tolerance_ns:
+            self.samples.popleft()
+        if self.samples and self.samples[0][0] <= stamp_ns + tolerance_ns:
+            return self.samples[0]
+        return None
+
+    def clear(self) -> None:
+        self.samples.clear()
+        self.latest = None
+
+
+class _RepeatCounter:
+    """How many consecutive messages repeated the previous one exactly (all channels: a
+    frozen measurement system; one constant channel may be a straight track)."""
+
+    def __init__(self) -> None:
+        self._last: np.ndarray | None = None
+        self._repeats = 0
+
+    def update(self, values: np.ndarray) -> int:
+        same = self._last is not None and np.array_equal(values, self._last)
+        self._repeats = self._repeats + 1 if same else 0
+        self._last = values.copy()
+        return self._repeats
+
+    def reset(self) -> None:
+        self._last, self._repeats = None, 0
+
+
+_STREAMS = {BOGIE_IMU: 'bogie', BODY_IMU: 'body', TRACK: 'track', CREEP: 'creep'}
 
 
 class SuspensionMonitorProcessor:
@@ -114,17 +194,35 @@ class SuspensionMonitorProcessor:
         self._rejected: Counter[str] = Counter()
         self.processed = 0
         self.known_input_samples = 0
+        self.time_jumps = 0
         self._pairer = ImuPairer(n.pair_tolerance_s, n.pair_timeout_s)
-        self._stamps = StampCheck(max_gap_s=math.inf)   # gaps are the core's
+        self._stamp_checks = self._new_stamp_checks()
         self._rates = {topic: RateMeter() for topic in self.inputs}
-        self._track: tuple[int, np.ndarray, np.ndarray | None] | None = None
+        self._track = _Held()
+        self._creep = _Held()
+        self._pending: deque[ImuPair] = deque()
         self._track_state = 'not received' if n.use_track_irregularity else 'disabled'
         self._creep_state = 'not received' if n.use_creep_factor else 'disabled'
+        self._track_fresh = False
+        self._track_used = False      # the known-input model has been in use
         self._frozen = FrozenDetector(3)
+        self._track_frozen = _RepeatCounter()
         self._input_fault = ''
+        # Data time until which no fault is declared, and why (input fault, model switch, jump).
+        self._suppress_until_ns: int | None = None
+        self._suppress_reason = ''
+        self._last_stamp_ns: int | None = None
+        # Silence: the processed count and the status time it last changed.
+        self._progress: tuple[int, int | None] = (0, None)
         self.last_output: Output | None = None
         self._handlers = {BOGIE_IMU: self._on_bogie, BODY_IMU: self._on_body,
                           TRACK: self._on_track, CREEP: self._on_creep_factor}
+
+    def _new_stamp_checks(self) -> dict[str, StampCheck]:
+        # Gaps are the core's (max_gap_s infinite here); jumps are everybody's.
+        return {topic: StampCheck(max_gap_s=float('inf'),
+                                  jump_horizon_s=self.node_params.jump_horizon_s)
+                for topic in self.inputs}
 
     @property
     def rejected(self) -> Counter[str]:
@@ -132,7 +230,6 @@ class SuspensionMonitorProcessor:
         counts = Counter(self._rejected)
         counts['unpaired'] += sum(self._pairer.unpaired.values())
         counts.update(self._pairer.rejected)
-        counts.update(self._stamps.rejected)
         return +counts
 
     def update_params(self, params: SuspensionImmParams) -> None:
@@ -149,53 +246,116 @@ class SuspensionMonitorProcessor:
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message; the outputs of the IMU pairs it completes."""
         self._rates[topic].tick()
-        return self._handlers[topic](message)
+        stamp = header_stamp_ns(message)
+        if not self._stamp_ok(topic, stamp):
+            return []
+        return self._handlers[topic](stamp, message)
 
-    def _on_bogie(self, msg: Any) -> list[Output]:
-        return self._process_pairs(self._pairer.add('bogie', _stamp_ns(msg), (
+    def _stamp_ok(self, topic: str, stamp: int) -> bool:
+        """Whether a stamp is accepted; a confirmed time jump restarts everything."""
+        check = self._stamp_checks[topic]
+        verdict = check.check(stamp)
+        if verdict == 'jump':
+            self._restart(stamp, f'{_STREAMS[topic]} time jump of {check.last_jump_s:+.3f} s')
+            self._stamp_checks[topic].check(stamp)
+            return True
+        if verdict in ('repeated', 'out_of_order', 'future_stamp'):
+            self._rejected[f'{_STREAMS[topic]}_{verdict}'] += 1
+            return False
+        return True
+
+    def _restart(self, stamp: int, why: str) -> None:
+        """Data time jumped: the IMM, the pairing and the held inputs start again (a jump is
+        no suspension change: the IMM starts from the normal mode, as at start)."""
+        self.time_jumps += 1
+        self.imm.reset()
+        self._pairer.reset()
+        self._pending.clear()
+        self._track.clear()
+        self._creep.clear()
+        self._frozen.reset()
+        self._track_frozen.reset()
+        self._track_fresh = self._track_used = False
+        self._stamp_checks = self._new_stamp_checks()
+        self._last_stamp_ns = None
+        self._suppress(stamp, why)
+
+    def _suppress(self, stamp: int, why: str) -> None:
+        self._suppress_until_ns = stamp + round(self.node_params.fault_recovery_s * 1e9)
+        self._suppress_reason = why
+
+    def _on_bogie(self, stamp: int, msg: Any) -> list[Output]:
+        return self._add_pairs(self._pairer.add('bogie', stamp, (
             float(msg.linear_acceleration.y), float(msg.angular_velocity.z))))
 
-    def _on_body(self, msg: Any) -> list[Output]:
-        return self._process_pairs(self._pairer.add('body', _stamp_ns(msg),
-                                                    float(msg.linear_acceleration.y)))
+    def _on_body(self, stamp: int, msg: Any) -> list[Output]:
+        return self._add_pairs(self._pairer.add('body', stamp, float(msg.linear_acceleration.y)))
 
-    def _on_creep_factor(self, msg: Any) -> list[Output]:
+    def _on_creep_factor(self, stamp: int, msg: Any) -> list[Output]:
+        self._creep.seen(stamp)
         c, std = float(msg.creep_factor), float(msg.std_dev)
         if not (np.isfinite(c) and 0.0 < c <= MAX_CREEP_FACTOR and np.isfinite(std)):
             self._rejected['creep_factor_invalid'] += 1
-        elif std > self.node_params.creep_max_std:
-            self._creep_state = (f'uncertain (std {std:.2f}): model keeps '
-                                 f'{self.imm.creep_factor:.2f}')
         else:
-            self.imm.set_creep_factor(c)
-            self._creep_state = 'following'
-        return []
+            self._creep.add(stamp, (c, std))
+        return self._drain()
 
-    def _on_track(self, msg: Any) -> list[Output]:
+    def _on_track(self, stamp: int, msg: Any) -> list[Output]:
+        self._track.seen(stamp)
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
         rate = np.asarray(msg.lateral_alignment_rate, dtype=float)
         if alignment.size < 2 or (rate.size not in (0, alignment.size)):
             self._rejected['track_irregularity_size'] += 1
-            return []
+            return self._drain()
         # All four wheelsets when the model has the rear bogie, else the monitored bogie's.
         full_car = self.params.estimation_model == 'full_car'
         used = 4 if alignment.size >= 4 and full_car else 2
         if not (np.all(np.isfinite(alignment[:used])) and np.all(np.isfinite(rate[:used]))):
             self._rejected['track_irregularity_non_finite'] += 1
-            return []
-        self._track = (_stamp_ns(msg), alignment[:used].copy(),
-                       rate[:used].copy() if rate.size else None)
-        return []
+            return self._drain()
+        # A track measurement repeating itself bit for bit is a frozen sensor, not a track.
+        if self._track_frozen.update(alignment[:used]) >= self.node_params.frozen_samples - 1:
+            self._rejected['track_irregularity_frozen'] += 1
+            return self._drain()
+        self._track.add(stamp, (alignment[:used].copy(),
+                                rate[:used].copy() if rate.size else None))
+        return self._drain()
 
-    def _process_pairs(self, pairs: list[ImuPair]) -> list[Output]:
-        outputs = []
+    def _add_pairs(self, pairs: list[ImuPair]) -> list[Output]:
         for pair in pairs:
-            if pair.body is None:
-                continue                       # counted by the pairer: 'unpaired'
-            if self._stamps.check(pair.stamp_ns) in ('repeated', 'out_of_order'):
-                continue
-            outputs.append(self._process(pair.stamp_ns, np.array([*pair.bogie, pair.body])))
+            if pair.body is not None:          # else counted by the pairer: 'unpaired'
+                self._pending.append(pair)
+        return self._drain()
+
+    def _drain(self) -> list[Output]:
+        """Process the waiting pairs, in stamp order, whose held inputs are settled."""
+        n = self.node_params
+        tolerance = round(n.pair_tolerance_s * 1e9)
+        wait = round(n.pair_timeout_s * 1e9)
+        outputs = []
+        while self._pending:
+            pair, newest = self._pending[0], self._pending[-1].stamp_ns
+            if not all(held.settled(pair.stamp_ns, newest, tolerance, wait) for held in (
+                    self._track, self._creep)):
+                break
+            self._pending.popleft()
+            self._follow_creep(pair.stamp_ns, tolerance)
+            output = self._process(pair.stamp_ns, np.array([*pair.bogie, pair.body]))
+            if output is not None:
+                outputs.append(output)
         return outputs
+
+    def _follow_creep(self, stamp: int, tolerance: int) -> None:
+        held = self._creep.at(stamp, tolerance)
+        if held is None:
+            return
+        c, std = held[1]
+        if std > self.node_params.creep_max_std:
+            self._creep_state = (f'uncertain (std {std:.2f}): model keeps '
+                                 f'{self.imm.creep_factor:.2f}')
+        else:
+            self.imm.set_creep_factor(c)
+            self._creep_state = 'following'
 
     def _check(self, z: np.ndarray) -> str:
         n = self.node_params
@@ -211,15 +371,27 @@ class SuspensionMonitorProcessor:
 
     def _known_input(self, stamp: int) -> np.ndarray | None:
         n = self.node_params
-        if not n.use_track_irregularity or self._track is None:
-            self._track_state = 'not received' if n.use_track_irregularity else 'disabled'
+        held = self._track.at(stamp, round(n.pair_tolerance_s * 1e9))
+        fresh = False
+        if not n.use_track_irregularity:
+            self._track_state = 'disabled'
+        elif held is None:
+            self._track_state = ('not received' if self._track.latest is None
+                                 else 'stale: process-noise model')
+        else:
+            age = (stamp - held[0]) * 1e-9
+            fresh = -n.pair_tolerance_s <= age <= n.track_max_age_s
+            self._track_state = ('fresh: known-input model' if fresh
+                                 else f'stale ({age:.3f} s): process-noise model')
+        if fresh != self._track_fresh and self._track_used:
+            # The IMM's model switches (not the first time the track comes): its probabilities
+            # settle first.
+            self._suppress(stamp, f'track input {"back" if fresh else "stale"}')
+        self._track_fresh = fresh
+        self._track_used = self._track_used or fresh
+        if not fresh or held is None:
             return None
-        track_stamp, alignment, rate = self._track
-        age = (stamp - track_stamp) * 1e-9
-        if age < -n.pair_tolerance_s or age > n.track_max_age_s:
-            self._track_state = f'stale ({age:.3f} s): process-noise model'
-            return None
-        self._track_state = 'fresh: known-input model'
+        alignment, rate = held[1]
         if self.params.estimation_model == 'full_car':
             return alignment   # measurements of the track model under the wheelsets
         # Half car: the monitored bogie's [y_lead, y_trail, psi_lead, psi_trail].
@@ -227,29 +399,41 @@ class SuspensionMonitorProcessor:
                                           None if rate is None else rate[None, :2],
                                           self.params.vehicle.speed)[0]
 
-    def _process(self, stamp: int, z: np.ndarray) -> Output:
+    def _process(self, stamp: int, z: np.ndarray) -> Output | None:
+        self._last_stamp_ns = stamp
         problem = self._check(z)
-        self._input_fault = problem
         if problem:
+            # Held: the IMM is not stepped (a gap for its data time when the input returns).
             self._rejected[problem] += 1
-            out = self.imm.step(None, stamp_ns=stamp)
+            self._input_fault = problem
+            self._suppress(stamp, f'input fault ({problem})')
+            if self.last_output is None:
+                return None
+            fields = dict(self.last_output.fields)
         else:
+            self._input_fault = ''
             out = self.imm.step(z, self._known_input(stamp), stamp_ns=stamp)
             self.known_input_samples += int(out.known_input)
             self.processed += 1
-        self.last_output = Output(MODES, stamp, {
-            'header': {'frame_id': 'front_bogie'},
-            'modes': self._mode_names,
-            'probability': out.probability,
-            'smoothed_probability': out.smoothed_probability,
-            'mode_spring_ratio': out.mode_spring_ratio,
-            'mode_damper_ratio': out.mode_damper_ratio,
-            'most_likely': out.most_likely,
-            'spring_ratio': out.spring_ratio,
-            'damper_ratio': out.damper_ratio,
-            'fault_detected': out.fault.detected,
-            'fault_component': out.fault.component})
+            fields = {
+                'header': {'frame_id': 'front_bogie'},
+                'modes': self._mode_names,
+                'probability': out.probability,
+                'smoothed_probability': out.smoothed_probability,
+                'mode_spring_ratio': out.mode_spring_ratio,
+                'mode_damper_ratio': out.mode_damper_ratio,
+                'most_likely': out.most_likely,
+                'spring_ratio': out.spring_ratio,
+                'damper_ratio': out.damper_ratio,
+                'fault_detected': out.fault.detected,
+                'fault_component': out.fault.component}
+        if self._suppressed(stamp):
+            fields.update(fault_detected=False, fault_component='')
+        self.last_output = Output(MODES, stamp, fields)
         return self.last_output
+
+    def _suppressed(self, stamp: int) -> bool:
+        return self._suppress_until_ns is not None and stamp < self._suppress_until_ns
 
     # ------------------------------------------------------------------ status
     def status(self, now_ns: int) -> Status:
@@ -261,12 +445,14 @@ class SuspensionMonitorProcessor:
             'known_input_samples': self.known_input_samples,
             'missing_samples': self.imm.missing_samples,
             'gap_restarts': self.imm.gap_restarts,
+            'time_jumps': self.time_jumps,
             'track_irregularity': self._track_state,
             'creep_factor_input': self._creep_state,
             'model_creep_factor': self.imm.creep_factor,
             'covariance_repairs': self.imm.covariance_repairs,
             'steady_state_failures': self.imm.steady_state_failures,
             'rediscretizations': self.imm.rediscretizations,
+            'waiting_pairs': len(self._pending),
         })
         values.update({f'rejected_{k}': v for k, v in sorted(self.rejected.items())})
         if self.last_output is None:
@@ -278,8 +464,25 @@ class SuspensionMonitorProcessor:
             'most_likely_mode': self._mode_names[out['most_likely']],
             'spring_ratio': spring, 'damper_ratio': damper,
             'fault_component': component or 'none'})
+        # Silence (the adapter reports it per input at ERROR): never claim 'normal' on old data.
+        count, since = self._progress
+        total = self.processed + self._rejected_samples()
+        if total != count or since is None:
+            self._progress = (total, now_ns)
+        elif (now_ns - since) * 1e-9 > self.node_params.silence_timeout_s:
+            return Status(WARN, f'no IMU pair for {(now_ns - since) * 1e-9:.1f} s: '
+                          'suspension state unknown', values)
         if self._input_fault:
-            return Status(WARN, f'input fault ({self._input_fault}): estimates held', values)
+            return Status(WARN, f'input fault ({self._input_fault}): estimates held, '
+                          'suspension state unknown', values)
+        if self._last_stamp_ns is not None and self._suppressed(self._last_stamp_ns):
+            assert self._suppress_until_ns is not None
+            left = (self._suppress_until_ns - self._last_stamp_ns) * 1e-9
+            return Status(WARN, f'recovering after {self._suppress_reason}: no fault decision '
+                          f'for {left:.1f} s', values)
+        if self.node_params.use_track_irregularity and self._track.latest is not None \
+                and not self._track_fresh:
+            return Status(WARN, f'track input {self._track_state}', values)
         if out['fault_detected']:
             size = {'spring': f'spring {spring:.2f}', 'damper': f'damper {damper:.2f}',
                     'spring+damper': f'spring {spring:.2f}, damper {damper:.2f}'}[component]
@@ -289,6 +492,10 @@ class SuspensionMonitorProcessor:
                           values)
         return Status(OK, 'suspension normal', values)
 
+    def _rejected_samples(self) -> int:
+        return sum(v for k, v in self._rejected.items()
+                   if k in ('non_finite', 'saturated', 'frozen_sensor'))
+
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> SuspensionMonitorProcessor:
     """The processor from a node's parameter values (dotted names, as the node gets them);
@@ -297,8 +504,5 @@ def make_processor(values: Mapping[str, Any], fqn: str) -> SuspensionMonitorProc
     Raises:
         ConfigurationError: a value its definition refuses.
     """
-    try:
-        return SuspensionMonitorProcessor(build(SuspensionImmParams, values),
-                                          build(SuspensionMonitorNodeParams, values))
-    except (TypeError, ValueError) as exc:
-        raise ConfigurationError(f'{fqn}: invalid parameters: {exc}') from None
+    return build_processor(fqn, SuspensionMonitorProcessor, values, SuspensionImmParams,
+                           SuspensionMonitorNodeParams)
