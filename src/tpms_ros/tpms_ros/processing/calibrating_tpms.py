@@ -143,6 +143,7 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         self.time_jumps = 0
         self._last_jump_s = 0.0
         self._restarted = False
+        self._restart_reason = ''
         self._known_at_jump = np.zeros(N_TIRES, dtype=bool)
         self._calibration = CalibrationManager(self.core, calibration_file, method)
         self._calibration.load()
@@ -200,11 +201,18 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         calibration window starts again (the calibration in force is kept)."""
         self.time_jumps += 1
         self._last_jump_s = jump_s
-        self._restarted = True
-        self._known_at_jump = self._last_known.copy()
-        self._calibration.restart()
+        self._note_restart(f'time jump of {jump_s:+.3g} s')
         self._last_publish_s = -math.inf
         self._ahead.published()
+
+    def _note_restart(self, why: str) -> None:
+        """The subclass restarted its core's filters (``why``: a time jump, a gap, the input
+        rate back to normal): a running calibration window starts again, and the status says
+        so until every tire known before is known again."""
+        self._restarted = True
+        self._restart_reason = why
+        self._known_at_jump = self._last_known.copy()
+        self._calibration.restart()
 
     def _follow_restart(self) -> None:
         # The restart note stays until every tire known before the jump is known again.
@@ -249,9 +257,8 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
             unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
             problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
         if self._restarted:
-            problems.append((WARN, f'time jump of {self._last_jump_s:+.3g} s: filters '
-                                   'restarted (calibration kept), estimating again once '
-                                   'converged'))
+            problems.append((WARN, f'{self._restart_reason}: filters restarted (calibration '
+                                   'kept), estimating again once converged'))
         if self._last_flags.any():
             problems.append((WARN, f'low tires indicated: {", ".join(low)}'))
         return values, problems
