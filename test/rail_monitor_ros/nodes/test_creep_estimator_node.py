@@ -251,14 +251,15 @@ def test_bad_input_counted_and_estimate_protected(
     # Samples 200-249 repeat sample 199 (50 repeats); from the 4th repeat (0.02 s) on they are
     # rejected: 47.
     assert counts['frozen'] == 47
-    assert node.estimator.rejected == {'non_finite': 1}
+    assert counts['non_finite'] == 1 and node.estimator.rejected == {}   # refused before it
     status = next(d.status[0] for d in reversed(diagnostics)
                   if any(kv.key == 'received' and int(kv.value) >= sent + 2
                          for kv in d.status[0].values))
     values = {kv.key: kv.value for kv in status.values}
     assert values['rejected_repeated'] == '1' and values['rejected_out_of_order'] == '1'
     assert values['track_input'] == 'stale'
-    assert 'track input stale' in status.message or 'reset' in status.message
+    assert ('track input stale' in status.message or 'reset' in status.message
+            or 'recovering' in status.message)
     c = np.array([m.creep_factor for m in got])
     assert np.all(np.isfinite(c)) and np.all((c >= 0.05) & (c <= 2.0))
     # Before the drop at 2 s (sample 400, output 394: 6 samples were missing), without track

@@ -20,11 +20,23 @@ last stamp within ``track_max_age_s`` of the sample); beyond, it is *stale*: rep
 status, and the filter runs on with the track as process noise.
 
 Data time is the core's (:meth:`CreepEkf.advance_to`): it bridges missing samples by
-prediction and resets after a gap longer than its ``max_gap_s``. Here, out-of-order and
-repeated stamps are rejected (``input_health.StampCheck``); non-finite or wrongly sized values
+prediction and resets after a gap longer than its ``max_gap_s``. Here, every input stream's
+stamps are checked on arrival (``input_health.StampCheck``): out-of-order and repeated stamps
+are rejected, a lone stamp more than ``jump_horizon_s`` ahead is dropped and counted, and a
+confirmed jump of data time (a looped or repeated replay, a clock reset) restarts the filter
+and the assembly (the status says so for ``recovery_s``). Non-finite or wrongly sized values
 are rejected (the sample becomes a prediction step); a measurement channel frozen
 (bit-identical) for ``frozen_s`` is a dead sensor and its sample is rejected
-(``input_health.FrozenDetector``). All counted in the status.
+(``input_health.FrozenDetector``); pattern D: an acceleration or yaw rate at its limit is
+saturated and rejected. All counted in the status.
+
+Input faults never become a low-adhesion alarm. While the driving measurement is rejected, and
+(patterns B-D, which cannot observe c without it) while a track input that was in use is
+lost, stale, frozen or malformed, the filter only predicts: c is held, its published
+``std_dev`` is widened to at least :data:`UNKNOWN_STD` (unknown; the suspension monitor then
+ignores it) and ``low_adhesion`` keeps its last value. For ``recovery_s`` after such a fault
+ends, the estimate is still reported with the widened std and the status says 'recovering'
+(the time the filter needs to settle again: measured, docs/methods/creep_estimator.md).
 
 Why known input when available: with the measured track alignment (the paper's setup) the
 yaw creep moment's input is known, which is what makes c observable from bogie and body
@@ -51,14 +63,25 @@ from rail_monitor_ros.core.creep_ekf import (
 )
 from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
 from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
-from vehicle_monitor_common.parameters import ConfigurationError, build, param
-from vehicle_monitor_common.processing import OK, WARN, Input, Output, Status
+from vehicle_monitor_common.parameters import param
+from vehicle_monitor_common.processing import (
+    OK,
+    WARN,
+    Input,
+    Output,
+    Status,
+    build_processor,
+    header_stamp_ns,
+)
 
 LATERAL_STATES = 'rail/lateral_states'
 BOGIE_IMU = 'rail/bogie/imu'
 BODY_IMU = 'rail/body/imu'
 TRACK = 'rail/track_irregularity'
 CREEP = 'rail/creep_factor'
+# Published std_dev of an estimate that is held, not measured (input fault, track lost): c is
+# unknown within about its whole range (the suspension monitor's creep_max_std refuses it).
+UNKNOWN_STD = 1.0
 LATERAL_FIELDS = ('wheelset_lateral', 'wheelset_lateral_rate', 'wheelset_yaw',
                   'wheelset_yaw_rate', 'bogie_lateral', 'bogie_lateral_rate', 'bogie_yaw',
                   'bogie_yaw_rate', 'body_lateral', 'body_lateral_rate', 'body_yaw',
@@ -82,6 +105,16 @@ class CreepEstimatorNodeParams:
                             'sensor and its sample rejected, s', low=0.001, high=60.0)
     max_pending: int = param(200, 'most samples waiting for their parts', low=2, high=100000,
                              read_only=True)
+    accel_limit_mps2: float = param(50.0, 'pattern D: an acceleration at or beyond this is '
+                                    'saturated, m/s^2', low=0.1, high=1e4)
+    gyro_limit_rad_s: float = param(5.0, 'pattern D: a yaw rate at or beyond this is saturated, '
+                                    'rad/s', low=0.01, high=1e3)
+    jump_horizon_s: float = param(10.0, 'a stamp this far ahead of the last one (or any behind '
+                                  'it) is a time jump once confirmed, else dropped, s', low=0.01,
+                                  high=1e6, read_only=True)
+    recovery_s: float = param(3.0, 'after an input fault or a time jump the estimate is '
+                              'reported unknown (std widened) this long while the filter '
+                              'settles, s', low=0.0, high=600.0)
     diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01, high=60.0,
                                         read_only=True)
     silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
@@ -99,11 +132,7 @@ class _Pending:
 
 
 _MISSING = np.empty(0)
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+_WRONG_SIZE = np.empty(0)
 
 
 class CreepEstimatorProcessor:
@@ -135,17 +164,36 @@ class CreepEstimatorProcessor:
         self._pairer = ImuPairer(n.pair_tolerance_s, n.pair_timeout_s)
         self._pending: list[_Pending] = []
         self._latest = {'main': -1, 'track': -1}
-        self._stamps = StampCheck(max_gap_s=math.inf)     # gaps are the core's
+        self._stamp_checks = self._new_stamp_checks()
+        self._stamp_rejected: dict[str, int] = {}
         self._last_processed_ns: int | None = None
         self._frozen = FrozenDetector(self.ekf.n_measurements)
+        self._track_last: bytes | None = None
+        self._track_repeats = 0
         self._period_ns = round(1e9 / params.sample_rate_hz)
         self._rates = {topic: RateMeter() for topic in self.inputs}
         self._counts = dict.fromkeys(
             ('received', 'processed', 'published', 'frozen', 'wrong_size', 'overflow',
              'known_input', 'unknown_input', 'track_received', 'track_wrong_size', 'main_late',
-             'track_late'), 0)
+             'track_late', 'non_finite', 'saturated', 'track_frozen', 'track_lost', 'held',
+             'time_jumps'), 0)
         self.last: CreepEstimate | None = None
+        # Input faults: the current one, and the data time until which the estimate is still
+        # reported unknown (and why); the low-adhesion flag held meanwhile.
+        self._fault = ''
+        self._recover_until_ns: int | None = None
+        self._recover_reason = ''
+        self._held_low_adhesion = False
+        self._track_used = False      # a sample had its track part (known-input mode in use)
+        self._resets_seen = 0
+        self._progress: tuple[int, int | None] = (0, None)
         self._track_stale = True
+
+    def _new_stamp_checks(self) -> dict[str, StampCheck]:
+        # Gaps are the core's (max_gap_s infinite here); jumps are everybody's.
+        return {topic: StampCheck(max_gap_s=math.inf,
+                                  jump_horizon_s=self.node_params.jump_horizon_s)
+                for topic in self.inputs}
 
     @property
     def params(self) -> CreepEkfParams:
@@ -180,10 +228,56 @@ class CreepEstimatorProcessor:
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message; the outputs of the samples it completes."""
         self._rates[topic].tick()
-        return self._handlers[topic](message)
+        if topic == self._driving:
+            self._counts['received'] += 1
+        stamp = header_stamp_ns(message)
+        if not self._stamp_ok(topic, stamp):
+            return []
+        return self._handlers[topic](stamp, message)
 
-    def _on_lateral_states(self, msg: Any) -> list[Output]:
-        self._counts['received'] += 1
+    def _stamp_ok(self, topic: str, stamp: int) -> bool:
+        """Whether a stamp is accepted; a confirmed time jump restarts the filter."""
+        check = self._stamp_checks[topic]
+        verdict = check.check(stamp)
+        if verdict == 'jump':
+            self._restart(stamp, f'time jump of {check.last_jump_s:+.3f} s on {topic}')
+            self._stamp_checks[topic].check(stamp)
+            return True
+        if verdict in ('repeated', 'out_of_order', 'future_stamp'):
+            self._stamp_rejected[verdict] = self._stamp_rejected.get(verdict, 0) + 1
+            return False
+        return True
+
+    def _restart(self, stamp: int, why: str) -> None:
+        """Data time jumped: the filter and the assembly start again (as at start)."""
+        self._counts['time_jumps'] += 1
+        # A new filter (as at start; data time starts again with the next stamp), its
+        # counters carried on.
+        old, self.ekf = self.ekf, CreepEkf(self.ekf.params)
+        self.ekf.rejected, self.ekf.resets = old.rejected, old.resets
+        self.ekf.gap_resets, self.ekf.predicted_missing = old.gap_resets, old.predicted_missing
+        self._resets_seen = sum(self.ekf.resets.values()) + self.ekf.gap_resets
+        self._pairer.reset()
+        self._pending.clear()
+        self._latest = {'main': -1, 'track': -1}
+        self._last_processed_ns = None
+        self._frozen.reset()
+        self._track_last, self._track_repeats = None, 0
+        self._track_used = False
+        self._fault = ''
+        self._stamp_checks = self._new_stamp_checks()
+        self._recover(stamp, why)
+
+    def _recover(self, stamp: int, why: str) -> None:
+        if not self._recovering(stamp):
+            self._held_low_adhesion = bool(self.last.low_adhesion) if self.last else False
+        self._recover_until_ns = stamp + round(self.node_params.recovery_s * 1e9)
+        self._recover_reason = why
+
+    def _recovering(self, stamp: int) -> bool:
+        return self._recover_until_ns is not None and stamp < self._recover_until_ns
+
+    def _on_lateral_states(self, stamp: int, msg: Any) -> list[Output]:
         p = self.params
         try:
             fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
@@ -191,19 +285,18 @@ class CreepEstimatorProcessor:
             vector = lateral_states_measurement(fields, p.pattern, p.bogie,
                                                 p.vehicle.bogie_pivot_semi_spacing, p.model)[0]
         except (ValueError, IndexError):
-            # unreachable over DDS for fixed-size arrays, but an in-process caller can
+            # Unreachable over DDS for fixed-size arrays, but an in-process caller can: the
+            # sample is missing (prediction only), not a gap.
             self._counts['wrong_size'] += 1
-            return []
-        return self._add_part('main', _stamp_ns(msg), vector)
+            vector = _WRONG_SIZE
+        return self._add_part('main', stamp, vector)
 
-    def _on_bogie(self, msg: Any) -> list[Output]:
-        self._counts['received'] += 1
-        return self._add_pairs(self._pairer.add('bogie', _stamp_ns(msg), (
+    def _on_bogie(self, stamp: int, msg: Any) -> list[Output]:
+        return self._add_pairs(self._pairer.add('bogie', stamp, (
             float(msg.linear_acceleration.y), float(msg.angular_velocity.z))))
 
-    def _on_body(self, msg: Any) -> list[Output]:
-        return self._add_pairs(self._pairer.add('body', _stamp_ns(msg),
-                                                float(msg.linear_acceleration.y)))
+    def _on_body(self, stamp: int, msg: Any) -> list[Output]:
+        return self._add_pairs(self._pairer.add('body', stamp, float(msg.linear_acceleration.y)))
 
     def _add_pairs(self, pairs: list[ImuPair]) -> list[Output]:
         outputs: list[Output] = []
@@ -215,7 +308,7 @@ class CreepEstimatorProcessor:
             outputs += self._add_part('main', pair.stamp_ns, vector)
         return outputs
 
-    def _on_track(self, msg: Any) -> list[Output]:
+    def _on_track(self, stamp: int, msg: Any) -> list[Output]:
         self._counts['track_received'] += 1
         j = self._bogie_index
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
@@ -227,14 +320,19 @@ class CreepEstimatorProcessor:
         if rate.size == alignment.size:
             # With its rate the filter's track states follow the track within the sample.
             part = np.concatenate([part, rate[2 * j:2 * j + 2]])
-        return self._add_part('track', _stamp_ns(msg), part)
+        # The whole part repeating bit for bit: a frozen track measurement, not a track (one
+        # constant channel may be a straight track).
+        raw = part.tobytes()
+        self._track_repeats = self._track_repeats + 1 if raw == self._track_last else 0
+        self._track_last = raw
+        if self._track_repeats * self._period_ns * 1e-9 >= self.node_params.frozen_s:
+            self._counts['track_frozen'] += 1
+            return []
+        return self._add_part('track', stamp, part)
 
     def _add_part(self, kind: str, stamp: int, value: np.ndarray) -> list[Output]:
         if stamp <= self._latest[kind]:
-            # Out of order or repeated on this stream.
-            if kind == 'main':
-                self._stamps.check(stamp)        # counts the reason
-            return []
+            return []                            # out of order (refused on arrival already)
         self._latest[kind] = stamp
         if self._last_processed_ns is not None and stamp < self._last_processed_ns:
             # A part of a sample already processed without it; the stream is alive though.
@@ -289,34 +387,63 @@ class CreepEstimatorProcessor:
     # -- processing ----------------------------------------------------------------------------
 
     def _process(self, entry: _Pending) -> Output | None:
-        verdict = self._stamps.check(entry.stamp)
-        if verdict in ('repeated', 'out_of_order', 'future_stamp'):
-            return None
         assert entry.main is not None
-        vector = entry.main if entry.main.size else None     # unpaired IMU sample
-        self.ekf.advance_to(entry.stamp)
-        self._last_processed_ns = entry.stamp
-        vector = self._check_frozen(vector)
-        self._counts['known_input' if entry.track is not None else 'unknown_input'] += 1
-        estimate = self.ekf.step(vector, entry.track)
+        stamp = entry.stamp
+        self.ekf.advance_to(stamp)
+        self._last_processed_ns = stamp
+        vector, fault = self._check_measurement(entry.main)
+        track = entry.track
+        if track is not None:
+            self._track_used = True
+        elif self._track_used and self.params.pattern != 'A':
+            # B-D do not observe c without the track (it drifts): hold it until it returns.
+            fault = fault or 'track_lost'
+            self._counts['track_lost'] += 1
+        if fault:
+            self._counts['held'] += 1
+            vector = None                        # the track part (if any) is still used
+            self._recover(stamp, f'input fault ({fault})')
+        self._fault = fault
+        self._counts['known_input' if track is not None else 'unknown_input'] += 1
+        estimate = self.ekf.step(vector, track)
+        resets = sum(self.ekf.resets.values()) + self.ekf.gap_resets
+        if resets != self._resets_seen:
+            self._resets_seen = resets
+            self._recover(stamp, f'filter reset ({self.ekf.last_reset_reason or "gap"})')
         self._counts['processed'] += 1
         self.last = estimate
         self._counts['published'] += 1
-        return Output(CREEP, entry.stamp, {
+        std, low_adhesion = estimate.std_dev, bool(estimate.low_adhesion)
+        if self._recovering(stamp):
+            # Not measured now (or not settled yet): unknown, and no alarm from it.
+            std, low_adhesion = max(std, UNKNOWN_STD), self._held_low_adhesion
+        return Output(CREEP, stamp, {
             'header': {'frame_id': f'{self.params.bogie}_bogie'},
             'creep_factor': estimate.creep_factor,
-            'std_dev': estimate.std_dev,
+            'std_dev': std,
             'f11': estimate.f11,
             'f22': estimate.f22,
-            'low_adhesion': bool(estimate.low_adhesion)})
+            'low_adhesion': low_adhesion})
 
-    def _check_frozen(self, vector: np.ndarray | None) -> np.ndarray | None:
-        if vector is None:
-            return None
-        if self._frozen.update(vector) * self._period_ns * 1e-9 >= self.node_params.frozen_s:
+    def _check_measurement(self, main: np.ndarray) -> tuple[np.ndarray | None, str]:
+        """The driving measurement, or None with the input fault ('' for a missing sample)."""
+        if main is _WRONG_SIZE:
+            return None, 'wrong_size'
+        if not main.size:
+            return None, ''                      # unpaired IMU sample: missing
+        if not np.all(np.isfinite(main)):
+            self._counts['non_finite'] += 1
+            return None, 'non_finite'
+        n = self.node_params
+        if self.params.pattern == 'D' and (
+                abs(main[0]) >= n.accel_limit_mps2 or abs(main[2]) >= n.accel_limit_mps2
+                or abs(main[1]) >= n.gyro_limit_rad_s):
+            self._counts['saturated'] += 1
+            return None, 'saturated'
+        if self._frozen.update(main) * self._period_ns * 1e-9 >= n.frozen_s:
             self._counts['frozen'] += 1
-            return None
-        return vector
+            return None, 'frozen_sensor'
+        return main, ''
 
     # -- status --------------------------------------------------------------------------------
 
@@ -329,9 +456,9 @@ class CreepEstimatorProcessor:
             'input_rate_hz': rates[self._driving],
             **{f'input_rate_hz.{topic}': rate for topic, rate in rates.items()},
             **self.counts,
-            'rejected_out_of_order': self._stamps.rejected.get('out_of_order', 0),
-            'rejected_repeated': self._stamps.rejected.get('repeated', 0),
-            'rejected_future_stamp': self._stamps.rejected.get('future_stamp', 0),
+            'rejected_out_of_order': self._stamp_rejected.get('out_of_order', 0),
+            'rejected_repeated': self._stamp_rejected.get('repeated', 0),
+            'rejected_future_stamp': self._stamp_rejected.get('future_stamp', 0),
             **{f'rejected_{k}': v for k, v in self._pairer.rejected.items()},
             **{f'rejected_{k}': v for k, v in ekf.rejected.items()},
             'clipped_at_bound': ekf.clipped,
@@ -344,11 +471,28 @@ class CreepEstimatorProcessor:
             'low_adhesion': bool(last.low_adhesion) if last else False,
             'model_speed': ekf.speed,
         }
+        # Silence (the adapter reports it per input at ERROR): no claim on old data.
+        count, since = self._progress
+        if self._counts['received'] != count or since is None:
+            self._progress = (self._counts['received'], now_ns)
+            silent_s = 0.0
+        else:
+            silent_s = (now_ns - since) * 1e-9
+        recovering = (self._last_processed_ns is not None
+                      and self._recovering(self._last_processed_ns))
         if self._counts['received'] == 0:
             level, message = WARN, f'waiting for {self._driving}'
-        elif ekf.resets:
-            level, message = WARN, (f'filter reset {sum(ekf.resets.values())} times (last: '
-                                    f'{ekf.last_reset_reason})')
+        elif silent_s > self.node_params.silence_timeout_s:
+            level, message = WARN, (f'no {self._driving} for {silent_s:.1f} s: creep factor '
+                                    'unknown')
+        elif self._fault:
+            level, message = WARN, (f'input fault ({self._fault}): creep factor held, '
+                                    'unknown (std widened)')
+        elif recovering:
+            assert self._recover_until_ns is not None and self._last_processed_ns is not None
+            left = (self._recover_until_ns - self._last_processed_ns) * 1e-9
+            level, message = WARN, (f'recovering after {self._recover_reason}: std widened for '
+                                    f'{left:.1f} s')
         elif self.node_params.use_track_input and self._track_stale:
             level, message = WARN, 'track input stale: unknown-input mode, c less accurate'
         elif last is not None and last.low_adhesion:
@@ -365,8 +509,5 @@ def make_processor(values: Mapping[str, Any], fqn: str) -> CreepEstimatorProcess
     Raises:
         ConfigurationError: a value its definition refuses.
     """
-    try:
-        return CreepEstimatorProcessor(build(CreepEkfParams, values),
-                                       build(CreepEstimatorNodeParams, values))
-    except (TypeError, ValueError) as exc:
-        raise ConfigurationError(f'{fqn}: invalid parameters: {exc}') from None
+    return build_processor(fqn, CreepEstimatorProcessor, values, CreepEkfParams,
+                           CreepEstimatorNodeParams)
