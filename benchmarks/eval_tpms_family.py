@@ -1,0 +1,443 @@
+"""TPMS methods on the held-out car family (issue 21): stiffness errors, detection, false alarms.
+
+Each car of the family (``tpms_ros.simulation.car_family``, held-out seeds by default) is driven
+on a drawn drive (urban / rural / motorway in turn) in up to three cases:
+
+* ``diffusion20``: all four tires lose 20 % by diffusion starting at ``--fault-s``
+  (``--diffusion-pct-per-min`` of placard per minute, 15 %/min = 30 kPa/min on a 200 kPa car);
+* ``puncture25``: one tire (drawn) loses 25 % over 2 s at ``--fault-s``;
+* ``puncture15``: one or two tires (drawn) lose 15 % over 2 s at ``--fault-s``.
+
+Every case starts with all tires at placard: the three methods calibrate at the start of the
+drive (vibration and wheel radius over [0, ``--calibration-s``], the stiffness observer over its
+own 60 s of valid data), then [``--calibration-s``, ``--fault-s``] is nominal driving. Each
+method gets only what a user of the car can know (``FamilyCar.user_parameters``): placard
+(stiffness ``nominal_pressure_kpa``), driven axle (stiffness ``driven_axle``; vibration and
+wheel radius ``rear`` for all-wheel drive, they have no ``all``), nominal radius, track,
+wheelbase, encoder teeth; everything else at the core defaults (the nodes' defaults). The
+methods are fed as their nodes feed them (vibration in 0.1 s blocks, wheel radius on IMU-rate
+bins, the stiffness observer in 0.25 s chunks with held driver inputs; the voter at 10 Hz).
+
+Printed per car and case: the stiffness observer's mean error and std per tire at nominal
+(after calibration; ``unk`` where it reported the tire not valid), the correlation of one
+tire's error with speed, the reading after the 20 % four-tire loss, the fused warning's
+detection time (s after the loss reached its level; all faulty tires named), the stiffness
+method's own time for the diffusion, false warnings (a healthy tire warned after calibration),
+and the highest confidence of each method in nominal driving with its margin to its threshold.
+
+Run (reduced first): ``python benchmarks/eval_tpms_family.py --cars 4 --cases diffusion20``;
+``--workers 2`` at most on this machine; results also in ``--out`` (JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+import json
+import math
+import multiprocessing
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+
+from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
+from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
+from tpms_ros.core.wheel_radius_analysis import (
+    WheelRadiusAnalyzer,
+    WheelRadiusParams,
+    bin_wheel_speeds,
+    sample_and_hold,
+)
+from tpms_ros.simulation.car_family import (
+    DRIVE_KINDS,
+    HELD_OUT_SEEDS,
+    TUNING_SEEDS,
+    FamilyCar,
+    car_scenario,
+    pressure_event,
+    sample_car,
+)
+from tpms_ros.simulation.road_simulator import (
+    RoadSimulationResult,
+    simulate_scenario,
+    to_topic_series,
+)
+
+METHODS = ('vibration', 'wheel_radius', 'stiffness')
+CASES = ('diffusion20', 'puncture25', 'puncture15')
+VIBRATION_BLOCK_S = 0.1
+STIFFNESS_CHUNK_S = 0.25
+DRIVER_MAX_AGE_S = 0.1
+STEP_S = 2.0
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Run settings (command line)."""
+
+    calibration_s: float = 90.0
+    fault_s: float = 150.0
+    observe_s: float = 60.0
+    diffusion_pct_per_min: float = 15.0
+    tooth_correction: bool = True
+
+
+@dataclass(frozen=True)
+class Job:
+    """One simulated drive: a car, a case, a drive kind."""
+
+    seed: int
+    case: str
+    drive: str
+    settings: Settings
+
+
+def case_events(job: Job, car: FamilyCar) -> tuple[list, tuple[int, ...], float, float]:
+    """(events, faulty tire indices, loss percent, time the loss reaches its level)."""
+    s = job.settings
+    rng = np.random.default_rng([23, job.seed, CASES.index(job.case)])
+    if job.case == 'diffusion20':
+        loss = 20.0
+        event = pressure_event('diffusion', s.fault_s, drop_percent=loss,
+                               rate_kpa_per_min=s.diffusion_pct_per_min / 100.0
+                               * car.placard_kpa)
+        return [event], (0, 1, 2, 3), loss, s.fault_s + 60.0 * loss / s.diffusion_pct_per_min
+    loss = 25.0 if job.case == 'puncture25' else 15.0
+    count = 1 if job.case == 'puncture25' else int(rng.integers(1, 3))
+    tires = tuple(sorted(int(t) for t in rng.choice(4, size=count, replace=False)))
+    event = pressure_event('pressure_step', s.fault_s, tires=tires, drop_percent=loss,
+                           duration_s=STEP_S)
+    return [event], tires, loss, s.fault_s + STEP_S
+
+
+def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
+                                                               WheelRadiusParams,
+                                                               StiffnessObserverParams]:
+    """Core defaults plus only what the user of this car knows."""
+    user = car.user_parameters()
+    axle = 'rear' if car.layout == 'all' else car.layout
+    vibration = VibrationParams(driveline_compensation=axle)
+    radius = WheelRadiusParams(nominal_radius_m=user['nominal_radius_m'],
+                               track_front_m=user['track_front_m'],
+                               track_rear_m=user['track_rear_m'], driven_axle=axle,
+                               wheelbase_m=user['wheelbase_m'])
+    stiffness = StiffnessObserverParams(
+        driven_axle=car.layout, rolling_radius_m=user['nominal_radius_m'],
+        wheelbase_m=user['wheelbase_m'], nominal_pressure_kpa=(user['nominal_pressure_kpa'],) * 4,
+        encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction)
+    return vibration, radius, stiffness
+
+
+def _voters(voter_params: VoterParams) -> dict[str, TpmsVoter]:
+    make: dict[str, tuple[str, ...]] = {m: (m,) for m in METHODS}
+    make['fused'] = METHODS
+    return {name: TpmsVoter(voter_params.only(methods)) for name, methods in make.items()}
+
+
+def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> dict[str, Any]:
+    """Feed the run through the three cores as their nodes do, vote; traces at 10 Hz."""
+    vib_p, rad_p, stiff_p = method_params(car, settings)
+    vp = VoterParams()
+    topics = to_topic_series(result)
+    driver = topics['/vehicle/driver_inputs']
+    t_driver = driver.stamps_ns * 1e-9
+    t_w, omega = result.wheel_speed_t, result.wheel_speed
+    imu_t, yaw = result.imu_t, result.imu_gyro[:, 1]
+    bins = bin_wheel_speeds(t_w, omega, imu_t, 1.0 / rad_p.sample_rate_hz,
+                            rad_p.max_wheel_speed_rad_s)
+    torque_bins = sample_and_hold(t_driver, driver.fields['wheel_torque'], imu_t,
+                                  DRIVER_MAX_AGE_S)
+    steer_bins = sample_and_hold(t_driver, driver.fields['steering_angle'], imu_t,
+                                 DRIVER_MAX_AGE_S)
+    torque_w = sample_and_hold(t_driver, driver.fields['wheel_torque'], t_w, DRIVER_MAX_AGE_S)
+    steer_w = sample_and_hold(t_driver, driver.fields['steering_angle'], t_w, DRIVER_MAX_AGE_S)
+
+    vib = VibrationAnalyzer(vib_p)
+    rad = WheelRadiusAnalyzer(rad_p)
+    stiff = TireStiffnessObserver(stiff_p)
+    vib.start_calibration()
+    rad.start_calibration()
+    stiff.start_calibration()
+    voters = _voters(vp)
+    fs = vib_p.sample_rate_hz
+    block = max(1, round(VIBRATION_BLOCK_S * fs))
+    chunk = max(1, round(STIFFNESS_CHUNK_S * fs))
+    n_ticks = t_w.size // block
+    conf = {m: np.zeros((n_ticks, 4)) for m in METHODS}
+    warnings = {s: np.zeros((n_ticks, 4), dtype=bool) for s in voters}
+    pressure = np.full((n_ticks, 4), np.nan)
+    valid = np.zeros((n_ticks, 4), dtype=bool)
+    ticks = np.empty(n_ticks)
+    errors: dict[str, str] = {}
+    statuses: dict[str, int] = {}
+    calibrated = False
+    imu_pos = stiff_pos = 0
+    latest: dict[str, TpmsIndication] = {}
+    s_est = None
+    for k in range(n_ticks):
+        end = (k + 1) * block
+        now = float(t_w[end - 1])
+        ticks[k] = now
+        vib.process(omega[k * block:end])
+        imu_end = int(np.searchsorted(imu_t, now, side='right'))
+        if imu_end > imu_pos:
+            sl = slice(imu_pos, imu_end)
+            rad.process(imu_t[sl], bins[sl], yaw[sl], torque_bins[sl], steer_bins[sl])
+            imu_pos = imu_end
+        while stiff_pos + chunk <= end:
+            sl = slice(stiff_pos, stiff_pos + chunk)
+            s_est = stiff.update(omega[sl], stamps=t_w[sl], wheel_torque=torque_w[sl],
+                                 steering_angle=steer_w[sl])
+            s_known = np.asarray(s_est.valid) & np.asarray(s_est.wheel_calibrated)
+            latest['stiffness'] = TpmsIndication(
+                'stiffness', float(t_w[stiff_pos + chunk - 1]),
+                np.asarray(s_est.underinflated) & s_known,
+                np.where(s_known, s_est.confidence, 0.0), s_known)
+            stiff_pos += chunk
+        if s_est is not None:
+            known = np.asarray(s_est.valid) & np.asarray(s_est.wheel_calibrated) \
+                & (not s_est.calibrating)
+            valid[k] = known
+            pressure[k] = np.where(known, s_est.pressure_kpa, np.nan)
+            if now >= settings.calibration_s:
+                for st in s_est.status:
+                    statuses[st] = statuses.get(st, 0) + 1
+        if not calibrated and now >= settings.calibration_s:
+            calibrated = True
+            for name, analyzer in (('vibration', vib), ('wheel_radius', rad)):
+                try:
+                    analyzer.finish_calibration()
+                except ValueError as exc:
+                    errors[name] = str(exc)
+            if stiff.calibrating:
+                errors['stiffness'] = 'calibration not finished at the end of the window'
+        latest['vibration'] = vib.indication(now)
+        if imu_pos:
+            latest['wheel_radius'] = rad.indication(float(imu_t[imu_pos - 1]))
+        for m in METHODS:
+            ind = latest.get(m)
+            if ind is not None:
+                conf[m][k] = np.where(ind.known, ind.confidence, 0.0)
+        for name, voter in voters.items():
+            use = [latest[m] for m in voter.params.method_thresholds if m in latest]
+            warnings[name][k] = voter.evaluate(now, use).warning
+    truth = np.column_stack([np.interp(ticks, result.handling.t, result.pressure_kpa[:, w])
+                             for w in range(4)])
+    speed = np.interp(ticks, result.handling.t, np.asarray(result.handling.vx))
+    return {'t': ticks, 'conf': conf, 'warnings': warnings, 'pressure': pressure,
+            'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors,
+            'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0}
+
+
+def _first_all(t: np.ndarray, warn: np.ndarray, tires: tuple[int, ...], after: float
+               ) -> float | None:
+    """First time >= after at which every tire in ``tires`` is warned."""
+    hit = (t >= after) & warn[:, list(tires)].all(axis=1)
+    return float(t[np.argmax(hit)]) if hit.any() else None
+
+
+def score(job: Job, car: FamilyCar, tr: dict[str, Any], tires: tuple[int, ...],
+          reached_s: float) -> dict[str, Any]:
+    """The figures of one run."""
+    s = job.settings
+    t = tr['t']
+    nominal = (t >= s.calibration_s) & (t < s.fault_s)
+    err = tr['pressure'] - tr['truth']
+    rec: dict[str, Any] = {'seed': job.seed, 'case': job.case, 'drive': job.drive,
+                           'tires': [TIRE_NAMES[i] for i in tires],
+                           'calibration_errors': tr['errors'], 'statuses': tr['statuses']}
+    mean, std, valid_frac = [], [], []
+    for w in range(4):
+        rows = nominal & tr['valid'][:, w]
+        valid_frac.append(float(rows.sum() / max(1, nominal.sum())))
+        if rows.sum() >= 20:
+            mean.append(float(np.mean(err[rows, w])))
+            std.append(float(np.std(err[rows, w])))
+        else:
+            mean.append(math.nan)
+            std.append(math.nan)
+    rec['nominal_mean_err_kpa'] = mean
+    rec['nominal_std_kpa'] = std
+    rec['nominal_valid_frac'] = valid_frac
+    rows = nominal & tr['valid'][:, 0]
+    rec['speed_corr_fl'] = float(np.corrcoef(err[rows, 0], tr['speed'][rows])[0, 1]) \
+        if rows.sum() > 20 and np.std(tr['speed'][rows]) > 0 else math.nan
+    end = t > t[-1] - 20.0
+    rec['end_truth_kpa'] = tr['truth'][-1].tolist()
+    rec['end_reading_kpa'] = [float(np.nanmean(tr['pressure'][end, w]))
+                              if tr['valid'][end, w].any() else math.nan for w in range(4)]
+    healthy = [w for w in range(4) if w not in tires]
+    after_cal = t >= s.calibration_s
+    fused = tr['warnings']['fused']
+    first = _first_all(t, fused, tires, s.fault_s)
+    rec['fused_detect_s'] = None if first is None else first - reached_s
+    first_st = _first_all(t, tr['warnings']['stiffness'], tires, s.fault_s)
+    rec['stiffness_detect_s'] = None if first_st is None else first_st - reached_s
+    rec['false_warning_tires'] = [TIRE_NAMES[w] for w in range(4)
+                                  if fused[after_cal & (t < s.fault_s), w].any()
+                                  or (w in healthy and fused[after_cal, w].any())]
+    rec['false_warning_s'] = float(np.sum(fused[after_cal & (t < s.fault_s)].any(axis=1))
+                                   * VIBRATION_BLOCK_S)
+    peaks = {}
+    for m in METHODS:
+        c = tr['conf'][m]
+        nominal_peak = float(c[nominal].max()) if nominal.any() else math.nan
+        healthy_peak = float(c[after_cal][:, healthy].max()) if healthy else math.nan
+        peaks[m] = {'nominal_max_conf': nominal_peak, 'healthy_max_conf': healthy_peak,
+                    'threshold': tr['thresholds'][m],
+                    'margin': tr['thresholds'][m] - max(nominal_peak, healthy_peak
+                                                        if healthy else -1.0)}
+    rec['confidence'] = peaks
+    rec['h0'] = tr['h0']
+    return rec
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Simulate and replay one job (worker)."""
+    t0 = time.perf_counter()
+    car = sample_car(job.seed)
+    events, tires, _, reached = case_events(job, car)
+    duration = reached + job.settings.observe_s
+    scenario = car_scenario(car, job.drive, duration, events,
+                            seed=job.seed * 10 + CASES.index(job.case),
+                            name=f'car{job.seed}_{job.case}_{job.drive}')
+    result = simulate_scenario(scenario)
+    t_sim = time.perf_counter() - t0
+    tr = replay(result, car, job.settings)
+    rec = score(job, car, tr, tires, reached)
+    rec['car'] = car.describe()
+    rec['wall_s'] = [t_sim, time.perf_counter() - t0 - t_sim]
+    return rec
+
+
+def _f(x: float | None, fmt: str = '6.1f', none: str = 'miss') -> str:
+    if x is None:
+        return f'{none:>{fmt.split(".")[0]}}'
+    if isinstance(x, float) and math.isnan(x):
+        return f'{"unk":>{fmt.split(".")[0]}}'
+    return format(x, fmt)
+
+
+def print_record(rec: dict[str, Any]) -> None:
+    """One block of lines per run."""
+    mean = ' '.join(_f(m, '6.1f') for m in rec['nominal_mean_err_kpa'])
+    std = ' '.join(_f(m, '5.1f') for m in rec['nominal_std_kpa'])
+    line = (f'{rec["seed"]} {rec["case"]:<11} {rec["drive"]:<8} nominal err [{mean}] '
+            f'std [{std}] corr(FL,v) {_f(rec["speed_corr_fl"], "5.2f")}')
+    if rec['case'] == 'diffusion20':
+        reading = ' '.join(_f(m, '5.0f') for m in rec['end_reading_kpa'])
+        line += (f' | -20%: truth {rec["end_truth_kpa"][0]:.0f} read [{reading}]'
+                 f' stiff {_f(rec["stiffness_detect_s"])}')
+    line += (f' | fused {"+".join(rec["tires"])} {_f(rec["fused_detect_s"])} s'
+             f' | false {",".join(rec["false_warning_tires"]) or "-"}')
+    conf = ' '.join(f'{m[:3]} {p["nominal_max_conf"]:.2f}/{p["margin"]:+.2f}'
+                    for m, p in rec['confidence'].items())
+    line += f' | max conf/margin {conf}'
+    if rec['calibration_errors']:
+        line += f' | cal errors {rec["calibration_errors"]}'
+    print(line, flush=True)
+
+
+def summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Pass rates against the issue's targets."""
+    out: dict[str, Any] = {}
+    tires = [(m, s) for r in records for m, s in zip(r['nominal_mean_err_kpa'],
+                                                     r['nominal_std_kpa'], strict=True)]
+    known = [(m, s) for m, s in tires if not math.isnan(m)]
+    out['stiffness_nominal_tires'] = len(tires)
+    out['stiffness_nominal_unknown'] = len(tires) - len(known)
+    out['stiffness_nominal_pass'] = sum(abs(m) < 10.0 and s < 5.0 for m, s in known)
+    out['stiffness_nominal_low_gt10'] = sum(m < -10.0 for m, _ in known)
+    out['stiffness_worst_abs_mean_kpa'] = max((abs(m) for m, _ in known), default=math.nan)
+    runs_ok = [all((math.isnan(m) or (abs(m) < 10 and s < 5))
+                   for m, s in zip(r['nominal_mean_err_kpa'], r['nominal_std_kpa'], strict=True))
+               for r in records]
+    out['car_drive_all_tires_ok_or_unknown'] = f'{sum(runs_ok)}/{len(records)}'
+    diff = [r for r in records if r['case'] == 'diffusion20']
+    if diff:
+        read_err = [abs(x - r['end_truth_kpa'][0]) for r in diff for x in r['end_reading_kpa']
+                    if not math.isnan(x)]
+        out['diffusion_reading_within_10kpa'] = f'{sum(e < 10 for e in read_err)}/' \
+                                                f'{4 * len(diff)} tires'
+        named = sum(r['fused_detect_s'] is not None and r['fused_detect_s'] <= 120.0
+                    for r in diff)
+        out['diffusion_fused_named_within_120s'] = f'{named}/{len(diff)}'
+        out['diffusion_stiffness_alone'] = \
+            f'{sum(r["stiffness_detect_s"] is not None for r in diff)}/{len(diff)}'
+    for case, limit in (('puncture25', 60.0), ('puncture15', 60.0)):
+        rs = [r for r in records if r['case'] == case]
+        if rs:
+            times = [r['fused_detect_s'] for r in rs if r['fused_detect_s'] is not None]
+            out[f'{case}_within_60s'] = \
+                f'{sum(x <= limit for x in times)}/{len(rs)}'
+            out[f'{case}_worst_s'] = max(times) if len(times) == len(rs) else 'miss'
+    out['runs_with_false_warning'] = f'{sum(bool(r["false_warning_tires"]) for r in records)}' \
+                                     f'/{len(records)}'
+    out['nominal_minutes'] = sum((r.get('nominal_s', 0.0)) for r in records) / 60.0
+    for m in METHODS:
+        out[f'{m}_max_nominal_conf'] = max(r['confidence'][m]['nominal_max_conf']
+                                           for r in records)
+        out[f'{m}_min_margin'] = min(r['confidence'][m]['margin'] for r in records)
+    return out
+
+
+def main() -> None:
+    """Command line."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--cars', type=int, default=len(HELD_OUT_SEEDS),
+                        help='first N held-out cars')
+    parser.add_argument('--seeds', default='', help='comma-separated seeds instead')
+    parser.add_argument('--tuning', action='store_true', help='use the tuning seeds')
+    parser.add_argument('--cases', default=','.join(CASES))
+    parser.add_argument('--drives', default='', help='fixed drive kind (default: rotate)')
+    parser.add_argument('--calibration-s', type=float, default=Settings.calibration_s)
+    parser.add_argument('--fault-s', type=float, default=Settings.fault_s)
+    parser.add_argument('--observe-s', type=float, default=Settings.observe_s)
+    parser.add_argument('--diffusion-pct-per-min', type=float,
+                        default=Settings.diffusion_pct_per_min)
+    parser.add_argument('--no-tooth-correction', action='store_true')
+    parser.add_argument('--workers', type=int, default=1)
+    parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
+    args = parser.parse_args()
+    settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
+                        args.diffusion_pct_per_min, not args.no_tooth_correction)
+    pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
+    seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
+        list(pool_seeds[:args.cars])
+    cases = [c for c in args.cases.split(',') if c]
+    jobs = []
+    for i, seed in enumerate(seeds):
+        for j, case in enumerate(cases):
+            drive = args.drives or DRIVE_KINDS[(i + j) % len(DRIVE_KINDS)]
+            jobs.append(Job(seed, case, drive, settings))
+    print(f'{len(jobs)} runs: cars {seeds}, cases {cases}; {settings}', flush=True)
+    t0 = time.perf_counter()
+    records: list[dict[str, Any]] = []
+    workers = max(1, min(args.workers, 2))
+    with multiprocessing.get_context('fork').Pool(workers, maxtasksperchild=2) as pool:
+        for rec in pool.imap_unordered(run_job, jobs):
+            rec['nominal_s'] = settings.fault_s - settings.calibration_s
+            records.append(rec)
+            print(f'[{len(records)}/{len(jobs)} {time.perf_counter() - t0:5.0f} s] '
+                  f'{rec["car"]}', flush=True)
+            print_record(rec)
+            args.out.write_text(json.dumps({'settings': settings.__dict__, 'records': records}))
+    records.sort(key=lambda r: (r['seed'], r['case']))
+    print('\n=== per car and case ===')
+    for rec in records:
+        print_record(rec)
+    result = summary(records)
+    print('\n=== summary ===')
+    for key, value in result.items():
+        print(f'{key}: {value}')
+    args.out.write_text(json.dumps({'settings': settings.__dict__, 'records': records,
+                                    'summary': result}, default=str))
+    print(f'wrote {args.out}; {time.perf_counter() - t0:.0f} s wall')
+
+
+if __name__ == '__main__':
+    main()
