@@ -9,7 +9,6 @@ the node reads them back as one typed object.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 import math
 import os
 import sys
@@ -39,7 +38,6 @@ from vehicle_monitor_common.parameters import (
     build,
     check_choice,
     flatten,
-    param,
     parameter_specs,
 )
 
@@ -218,47 +216,6 @@ def _format(value: Any) -> str:
     if isinstance(value, (list, tuple, np.ndarray)):
         return '[' + ', '.join(_format(v) for v in value) + ']'
     return str(value)
-
-
-@dataclass
-class ProcessAhead:
-    """When a node that answers buffered samples in chunks processes its buffer early.
-
-    An output stamped with sample s can only leave once every buffered sample up to s went
-    through the estimator, so its latency is the work on what is still buffered when s
-    arrives. Processing the buffer once, a lead time of data before each output falls due,
-    leaves only the samples of that lead for then (one more core call per output); the bulk
-    of the work runs while the sensor stream still has the lead to go.
-    """
-
-    _armed: bool = True
-
-    def due(self, remaining_s: float, lead_s: float) -> bool:
-        """True once per output, at the first sample within ``lead_s`` before it falls due
-        (``remaining_s``: data time still to go; 0 or less: the output itself)."""
-        if not self._armed or remaining_s <= 1e-9 or remaining_s > lead_s + 1e-9:
-            return False
-        self._armed = False
-        return True
-
-    def published(self) -> None:
-        """An output left: the next one gets its early processing again."""
-        self._armed = True
-
-
-def process_ahead_param() -> Any:
-    """The ``process_ahead_s`` parameter of a node using :class:`ProcessAhead`."""
-    return param(0.02, 'the buffered input also goes to the core this long (data time) before '
-                 'each output falls due, so little work is left when it does: lower output '
-                 'latency for one more core call per output, s (0: off)', low=0.0, high=10.0)
-
-
-def output_phase_param() -> Any:
-    """The ``output_phase_s`` parameter of a node whose outputs fall due in data time."""
-    return param(0.0, 'the first output comes this much data time later than otherwise, and '
-                 'every later one with it (the period stays): nodes composed in one process '
-                 'take different phases so that the work of their outputs does not coincide, s',
-                 low=0.0, high=10.0)
 
 
 NOT_PERSISTED = 'none'
