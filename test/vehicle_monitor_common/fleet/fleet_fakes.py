@@ -103,3 +103,22 @@ def make_creep(values: Mapping[str, Any], fqn: str) -> Creep:
 
 def make_suspension(values: Mapping[str, Any], fqn: str) -> Suspension:
     return Suspension()
+
+
+class Crasher:
+    """Kills its process at the first message (a worker dying, e.g. out of memory)."""
+
+    inputs = {'vehicle/imu': Input(IMU)}
+    outputs: dict[str, str] = {}
+
+    def process(self, topic: str, message: Any) -> list[Output]:
+        import os
+
+        os._exit(3)
+
+    def status(self, now_ns: int) -> Status:
+        return Status()
+
+
+def make_crasher(values: Mapping[str, Any], fqn: str) -> Crasher:
+    return Crasher()

@@ -225,16 +225,29 @@ def test_cli_writes_tables_and_report(tmp_path: Path, capsys: pytest.CaptureFixt
 @pytest.mark.timeout(240)
 def test_on_a_local_ray_the_results_are_the_local_ones(tmp_path: Path) -> None:
     """A real embedded Ray (one CPU) gives the same tables as running in this process,
-    with the calibration chain carried between tasks."""
-    manifest = read_manifest(small_fleet(tmp_path))
+    with the calibration chain carried between tasks; a task whose worker dies is its
+    recording's error row."""
+    manifest_path = small_fleet(tmp_path)
+    manifest = read_manifest(manifest_path)
     run_fleet(manifest, tmp_path / 'local', LocalExecutor(), log=lambda _: None)
+    crash_graph = tmp_path / 'crash.yaml'
+    crash_graph.write_text(yaml.safe_dump({'nodes': [
+        {'plugin': 'fleet_fakes:make_crasher', 'name': 'crasher'}]}))
+    drive(tmp_path / 'drives' / 'car3' / 'd1', 1, np.full(5, 1.0))
+    data = yaml.safe_load(manifest_path.read_text())
+    data['vehicles'] = {'car3': {'graph': str(crash_graph)}}
+    data['recordings'].append('drives/car3/d1')
+    manifest_path.write_text(yaml.safe_dump(data))
     path = os.pathsep.join([str(HERE), *sys.path])
     executor = RayExecutor(num_cpus=1, runtime_env={'env_vars': {'PYTHONPATH': path}})
     try:
-        run = run_fleet(manifest, tmp_path / 'ray', executor, log=lambda _: None)
+        run = run_fleet(read_manifest(manifest_path), tmp_path / 'ray', executor,
+                        log=lambda _: None)
     finally:
         executor.close()
-    assert (run.done, run.failed) == (4, 0)
+    assert (run.done, run.failed) == (5, 1)
+    assert run.errors[0].startswith('car3/d1: task failed: ')
+    shutil.rmtree(tmp_path / 'ray' / 'summary' / 'vehicle=car3')
 
     def table(out: Path) -> object:
         frame = read_table(out, 'summary').to_pandas().drop(

@@ -220,10 +220,16 @@ def run_recording(task: Task, calibration: Calibration | None = None) -> Recordi
         with _local_copy(task.recording.path) as bag:
             return _screen(task, bag, calibration, base, started)
     except Exception as exc:  # noqa: BLE001 - any failure is this recording's result row
-        base['error'] = _one_line(exc)
-        base['wall_s'] = time.perf_counter() - started
-        return RecordingResult(task.recording, [base], [], calibration, base['error'],
-                               base['wall_s'])
+        return error_result(task, _one_line(exc), calibration, time.perf_counter() - started)
+
+
+def error_result(task: Task, error: str, calibration: Calibration | None = None,
+                 wall_s: float = 0.0) -> RecordingResult:
+    """The result of a recording that could not be screened: its row with the error; the
+    calibration passes on unchanged."""
+    base = _base_row(task)
+    base.update(error=error, wall_s=wall_s)
+    return RecordingResult(task.recording, [base], [], calibration, error, wall_s)
 
 
 def _screen(task: Task, bag: str, calibration: Calibration | None, base: dict[str, Any],
@@ -343,15 +349,23 @@ class RayExecutor:
             ray.init(**kwargs)
         self._remote = ray.remote(num_returns=2, num_cpus=1, max_retries=1)(_ray_task)
         self._pending: list[Any] = []
+        self._tasks: dict[Any, Task] = {}
 
     def submit(self, task: Task, calibration: Any) -> tuple[Any, Any]:
         refs: Any = self._remote.remote(task, calibration)  # num_returns=2: two ObjectRefs
         self._pending.append(refs[0])
+        self._tasks[refs[0]] = task
         return refs[0], refs[1]
 
     def next_done(self) -> RecordingResult:
         done, self._pending = self._ray.wait(self._pending, num_returns=1)
-        result: RecordingResult = self._ray.get(done[0])
+        task = self._tasks.pop(done[0])
+        try:
+            result: RecordingResult = self._ray.get(done[0])
+        except self._ray.exceptions.RayError as exc:
+            # the worker died (out of memory, killed) even after a retry, or the task it
+            # waited for did: this recording's error row, the job goes on
+            result = error_result(task, f'task failed: {_one_line(exc)}')
         return result
 
     def close(self) -> None:
