@@ -99,8 +99,8 @@ class SimulatorNode(ScenarioPlayer):
         if candidate.is_dir():
             return candidate
         available = ', '.join(sorted(p.name for p in shipped.glob('*') if p.is_dir()))
-        raise ConfigurationError(f'bag {bag}: no such recording, nor a bag {self.package} '
-                                 f'ships (available: {available or "none"})')
+        raise ConfigurationError(f'bag {bag}: no such bag, nor one that {self.package} ships '
+                                 f'(available: {available or "none"})')
 
     def destroy_node(self) -> None:
         """Stop the replay, then remove a temporary bag."""
