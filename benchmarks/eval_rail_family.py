@@ -47,7 +47,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
-from dataclasses import dataclass, field  # noqa: E402
+from dataclasses import dataclass, field, replace  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
@@ -71,6 +71,7 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     DEVELOPMENT_SEEDS,
     HELD_OUT_SEEDS,
     IMM_SPEED_RANGE,
+    OFFSETS,
     FamilyCar,
     case_seed,
     creep_steps_scenario,
@@ -156,11 +157,18 @@ def creep_inputs(result: RailSimulationResult, pattern: str, spec_fields: bool,
 
 
 def run_creep_case(car: FamilyCar, speed: float, config: str,
-                   sims: dict[float, RailSimulationResult]) -> CreepCase:
+                   sims: dict[float, RailSimulationResult], track_model: str) -> CreepCase:
     fields_kind, track_kind = config.split('/')
     pattern = fields_kind[0]
     result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
     values = {**vehicle_values(car, speed), 'pattern': pattern}
+    if track_model == 'spectrum':
+        # The line's spectrum and the map's stated accuracy (exact: the survey's 0.01 mm).
+        spectrum = TRACK_SPECTRA[car.spectrum]
+        values |= {'track_model': 'spectrum', 'track_roughness_m_rad': spectrum.roughness,
+                   'track_corner_wavenumber_rad_per_m': spectrum.omega_c,
+                   'track_long_wavenumber_rad_per_m': spectrum.omega_r,
+                   'track_map_error_m': MAP_ERROR if track_kind == 'map0.3' else 1e-5}
     params = build(CreepEkfParams, values)
     z = creep_inputs(result, pattern, fields_kind == 'C-spec')
     track = None
@@ -188,8 +196,9 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
 
 
 def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[str],
-                  ) -> list[CreepCase]:
-    _say(f'\n== Creep estimator: {len(cars)} cars x {n_speeds} speeds x {len(configs)} configs')
+                  track_model: str) -> list[CreepCase]:
+    _say(f'\n== Creep estimator: {len(cars)} cars x {n_speeds} speeds x {len(configs)} configs'
+         f' (track model: {track_model})')
     cases: list[CreepCase] = []
     for car in cars:
         for index, speed in enumerate(sample_speeds(car, n_speeds)):
@@ -197,7 +206,7 @@ def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[st
             sims = {error: simulate(creep_steps_scenario(car, speed, seed, error))
                     for error in (0.0, MAP_ERROR)}
             for config in configs:
-                case = run_creep_case(car, speed, config, sims)
+                case = run_creep_case(car, speed, config, sims, track_model)
                 cases.append(case)
                 _say(f'car {car.seed} {speed:5.1f} m/s {config:13s} '
                      f'settle5 {_times(case.settle_5)} settle10 {_times(case.settle_10)} '
@@ -411,8 +420,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--skip-imm', action='store_true')
     parser.add_argument('--creep-configs', default=','.join(CREEP_CONFIGS),
                         help=f'comma-separated subset of {CREEP_CONFIGS}')
+    parser.add_argument('--creep-track-model', choices=('default', 'spectrum'),
+                        default='default',
+                        help="spectrum: track_model 'spectrum' with the line's spectrum and the "
+                             "map's stated accuracy (default: the estimator's defaults)")
     parser.add_argument('--healthy-s', type=float, default=60.0,
                         help='healthy run per car and speed, s (issue target: 30 min per car)')
+    parser.add_argument('--no-offsets', action='store_true',
+                        help='ablation: the cars without their constant sensor offsets')
     parser.add_argument('--json', help='write the per-case figures here')
     args = parser.parse_args(argv)
     seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS
@@ -423,7 +438,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f'unknown creep configs {sorted(unknown)}; known: {CREEP_CONFIGS}')
     cars = [sample_car(seed) for seed in seeds]
-    _say(f'{args.seeds} family: {len(cars)} cars')
+    if args.no_offsets:
+        cars = [replace(car, sensors=replace(car.sensors, **dict.fromkeys(OFFSETS, 0.0)))
+                for car in cars]
+    _say(f'{args.seeds} family: {len(cars)} cars'
+         + (' (ablation: no sensor offsets)' if args.no_offsets else ''))
     for car in cars:
         _say('  ' + car.describe())
     nominal = RailVehicleParams()
@@ -431,7 +450,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out: dict[str, Any] = {'seeds': list(seeds)}
     start = time.time()
     if not args.skip_creep:
-        out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs)]
+        out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs,
+                                                     args.creep_track_model)]
     if not args.skip_imm:
         out['imm'] = [vars(c) for c in imm_section(cars, args.speeds, args.healthy_s)]
     _say(f'\ntotal {time.time() - start:.0f} s wall')

@@ -29,7 +29,7 @@ def short_drop() -> RailSimulationResult:
 def test_simulation_inputs_shapes(short_drop: RailSimulationResult) -> None:
     """Measurements per pattern (end model: A 16 channels ... D 3), track with its rate, speed."""
     n = short_drop.time.size
-    for pattern, width in (('A', 16), ('B', 8), ('C', 6), ('D', 3)):
+    for pattern, width in (('A', 16), ('B', 6), ('C', 4), ('D', 3)):
         z, track, speed = simulation_inputs(short_drop, pattern)
         assert z.shape == (n, width) and track.shape == (n, 4) and speed.shape == (n,)
     _, track, _ = simulation_inputs(short_drop, 'C', track_rate=False)
