@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 from pathlib import Path
+import re
 import sys
 import xml.etree.ElementTree as ET
 
@@ -36,9 +37,13 @@ DATA_DEPENDENCIES = {'vehicle_monitor_common': {'vehicle_monitor_msgs'}}
 
 
 def _imports(package: str) -> set[str]:
+    """Top-level modules a package imports, and the message packages it names by type
+    (``'sensor_msgs/msg/Imu'``: processors declare their inputs so, the adapter imports them)."""
     names: set[str] = set()
     for path in (SRC / package / package).rglob('*.py'):
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        text = path.read_text()
+        names |= set(re.findall(r"""['"](\w+)/msg/\w+['"]""", text))
+        for node in ast.walk(ast.parse(text, str(path))):
             if isinstance(node, ast.Import):
                 names |= {alias.name.split('.')[0] for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
