@@ -416,7 +416,11 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
     est2 = run(other, omega)[-1]
     np.testing.assert_allclose(est2.pressure_kpa, est.pressure_kpa, rtol=1e-12)
     np.testing.assert_allclose(est2.pressure_std_kpa, est.pressure_std_kpa, rtol=1e-12)
+    # Blocks that agree exactly (a spread of 0) are a calibration a restart reloads.
+    other.load_calibration_state({**state, 'k_block_std': [0.0] * 4})
+    assert other.estimate().calibrated
     corrupt = [
+        ({**state, 'k_block_std': [-1.0] * 4}, 'k_block_std'),
         ({**state, 'k_nominal': state['k_nominal'][:3]}, 'k_nominal'),
         ({**state, 'k_nominal': [float('nan')] * 4}, 'k_nominal'),
         ({**state, 'k_block_std': 'abc'}, 'k_block_std'),

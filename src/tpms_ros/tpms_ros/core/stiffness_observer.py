@@ -607,9 +607,13 @@ class TireStiffnessObserver:
                 arr = np.asarray(value, dtype=float)
             except (TypeError, ValueError):
                 raise ValueError(f'calibration {key!r} is not numeric: {value!r}') from None
-            if arr.shape != (N_WHEELS,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-                raise ValueError(f'calibration {key!r} must be {N_WHEELS} finite values > 0, '
-                                 f'got {value!r}')
+            # The block spread is a median absolute deviation: 0 when the calibration's blocks
+            # agree (or were clipped alike), which a restart must be able to reload.
+            low_ok = arr >= 0 if key == 'k_block_std' else arr > 0
+            if arr.shape != (N_WHEELS,) or not np.all(np.isfinite(arr)) or not np.all(low_ok):
+                bound = '>= 0' if key == 'k_block_std' else '> 0'
+                raise ValueError(f'calibration {key!r} must be {N_WHEELS} finite values '
+                                 f'{bound}, got {value!r}')
             arrays[key] = arr
         block_s = state.get('block_s')
         if not (isinstance(block_s, (int, float)) and math.isfinite(block_s) and block_s > 0):
