@@ -1,0 +1,141 @@
+"""Property-based layer of the fault injection (Hypothesis): random sequences of clean and
+faulty input on the cores and the stamp check. Whatever the sequence, nothing raises, nothing
+non-finite is reported as known, and probabilities stay probabilities."""
+
+from __future__ import annotations
+
+from functools import cache
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+import numpy as np
+
+from vehicle_monitor_common.input_health import StampCheck
+
+MS = 1_000_000
+SETTINGS = settings(max_examples=40, deadline=None, derandomize=True)
+
+# One step of a stamp stream: a regular sample, a repeat, a late one, a lone far-future one,
+# or the start of a new time line (a jump) of some length.
+STAMP_EVENTS = st.lists(st.one_of(
+    st.just(('next', 0)), st.just(('repeat', 0)), st.just(('late', 0)),
+    st.tuples(st.just('future'), st.integers(11, 10**6)),
+    st.tuples(st.just('jump'), st.integers(-10**4, 10**4))), min_size=1, max_size=60)
+
+
+@SETTINGS
+@given(STAMP_EVENTS)
+def test_stamp_check_never_adopts_a_lone_outlier(events: list[tuple[str, int]]) -> None:
+    """Accepted stamps increase between confirmed jumps; a stamp beyond the jump horizon is
+    never taken as the new 'now' on its own; every rejection is counted."""
+    check = StampCheck(max_gap_s=0.5, confirm_samples=3)
+    t, accepted = 10**12, []
+    for kind, arg in events:
+        if kind == 'next':
+            t += MS
+            stamp = t
+        elif kind == 'repeat':
+            stamp = t
+        elif kind == 'late':
+            stamp = t - 5 * MS
+        elif kind == 'future':
+            stamp = t + arg * 10**9
+        else:
+            t += arg * 10**9
+            stamp = t
+        before = check.last_ns
+        verdict = check.check(stamp)
+        if verdict in ('ok', 'gap'):
+            assert before is None or stamp > before
+            accepted.append(stamp)
+        elif verdict == 'jump':
+            accepted = [stamp]
+        else:
+            assert check.last_ns == before
+        if before is not None and abs(stamp - before) > check.jump_horizon_s * 1e9:
+            # beyond the horizon, a stamp is only ever taken as a confirmed jump
+            assert verdict not in ('ok', 'gap')
+    assert sum(check.rejected.values()) <= len(events)
+    assert accepted == sorted(accepted)
+
+
+# A block of four wheel speeds at 1 kHz: clean road excitation around 60 rad/s, or a fault
+# (NaN, inf, negative, zero, absurd, stuck) on some wheels.
+FAULTS = st.sampled_from(['clean', 'nan', 'inf', 'negative', 'dead', 'absurd', 'stuck'])
+BLOCKS = st.lists(st.tuples(FAULTS, st.integers(0, 15), st.integers(0, 2**16)),
+                  min_size=1, max_size=12)
+
+
+def _block(kind: str, wheels: int, seed: int, n: int = 100) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    omega = 60.0 + 0.3 * rng.standard_normal((n, 4))
+    mask = np.array([(wheels >> w) & 1 for w in range(4)], dtype=bool)
+    value = {'nan': math.nan, 'inf': math.inf, 'negative': -60.0, 'dead': 0.0,
+             'absurd': 1e9}.get(kind)
+    if kind == 'stuck':
+        omega[:, mask] = omega[0, mask]
+    elif value is not None:
+        omega[:, mask] = value
+    return omega
+
+
+@SETTINGS
+@given(BLOCKS)
+def test_vibration_analysis_reports_nothing_nonfinite_as_known(
+        blocks: list[tuple[str, int, int]]) -> None:
+    """Any sequence of clean and faulty blocks: the resonance of a known tire is finite and
+    positive, and a tire whose latest block was faulty is not known."""
+    from tpms_ros.core.vibration_analysis import VibrationAnalyzer
+
+    analyzer = VibrationAnalyzer()
+    for kind, wheels, seed in blocks:
+        estimate = analyzer.process(_block(kind, wheels, seed))
+        known = np.asarray(estimate.known, dtype=bool)
+        frequency = np.asarray(estimate.frequency_hz, dtype=float)
+        assert np.all(np.isfinite(frequency[known]) & (frequency[known] > 0))
+        if kind in ('nan', 'inf', 'negative', 'dead', 'absurd'):
+            faulty = np.array([(wheels >> w) & 1 for w in range(4)], dtype=bool)
+            assert not np.any(known & faulty)
+
+
+@cache
+def _imm_and_clean() -> tuple[object, np.ndarray]:
+    from rail_monitor_ros.core.suspension_imm import SuspensionImm
+
+    rng = np.random.default_rng(5)
+    clean = np.column_stack([0.05 * rng.standard_normal(400), 0.002 * rng.standard_normal(400),
+                             0.03 * rng.standard_normal(400)])
+    return SuspensionImm(), clean
+
+
+IMM_SAMPLES = st.lists(st.tuples(
+    st.sampled_from(['clean', 'nan', 'inf', 'short', 'missing', 'absurd']),
+    st.integers(0, 399)), min_size=1, max_size=40)
+
+
+@SETTINGS
+@given(IMM_SAMPLES)
+def test_imm_probabilities_stay_probabilities(samples: list[tuple[str, int]]) -> None:
+    """Any sequence of clean and faulty IMU samples: a faulty one is not used, the mode
+    probabilities stay finite, in [0, 1] and sum to 1, the state stays finite."""
+    imm, clean = _imm_and_clean()
+    for kind, index in samples:
+        z: object = clean[index].copy()
+        if kind == 'nan':
+            z = np.array([math.nan, 0.0, 0.0])
+        elif kind == 'inf':
+            z = np.array([0.0, math.inf, 0.0])
+        elif kind == 'short':
+            z = clean[index][:2]
+        elif kind == 'missing':
+            z = None
+        elif kind == 'absurd':
+            z = clean[index] * 1e12
+        step = imm.step(z)  # type: ignore[attr-defined]
+        if kind in ('nan', 'inf', 'short', 'missing'):
+            assert not step.accepted
+        for p in (step.probability, step.smoothed_probability):
+            assert np.all(np.isfinite(p)) and np.all((p >= 0) & (p <= 1 + 1e-12))
+            assert abs(p.sum() - 1.0) < 1e-9
+        assert np.all(np.isfinite(step.state))
