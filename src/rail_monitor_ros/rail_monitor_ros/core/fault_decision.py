@@ -69,6 +69,16 @@ class FaultDecision:
         self._pending: tuple[float, float] | None = None
         self._held = 0
 
+    @property
+    def state(self) -> tuple[tuple[float, float], tuple[float, float] | None, int]:
+        """(declared, pending, samples held): to go back to with :meth:`load_state`."""
+        return self._declared, self._pending, self._held
+
+    def load_state(self, state: tuple[tuple[float, float], tuple[float, float] | None,
+                                      int]) -> None:
+        """Back to a :attr:`state`."""
+        self._declared, self._pending, self._held = state
+
     def update(self, keys: Sequence[tuple[float, float]],
                probabilities: np.ndarray) -> FaultStatus:
         """One sample: hypothesis keys (spring, damper) and their smoothed probabilities."""

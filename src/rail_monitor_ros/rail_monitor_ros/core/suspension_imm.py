@@ -141,6 +141,22 @@ class ModeModel:
         return self.steady[known]
 
 
+@dataclass(frozen=True)
+class ProbabilitySnapshot:
+    """:meth:`SuspensionImm.snapshot`: the learned suspension state, without the motion."""
+
+    mu: np.ndarray
+    smoothed: np.ndarray
+    smoothing: np.ndarray
+    smoothing_sum: np.ndarray
+    smoothing_count: int
+    decision: tuple[tuple[float, float], tuple[float, float] | None, int]
+    fault: FaultStatus
+    spring_ratio: float
+    damper_ratio: float
+    damper_spring: float
+
+
 # Mode discretisations shared by all instances with the same configuration and vehicle (a
 # sweep or a test suite builds many; one full-car mode costs a 120 x 120 matrix exponential).
 # Bounded: the oldest entry goes first.
@@ -705,6 +721,30 @@ class SuspensionImm:
         self.fault = NO_FAULT
         self.spring_ratio = 1.0
         self.damper_ratio = 1.0
+        self.reset_states()
+
+    def snapshot(self) -> ProbabilitySnapshot:
+        """What the monitor has learned about the suspension (mode probabilities, their
+        smoothing, the decision, the adaptive bank's spring ratio), cheap to take every
+        sample: :meth:`restore` goes back to it when the samples since turn out to be bad."""
+        return ProbabilitySnapshot(
+            self.mu.copy(), self.smoothed.copy(), self._smoothing.copy(),
+            self._smoothing_sum.copy(), self._smoothing_count, self.decision.state, self.fault,
+            self.spring_ratio, self.damper_ratio, self._damper_spring)
+
+    def restore(self, snapshot: ProbabilitySnapshot) -> None:
+        """Back to a :meth:`snapshot` (an input found faulty after it had been used): the
+        probabilities, smoothing and decision as they were, the bank's states restarted (the
+        motion since is unknown; data time is kept, the next sample follows as after a gap)."""
+        s = snapshot
+        if s.damper_spring != self._damper_spring:
+            self._build_bank(s.damper_spring)
+        self.mu, self.smoothed = s.mu.copy(), s.smoothed.copy()
+        self._smoothing, self._smoothing_sum = s.smoothing.copy(), s.smoothing_sum.copy()
+        self._smoothing_count = s.smoothing_count
+        self.decision.load_state(s.decision)
+        self.fault, self.spring_ratio, self.damper_ratio = s.fault, s.spring_ratio, \
+            s.damper_ratio
         self.reset_states()
 
     def reset_states(self) -> None:

@@ -82,6 +82,7 @@ CREEP = 'rail/creep_factor'
 # Published std_dev of an estimate that is held, not measured (input fault, track lost): c is
 # unknown within about its whole range (the suspension monitor's creep_max_std refuses it).
 UNKNOWN_STD = 1.0
+_LATERAL_SIZES = {'wheelset': 4, 'bogie': 2, 'body': 1}   # RailLateralStates' fixed sizes
 LATERAL_FIELDS = ('wheelset_lateral', 'wheelset_lateral_rate', 'wheelset_yaw',
                   'wheelset_yaw_rate', 'bogie_lateral', 'bogie_lateral_rate', 'bogie_yaw',
                   'bogie_yaw_rate', 'body_lateral', 'body_lateral_rate', 'body_yaw',
@@ -112,7 +113,7 @@ class CreepEstimatorNodeParams:
     jump_horizon_s: float = param(10.0, 'a stamp this far ahead of the last one (or any behind '
                                   'it) is a time jump once confirmed, else dropped, s', low=0.01,
                                   high=1e6, read_only=True)
-    recovery_s: float = param(3.0, 'after an input fault or a time jump the estimate is '
+    recovery_s: float = param(1.0, 'after an input fault or a time jump the estimate is '
                               'reported unknown (std widened) this long while the filter '
                               'settles, s', low=0.0, high=600.0)
     diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01, high=60.0,
@@ -132,6 +133,12 @@ class _Pending:
 
 
 _MISSING = np.empty(0)
+# After a sample closer than half a period to the previous one (a burst), the filter only
+# predicts until the samples have come at their rate for this many periods.
+BURST_PERIODS = 10
+# Counters of rejected inputs (the status names the new ones).
+_REJECTIONS = ('frozen', 'wrong_size', 'non_finite', 'saturated', 'rate_burst',
+               'track_wrong_size', 'track_frozen', 'main_late', 'track_late', 'overflow')
 _WRONG_SIZE = np.empty(0)
 
 
@@ -168,15 +175,15 @@ class CreepEstimatorProcessor:
         self._stamp_rejected: dict[str, int] = {}
         self._last_processed_ns: int | None = None
         self._frozen = FrozenDetector(self.ekf.n_measurements)
-        self._track_last: bytes | None = None
-        self._track_repeats = 0
+        self._track_frozen: FrozenDetector | None = None
+        self._track_frozen_size = 0
         self._period_ns = round(1e9 / params.sample_rate_hz)
         self._rates = {topic: RateMeter() for topic in self.inputs}
         self._counts = dict.fromkeys(
             ('received', 'processed', 'published', 'frozen', 'wrong_size', 'overflow',
              'known_input', 'unknown_input', 'track_received', 'track_wrong_size', 'main_late',
              'track_late', 'non_finite', 'saturated', 'track_frozen', 'track_lost', 'held',
-             'time_jumps'), 0)
+             'time_jumps', 'rate_burst'), 0)
         self.last: CreepEstimate | None = None
         # Input faults: the current one, and the data time until which the estimate is still
         # reported unknown (and why); the low-adhesion flag held meanwhile.
@@ -187,6 +194,9 @@ class CreepEstimatorProcessor:
         self._track_used = False      # a sample had its track part (known-input mode in use)
         self._resets_seen = 0
         self._progress: tuple[int, int | None] = (0, None)
+        self._reported: dict[str, int] = {}     # rejections already in a status
+        self._burst_until_ns: int | None = None
+        self._arrivals: dict[str, int] = {}     # last stamp of each measurement stream
         self._track_stale = True
 
     def _new_stamp_checks(self) -> dict[str, StampCheck]:
@@ -231,9 +241,22 @@ class CreepEstimatorProcessor:
         if topic == self._driving:
             self._counts['received'] += 1
         stamp = header_stamp_ns(message)
-        if not self._stamp_ok(topic, stamp):
+        if not self._stamp_ok(topic, stamp) or self._burst(topic, stamp):
             return []
         return self._handlers[topic](stamp, message)
+
+    def _burst(self, topic: str, stamp: int) -> bool:
+        """Whether a measurement sample comes closer than half a period after the previous
+        one of its stream (a burst, not the sensor's rate): refused, and the filter only
+        predicts until the stream is back at its rate for BURST_PERIODS periods."""
+        if topic == TRACK:
+            return False
+        last, self._arrivals[topic] = self._arrivals.get(topic), stamp
+        if last is not None and 2 * (stamp - last) < self._period_ns:
+            self._counts['rate_burst'] += 1
+            self._burst_until_ns = stamp + BURST_PERIODS * self._period_ns
+            return True
+        return False
 
     def _stamp_ok(self, topic: str, stamp: int) -> bool:
         """Whether a stamp is accepted; a confirmed time jump restarts the filter."""
@@ -260,9 +283,10 @@ class CreepEstimatorProcessor:
         self._pairer.reset()
         self._pending.clear()
         self._latest = {'main': -1, 'track': -1}
-        self._last_processed_ns = None
+        self._last_processed_ns = self._burst_until_ns = None
+        self._arrivals.clear()
         self._frozen.reset()
-        self._track_last, self._track_repeats = None, 0
+        self._track_frozen = None
         self._track_used = False
         self._fault = ''
         self._stamp_checks = self._new_stamp_checks()
@@ -282,6 +306,9 @@ class CreepEstimatorProcessor:
         try:
             fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
                       for name in LATERAL_FIELDS}
+            sizes = {name: f.size for name, f in fields.items()}
+            if any(sizes[name] != _LATERAL_SIZES[name.split('_')[0]] for name in sizes):
+                raise ValueError(f'array sizes {sizes}')
             vector = lateral_states_measurement(fields, p.pattern, p.bogie,
                                                 p.vehicle.bogie_pivot_semi_spacing, p.model)[0]
         except (ValueError, IndexError):
@@ -320,12 +347,11 @@ class CreepEstimatorProcessor:
         if rate.size == alignment.size:
             # With its rate the filter's track states follow the track within the sample.
             part = np.concatenate([part, rate[2 * j:2 * j + 2]])
-        # The whole part repeating bit for bit: a frozen track measurement, not a track (one
-        # constant channel may be a straight track).
-        raw = part.tobytes()
-        self._track_repeats = self._track_repeats + 1 if raw == self._track_last else 0
-        self._track_last = raw
-        if self._track_repeats * self._period_ns * 1e-9 >= self.node_params.frozen_s:
+        # A channel repeating bit for bit: a frozen track measurement (a measured track is
+        # never exactly constant: its sensors' noise).
+        if self._track_frozen is None or self._track_frozen_size != part.size:
+            self._track_frozen, self._track_frozen_size = FrozenDetector(part.size), part.size
+        if self._track_frozen.update(part) * self._period_ns * 1e-9 >= self.node_params.frozen_s:
             self._counts['track_frozen'] += 1
             return []
         return self._add_part('track', stamp, part)
@@ -389,9 +415,18 @@ class CreepEstimatorProcessor:
     def _process(self, entry: _Pending) -> Output | None:
         assert entry.main is not None
         stamp = entry.stamp
+        if self._last_processed_ns is not None and \
+                2 * (stamp - self._last_processed_ns) < self._period_ns:
+            # Closer than half a period to the previous sample: a burst, not the sensor's rate;
+            # the filter only predicts until the stream is back at its rate for BURST_PERIODS.
+            self._counts['rate_burst'] += 1
+            self._burst_until_ns = stamp + BURST_PERIODS * self._period_ns
+            return None
         self.ekf.advance_to(stamp)
         self._last_processed_ns = stamp
         vector, fault = self._check_measurement(entry.main)
+        if not fault and self._burst_until_ns is not None and stamp < self._burst_until_ns:
+            fault = 'rate_burst'
         track = entry.track
         if track is not None:
             self._track_used = True
@@ -399,6 +434,8 @@ class CreepEstimatorProcessor:
             # B-D do not observe c without the track (it drifts): hold it until it returns.
             fault = fault or 'track_lost'
             self._counts['track_lost'] += 1
+        if fault == 'rate_burst':
+            fault = f'rate_burst (faster than {self.params.sample_rate_hz:g} Hz)'
         if fault:
             self._counts['held'] += 1
             vector = None                        # the track part (if any) is still used
@@ -488,6 +525,8 @@ class CreepEstimatorProcessor:
         elif self._fault:
             level, message = WARN, (f'input fault ({self._fault}): creep factor held, '
                                     'unknown (std widened)')
+        elif new := self._new_rejections():
+            level, message = WARN, f'inputs rejected since last report: {new}'
         elif recovering:
             assert self._recover_until_ns is not None and self._last_processed_ns is not None
             left = (self._recover_until_ns - self._last_processed_ns) * 1e-9
@@ -500,6 +539,19 @@ class CreepEstimatorProcessor:
         else:
             level, message = OK, 'ok'
         return Status(level, message, values)
+
+
+    def _new_rejections(self) -> str:
+        """The rejections since the previous status, by reason (a warning that clears)."""
+        counts = {**{k: self._counts[k] for k in _REJECTIONS},
+                  'unpaired': self._pairer.unpaired['bogie'], **self._stamp_rejected,
+                  **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
+        new = {k: v - self._reported.get(k, 0) for k, v in counts.items()
+               if v > self._reported.get(k, 0)}
+        self._reported = counts
+        rate = f' (faster than {self.params.sample_rate_hz:g} Hz)'
+        return ', '.join(f'{k}{rate if k == "rate_burst" else ""} {v}'
+                         for k, v in sorted(new.items()))
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> CreepEstimatorProcessor:

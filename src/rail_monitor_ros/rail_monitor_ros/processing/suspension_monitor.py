@@ -53,7 +53,11 @@ from typing import Any
 import numpy as np
 
 from rail_monitor_ros.core.rail_model import MAX_CREEP_FACTOR, wheelset_inputs_from_track
-from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmParams
+from rail_monitor_ros.core.suspension_imm import (
+    ProbabilitySnapshot,
+    SuspensionImm,
+    SuspensionImmParams,
+)
 from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
 from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
 from vehicle_monitor_common.parameters import param
@@ -164,6 +168,9 @@ class _RepeatCounter:
         self._last, self._repeats = None, 0
 
 
+# After a pair closer than half a period to the previous one (a burst), the IMM holds until
+# the pairs have come at their rate for this many periods.
+BURST_PERIODS = 10
 _STREAMS = {BOGIE_IMU: 'bogie', BODY_IMU: 'body', TRACK: 'track', CREEP: 'creep'}
 
 
@@ -206,14 +213,18 @@ class SuspensionMonitorProcessor:
         self._track_fresh = False
         self._track_used = False      # the known-input model has been in use
         self._frozen = FrozenDetector(3)
+        # The IMM's learned state before each of the last samples (a frozen run is found late).
+        self._snapshots: deque[ProbabilitySnapshot] = deque(maxlen=n.frozen_samples)
         self._track_frozen = _RepeatCounter()
         self._input_fault = ''
         # Data time until which no fault is declared, and why (input fault, model switch, jump).
         self._suppress_until_ns: int | None = None
         self._suppress_reason = ''
         self._last_stamp_ns: int | None = None
+        self._burst_until_ns: int | None = None
         # Silence: the processed count and the status time it last changed.
         self._progress: tuple[int, int | None] = (0, None)
+        self._reported: Counter[str] = Counter()    # rejections already in a status
         self.last_output: Output | None = None
         self._handlers = {BOGIE_IMU: self._on_bogie, BODY_IMU: self._on_body,
                           TRACK: self._on_track, CREEP: self._on_creep_factor}
@@ -274,10 +285,11 @@ class SuspensionMonitorProcessor:
         self._track.clear()
         self._creep.clear()
         self._frozen.reset()
+        self._snapshots.clear()
         self._track_frozen.reset()
         self._track_fresh = self._track_used = False
         self._stamp_checks = self._new_stamp_checks()
-        self._last_stamp_ns = None
+        self._last_stamp_ns = self._burst_until_ns = None
         self._suppress(stamp, why)
 
     def _suppress(self, stamp: int, why: str) -> None:
@@ -400,18 +412,38 @@ class SuspensionMonitorProcessor:
                                           self.params.vehicle.speed)[0]
 
     def _process(self, stamp: int, z: np.ndarray) -> Output | None:
+        period_ns = 1e9 / self.params.sample_rate_hz
+        if self._last_stamp_ns is not None and stamp - self._last_stamp_ns < 0.5 * period_ns:
+            # Closer than half a period to the previous pair: a burst, not the sensor's rate;
+            # the IMM holds until the stream is back at its rate for BURST_PERIODS periods.
+            self._rejected['rate_burst'] += 1
+            self._burst_until_ns = stamp + round(BURST_PERIODS * period_ns)
+            return None
         self._last_stamp_ns = stamp
         problem = self._check(z)
+        if not problem and self._burst_until_ns is not None and stamp < self._burst_until_ns:
+            problem = 'rate_burst'
         if problem:
             # Held: the IMM is not stepped (a gap for its data time when the input returns).
+            if problem == 'frozen_sensor' and self._input_fault != problem and self._snapshots:
+                # Found frozen after frozen_samples: the IMM had taken the run's first samples;
+                # back to before them (probabilities and decision; the states restart).
+                run = min(self.node_params.frozen_samples - 1, len(self._snapshots))
+                self.imm.restore(self._snapshots[-run])
+                self._snapshots.clear()
             self._rejected[problem] += 1
             self._input_fault = problem
             self._suppress(stamp, f'input fault ({problem})')
             if self.last_output is None:
                 return None
-            fields = dict(self.last_output.fields)
+            imm = self.imm      # held (or restored): what it knew before the fault
+            fields = {**self.last_output.fields, 'probability': imm.mu.copy(),
+                      'smoothed_probability': imm.smoothed.copy(),
+                      'most_likely': int(np.argmax(imm.smoothed)),
+                      'spring_ratio': imm.spring_ratio, 'damper_ratio': imm.damper_ratio}
         else:
             self._input_fault = ''
+            self._snapshots.append(self.imm.snapshot())
             out = self.imm.step(z, self._known_input(stamp), stamp_ns=stamp)
             self.known_input_samples += int(out.known_input)
             self.processed += 1
@@ -456,7 +488,9 @@ class SuspensionMonitorProcessor:
         })
         values.update({f'rejected_{k}': v for k, v in sorted(self.rejected.items())})
         if self.last_output is None:
-            return Status(OK, 'waiting for paired IMU samples', values)
+            new = self._new_rejections()
+            return Status(WARN if new else OK, f'inputs rejected: {new}' if new
+                          else 'waiting for paired IMU samples', values)
         out = self.last_output.fields
         spring, damper, component = out['spring_ratio'], out['damper_ratio'], \
             out['fault_component']
@@ -475,6 +509,9 @@ class SuspensionMonitorProcessor:
         if self._input_fault:
             return Status(WARN, f'input fault ({self._input_fault}): estimates held, '
                           'suspension state unknown', values)
+        new = self._new_rejections()
+        if new:
+            return Status(WARN, f'inputs rejected since last report: {new}', values)
         if self._last_stamp_ns is not None and self._suppressed(self._last_stamp_ns):
             assert self._suppress_until_ns is not None
             left = (self._suppress_until_ns - self._last_stamp_ns) * 1e-9
@@ -491,6 +528,15 @@ class SuspensionMonitorProcessor:
             return Status(ERROR if severe else WARN, f'suspension fault: {size} x nominal',
                           values)
         return Status(OK, 'suspension normal', values)
+
+    def _new_rejections(self) -> str:
+        """The rejections since the previous status, by reason (a warning that clears)."""
+        counts = self.rejected
+        new = counts - self._reported
+        self._reported = counts
+        rate = f' (faster than {self.params.sample_rate_hz:g} Hz)'
+        return ', '.join(f'{k}{rate if k == "rate_burst" else ""} {v}'
+                         for k, v in sorted(new.items()))
 
     def _rejected_samples(self) -> int:
         return sum(v for k, v in self._rejected.items()
