@@ -197,8 +197,9 @@ def _flagged(summary: pd.DataFrame, method: str) -> dict[str, set[str]]:
 def score(results: str | Path, truth: str | Path | Mapping[str, Any]) -> pd.DataFrame:
     """Per method: vehicles with a planted fault, found, missed, flagged without a fault
     (false positives: a healthy vehicle flagged, or a faulty one flagged on another tire or
-    component), recall. A leak is found by a warning on its tire; a damper by a fault with a
-    damper component; creep methods have nothing planted."""
+    component), recall. A leak is found by a warning on its tire (the voter's, or one TPMS
+    method's indication); a damper by a fault with a damper component; creep methods have
+    nothing planted."""
     from vehicle_monitor_common.fleet.job import read_table
 
     if not isinstance(truth, Mapping):
@@ -207,7 +208,9 @@ def score(results: str | Path, truth: str | Path | Mapping[str, Any]) -> pd.Data
     assert isinstance(truth, Mapping)
     summary = read_table(results, 'summary').to_pandas()
     rows = []
-    for domain, methods in (('road', ROAD_METHODS), ('rail', RAIL_METHODS)):
+    indications = tuple(sorted(m for m in summary['method'].dropna().unique()
+                               if str(m).startswith('indication_')))
+    for domain, methods in (('road', ROAD_METHODS + indications), ('rail', RAIL_METHODS)):
         vehicles = {v: t for v, t in truth.items() if t['domain'] == domain}
         if not vehicles:
             continue
