@@ -634,6 +634,23 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self._last_smooth = np.zeros(N_TIRES)
         self._last_good_w = np.full(N_TIRES, np.nan)
 
+    def restart_time(self) -> None:
+        """A time jump (a looped replay, a clock reset): restart what depends on time (the yaw
+        rate and acceleration states, the wheel-acceleration filter, the stuck-gyro and
+        bad-wheel timers, the stamp order) and keep the learned state (1/k, the offsets, the
+        gyro offset and their covariances) and the calibration."""
+        self._last_stamp = None
+        self._lat_x[:2] = 0.0
+        self._lat_p[:2, :] = 0.0
+        self._lat_p[:, :2] = 0.0
+        self._lat_p[0, 0], self._lat_p[1, 1] = 0.1 ** 2, 0.5 ** 2
+        self._last_gyro = math.nan
+        self._gyro_repeat_s = 0.0
+        self._last_bad_wheel[:] = -math.inf
+        self._accel_state = None
+        self._last_smooth = np.zeros(N_TIRES)
+        self._last_good_w = np.full(N_TIRES, np.nan)
+
     def last_bad_wheel_s(self) -> np.ndarray:
         """(4,) stamp of each wheel's latest bad sample, s (-inf: none since the reset)."""
         return self._last_bad_wheel.copy()

@@ -22,6 +22,8 @@ from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import WARN, Output
 
 INDICATION_TYPE = 'vehicle_monitor_msgs/msg/TpmsIndication'
+RESTART_NOTE_S = 1.0
+"""A restart stays on the status at least this much data time (a status period sees it)."""
 
 
 def process_ahead_param() -> Any:
@@ -73,8 +75,8 @@ def offline_calibration_file(configured: str) -> str:
 
 
 class ProcessAhead:
-    """Once per output, at the first sample within the lead before it falls due: the ROS-free
-    twin of ``node_helpers.ProcessAhead``."""
+    """When a processor that answers buffered samples in chunks processes its buffer early:
+    once per output, at the first sample within ``process_ahead_s`` before it falls due."""
 
     def __init__(self) -> None:
         self._armed = True
@@ -144,6 +146,7 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         self._last_jump_s = 0.0
         self._restarted = False
         self._restart_reason = ''
+        self._restart_at_s = math.nan
         self._known_at_jump = np.zeros(N_TIRES, dtype=bool)
         self._calibration = CalibrationManager(self.core, calibration_file, method)
         self._calibration.load()
@@ -211,12 +214,19 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         so until every tire known before is known again."""
         self._restarted = True
         self._restart_reason = why
+        self._restart_at_s = math.nan
         self._known_at_jump = self._last_known.copy()
         self._calibration.restart()
 
-    def _follow_restart(self) -> None:
-        # The restart note stays until every tire known before the jump is known again.
-        if self._restarted and np.all(self._last_known | ~self._known_at_jump):
+    def _follow_restart(self, stamp_s: float) -> None:
+        # The restart note stays until every tire known before the jump is known again, and
+        # RESTART_NOTE_S at least.
+        if not self._restarted:
+            return
+        if math.isnan(self._restart_at_s):
+            self._restart_at_s = stamp_s
+        if (np.all(self._last_known | ~self._known_at_jump)
+                and stamp_s - self._restart_at_s >= RESTART_NOTE_S):
             self._restarted = False
 
     # -- output and status -----------------------------------------------------------------------
@@ -227,7 +237,7 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         and has confidence 0); kept for the status."""
         self._last_known = known.copy()
         self._last_flags = indication.underinflated & known
-        self._follow_restart()
+        self._follow_restart(stamp_ns * 1e-9)
         return Output(self.indication_topic, stamp_ns, {
             'method': self.method,
             'underinflated': (indication.underinflated & known).tolist(),

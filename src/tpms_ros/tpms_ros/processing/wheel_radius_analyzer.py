@@ -37,8 +37,10 @@ from before the fault, right again as soon as the hold ends.
 Time (:class:`vehicle_monitor_common.input_health.StampCheck`, per input): out-of-order and
 repeated stamps are rejected; a lone stamp more than ``jump_horizon_s`` ahead is dropped and
 counted; a confirmed jump forward or back on any input (a looped or repeated replay, a clock
-reset) restarts the alignment, the filters and the output timing from the new time line,
-keeping the calibration, and the status says so until every tire known before is known again.
+reset) restarts the alignment, what in the filters depends on time (yaw states, the wheel
+acceleration filter, timers) and the output timing from the new time line, keeping the learned
+offsets and the calibration, and the status says so until every tire known before is known
+again.
 """
 
 from __future__ import annotations
@@ -162,7 +164,10 @@ class WheelRadiusAnalyzerProcessor(
         # wrong_size: driver inputs; malformed: wheel-speed payloads
         self.counts = dict.fromkeys(('wrong_size', 'malformed', 'empty_bins',
                                      'stale_driver_inputs', 'skipped_imu_samples', 'bins',
-                                     'stuck_wheel_bins', 'implausible_wheel_bins'), 0)
+                                     'stuck_wheel_bins', 'implausible_wheel_bins',
+                                     'rate_bursts'), 0)
+        self._samples_per_bin = 0.0
+        self._bins_seen = 0
         self.received = dict.fromkeys(_TOPICS, 0)
         self._rates = {topic: RateMeter() for topic in _TOPICS}
         self._last_trace: np.ndarray | None = None
@@ -174,6 +179,7 @@ class WheelRadiusAnalyzerProcessor(
         self._value_since_ns = [0] * N_TIRES
         self._fault_kind = [''] * N_TIRES                 # last fault per wheel, for the status
         self._rejected_at_status: dict[str, int] = {}
+        self._events_at_status: dict[str, int] = {}
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -208,7 +214,7 @@ class WheelRadiusAnalyzerProcessor(
         self._last_bin_end = None
         self._last_trace = None
         self._last_long_update = self._last_lat_update = -math.inf
-        self.core.reset()
+        self.core.restart_time()
         self._note_jump(jump_s)
         for check in self._checks.values():
             check.last_ns = None
@@ -321,27 +327,34 @@ class WheelRadiusAnalyzerProcessor(
         block = np.vstack(samples)
         with np.errstate(invalid='ignore'):
             limit = self.params.max_wheel_speed_rad_s
-            bad = (~np.isfinite(block) | (block < 0.0) | (block > limit)).any(axis=0)
-        mean = np.where(bad, np.nan, block.mean(axis=0))
+            invalid = ~np.isfinite(block) | (block < 0.0) | (block > limit)
+            # per sample: a wheel off the median of the four (a dead or broken sensor; the
+            # first such sample already, so no bin mixes it in)
+            median = np.median(block, axis=1, keepdims=True)
+            implausible = ~invalid & (median > _PLAUSIBLE_MIN_RAD_S) & (
+                np.abs(block - median) > self.node_params.max_wheel_deviation * median)
+        bad = invalid.any(axis=0)
+        off = implausible.any(axis=0) & ~bad
         for w in np.flatnonzero(bad):
             self._fault_kind[w] = 'invalid'
-        if stuck.any():
-            self.counts['stuck_wheel_bins'] += 1
-            for w in np.flatnonzero(stuck):
-                self._fault_kind[w] = 'stuck or dead'
-            mean = np.where(stuck, np.nan, mean)
-        good = np.isfinite(mean)
-        if good.sum() >= 3:
-            median = float(np.median(mean[good]))
-            if median > _PLAUSIBLE_MIN_RAD_S:
-                off = good & (np.abs(mean - median) > self.node_params.max_wheel_deviation
-                              * median)
-                if off.any():
-                    self.counts['implausible_wheel_bins'] += 1
-                    for w in np.flatnonzero(off):
-                        self._fault_kind[w] = 'implausible'
-                    mean = np.where(off, np.nan, mean)
-        return mean
+        for w in np.flatnonzero(stuck & ~bad):
+            self._fault_kind[w] = 'stuck or dead'
+        for w in np.flatnonzero(off & ~stuck):
+            self._fault_kind[w] = 'implausible'
+        self.counts['stuck_wheel_bins'] += int(stuck.any())
+        self.counts['implausible_wheel_bins'] += int(off.any())
+        self._track_rate(len(samples))
+        return np.where(bad | stuck | off, np.nan, block.mean(axis=0))
+
+    def _track_rate(self, samples: int) -> None:
+        """Wheel-speed samples per bin against their running mean: a burst (3 times as many)
+        is counted and reported (the bin means are unaffected; the rate is the sensor's)."""
+        self._bins_seen += 1
+        if self._bins_seen > 100 and samples > 3.0 * self._samples_per_bin:
+            self.counts['rate_bursts'] += 1
+        else:   # the running mean (over the first 100 bins, then exponential)
+            self._samples_per_bin += ((samples - self._samples_per_bin)
+                                      / min(self._bins_seen, 100))
 
     def _driver_at(self, t_k: int) -> tuple[float, np.ndarray]:
         """Steering angle and torques of the newest driver input not newer than t_k."""
@@ -433,8 +446,9 @@ class WheelRadiusAnalyzerProcessor(
                     'long_gated', 'lat_gated', 'accepted'):
             values[f'core.{key}'] = counts[key]
         for key in ('bins', 'empty_bins', 'stale_driver_inputs', 'skipped_imu_samples',
-                    'stuck_wheel_bins', 'implausible_wheel_bins'):
+                    'stuck_wheel_bins', 'implausible_wheel_bins', 'rate_bursts'):
             values[key] = self.counts[key]
+        values['wheel_samples_per_bin'] = self._samples_per_bin
         received = any(self.received.values())
         values['gyro_ok'] = self._gyro_ok
         tire_values, tire_problems = self._tire_status(received)
@@ -453,6 +467,20 @@ class WheelRadiusAnalyzerProcessor(
                                     'unknown'))
         if received and not self._gyro_ok:
             problems.append((WARN, 'gyro stopped: lateral filter paused'))
+        events = {'bad_gyro': counts['bad_gyro'], 'bad_torque': counts['bad_torque'],
+                  'rate_bursts': self.counts['rate_bursts']}
+        recent_events = {k: v - self._events_at_status.get(k, 0) for k, v in events.items()}
+        self._events_at_status = events
+        if recent_events['bad_gyro']:
+            problems.append((WARN, f"{recent_events['bad_gyro']} non-finite yaw rates: gyro "
+                                   'updates skipped'))
+        if recent_events['bad_torque']:
+            problems.append((WARN, f"{recent_events['bad_torque']} non-finite wheel torques: "
+                                   'longitudinal updates skipped'))
+        if recent_events['rate_bursts']:
+            problems.append((WARN, f"wheel-speed rate bursts in {recent_events['rate_bursts']} "
+                                   f'bins (over 3 x {self._samples_per_bin:.3g} samples per '
+                                   'bin)'))
         recent = {k: v - self._rejected_at_status.get(k, 0) for k, v in rejected.items()}
         self._rejected_at_status = rejected
         if any(recent.values()):
