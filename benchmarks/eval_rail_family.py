@@ -157,11 +157,14 @@ def creep_inputs(result: RailSimulationResult, pattern: str, spec_fields: bool,
 
 
 def run_creep_case(car: FamilyCar, speed: float, config: str,
-                   sims: dict[float, RailSimulationResult], track_model: str) -> CreepCase:
+                   sims: dict[float, RailSimulationResult], track_model: str,
+                   offset_states: bool = True) -> CreepCase:
     fields_kind, track_kind = config.split('/')
     pattern = fields_kind[0]
     result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
     values = {**vehicle_values(car, speed), 'pattern': pattern}
+    if not offset_states:
+        values['sensor_offsets'] = False
     if track_model == 'spectrum':
         # The line's spectrum and the map's stated accuracy (exact: the survey's 0.01 mm).
         spectrum = TRACK_SPECTRA[car.spectrum]
@@ -196,7 +199,7 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
 
 
 def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[str],
-                  track_model: str) -> list[CreepCase]:
+                  track_model: str, offset_states: bool = True) -> list[CreepCase]:
     _say(f'\n== Creep estimator: {len(cars)} cars x {n_speeds} speeds x {len(configs)} configs'
          f' (track model: {track_model})')
     cases: list[CreepCase] = []
@@ -206,7 +209,7 @@ def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[st
             sims = {error: simulate(creep_steps_scenario(car, speed, seed, error))
                     for error in (0.0, MAP_ERROR)}
             for config in configs:
-                case = run_creep_case(car, speed, config, sims, track_model)
+                case = run_creep_case(car, speed, config, sims, track_model, offset_states)
                 cases.append(case)
                 _say(f'car {car.seed} {speed:5.1f} m/s {config:13s} '
                      f'settle5 {_times(case.settle_5)} settle10 {_times(case.settle_10)} '
@@ -426,6 +429,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "map's stated accuracy (default: the estimator's defaults)")
     parser.add_argument('--healthy-s', type=float, default=60.0,
                         help='healthy run per car and speed, s (issue target: 30 min per car)')
+    parser.add_argument('--no-offset-states', action='store_true',
+                        help='ablation: the creep EKF without its sensor offset states')
     parser.add_argument('--no-offsets', action='store_true',
                         help='ablation: the cars without their constant sensor offsets')
     parser.add_argument('--json', help='write the per-case figures here')
@@ -451,7 +456,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     start = time.time()
     if not args.skip_creep:
         out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs,
-                                                     args.creep_track_model)]
+                                                     args.creep_track_model,
+                                                     not args.no_offset_states)]
     if not args.skip_imm:
         out['imm'] = [vars(c) for c in imm_section(cars, args.speeds, args.healthy_s)]
     _say(f'\ntotal {time.time() - start:.0f} s wall')
