@@ -79,7 +79,7 @@ _MAX_BUFFERED = 5000
 _PLAUSIBLE_MIN_RAD_S = 1.0
 # what the status reports as events of the last period, but not as rejected messages
 _NOT_REJECTIONS = ('beyond_validity', 'stale_wheel_speeds', 'stale_driver_inputs',
-                   'imu_frozen')
+                   'imu_frozen', 'wheel_speeds_rate_burst')
 
 
 @dataclass(frozen=True)
@@ -156,6 +156,8 @@ class LateralForceObserverProcessor:
         self._imu_last: tuple[float, ...] = ()
         self._imu_since_ns = 0
         self._imu_frozen = False
+        self._samples_per_interval = 0.0
+        self._intervals_seen = 0
 
     # -- parameters --------------------------------------------------------------------------
 
@@ -295,12 +297,23 @@ class LateralForceObserverProcessor:
             held = self._wheels.popleft()
         if held is not None:
             self._wheels.appendleft(held)  # kept for a later sample-and-hold
+        self._track_rate(len(interval))
         if interval:
             return np.mean(interval, axis=0)
         if held is not None and \
                 stamp - held[0] <= self.node_params.wheel_speeds_max_age_s * 1e9:
             return held[1]
         return None
+
+    def _track_rate(self, samples: int) -> None:
+        """Wheel-speed samples per IMU interval against their running mean: a burst (3 times
+        as many) is an event on the status (the interval mean is unaffected)."""
+        self._intervals_seen += 1
+        if self._intervals_seen > 100 and samples > 3.0 * self._samples_per_interval:
+            self._event('wheel_speeds_rate_burst')
+        else:   # the running mean (over the first 100 intervals, then exponential)
+            self._samples_per_interval += ((samples - self._samples_per_interval)
+                                           / min(self._intervals_seen, 100))
 
     def _driver_at(self, stamp: int) -> tuple[float, np.ndarray] | None:
         """The latest driver inputs not newer than ``stamp``, if fresh enough."""
@@ -401,6 +414,10 @@ class LateralForceObserverProcessor:
         for reason in ('stale_wheel_speeds', 'stale_driver_inputs'):
             if events.get(reason):
                 problems.append((WARN, f'{events[reason]} IMU samples skipped: {reason}'))
+        if events.get('wheel_speeds_rate_burst'):
+            problems.append((WARN, f"wheel-speed rate burst in {events['wheel_speeds_rate_burst']}"
+                                   f' IMU intervals (over 3 x {self._samples_per_interval:.3g} '
+                                   'samples)'))
         rejected_now = sum(v for k, v in events.items() if k not in _NOT_REJECTIONS)
         if rejected_now:
             problems.append((WARN, f'{rejected_now} input messages rejected: ' + ', '.join(
