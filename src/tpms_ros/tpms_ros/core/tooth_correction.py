@@ -19,6 +19,11 @@ import math
 import numpy as np
 import scipy.signal as sig
 
+ANGLE_MODE_ON = 1.25     # changes per tooth above which the input is not a held tooth period
+ANGLE_MODE_OFF = 1.1     # ... and below which it is again
+BINS_PER_TOOTH = 4       # angle-domain pattern resolution
+MIN_FORM_TEETH = 200.0   # weighted teeth of data before the form is judged
+
 
 class ToothErrorCorrector:
     """Learns and removes the tooth-spacing error of ABS encoder rings, streaming, per wheel.
@@ -46,8 +51,20 @@ class ToothErrorCorrector:
       a fixed clock of ``refresh_samples`` processed samples, and the learning sums forget per
       sample, so chunking a stream differently cannot change the output.
 
+    * **Speed form.** Not every ECU reports the held last tooth period: some average the tooth
+      periods over a window (edge-to-edge over the last few ms). Then the value also changes
+      when an edge leaves the window, the edge phase above is meaningless and a per-tooth
+      pattern counted from it adds error instead of removing it (issue 21: a 0.24 % ring read
+      +11..51 kPa at placard with the correction, +5..20 without). The form is recognised from
+      the changes per tooth of angle (held period: at most 1; window average: up to 2),
+      exponentially weighted over ``form_s``, with hysteresis (``ANGLE_MODE_ON`` /
+      ``ANGLE_MODE_OFF``), switched on the refresh clock. For a wheel that is not a held tooth
+      period the pattern is learned and removed in the angle domain instead: ``BINS_PER_TOOTH``
+      bins per tooth of the running angle ``x`` (the integrated speed, which an average of
+      tooth periods follows closely), with no edge anchoring.
+
     A :meth:`reset` (gap, rate change, resumed after bad data) loses the ring angle, so that
-    wheel's count and pattern start over.
+    wheel's count and pattern start over (the recognised speed form is kept).
 
     Args:
         n_wheels: number of wheels (columns).
@@ -56,10 +73,11 @@ class ToothErrorCorrector:
         learning_s: memory time constant of the pattern learning, s.
         phase_s: memory time constant of the tooth-phase tracker, s.
         refresh_samples: the applied pattern is refreshed every this many samples.
+        form_s: memory time constant of the speed-form recognition, s.
     """
 
     def __init__(self, n_wheels: int, teeth: int, sample_rate_hz: float, learning_s: float,
-                 phase_s: float, refresh_samples: int) -> None:
+                 phase_s: float, refresh_samples: int, form_s: float = 2.0) -> None:
         self.teeth = teeth
         self._cycle = 1.0 / (2.0 * np.pi / teeth * sample_rate_hz)  # teeth per (rad/s) sample
         self._learn_decay = math.exp(-1.0 / (learning_s * sample_rate_hz))
@@ -74,6 +92,19 @@ class ToothErrorCorrector:
         self._sum = np.zeros((n_wheels, teeth))
         self._weight = np.zeros((n_wheels, teeth))
         self._pattern = np.zeros((n_wheels, teeth))
+        bins = BINS_PER_TOOTH * teeth
+        self._angle_sum = np.zeros((n_wheels, bins))
+        self._angle_weight = np.zeros((n_wheels, bins))
+        self._angle_pattern = np.zeros((n_wheels, bins))
+        self._form_decay = math.exp(-1.0 / (form_s * sample_rate_hz))
+        self._changes = np.zeros(n_wheels)
+        self._advance = np.zeros(n_wheels)
+        self._angle_mode = np.zeros(n_wheels, dtype=bool)
+
+    @property
+    def angle_mode(self) -> np.ndarray:
+        """(wheels,) True where the input is not a held tooth period (angle-domain pattern)."""
+        return self._angle_mode.copy()
 
     @property
     def pattern(self) -> np.ndarray:
@@ -83,7 +114,8 @@ class ToothErrorCorrector:
     def reset(self, wheels: np.ndarray) -> None:
         """Forget the ring angle and pattern of ``wheels``."""
         for array in (self._phase, self._phasor, self._offset, self._tooth, self._sum,
-                      self._weight, self._pattern):
+                      self._weight, self._pattern, self._angle_sum, self._angle_weight,
+                      self._angle_pattern):
             array[wheels] = 0
         self._previous[wheels] = np.nan
 
@@ -130,19 +162,37 @@ class ToothErrorCorrector:
         tooth = np.where(last >= 0, np.take_along_axis(counted, np.maximum(last, 0), axis=0),
                          self._tooth[None])
         index = tooth % self.teeth
-        corrected = speed * np.exp(-np.take_along_axis(self._pattern, index.T, axis=1).T)
+        bins = BINS_PER_TOOTH * self.teeth
+        angle_index = np.floor(phase * BINS_PER_TOOTH).astype(np.int64) % bins
+        log_error = np.where(
+            self._angle_mode[None],
+            np.take_along_axis(self._angle_pattern, angle_index.T, axis=1).T,
+            np.take_along_axis(self._pattern, index.T, axis=1).T)
+        corrected = speed * np.exp(-log_error)
 
         # Learn: per-sample exponential forgetting, scattered into the teeth by bincount.
         usable = learn & (speed > 0.0) & (reference > 0.0)
         ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
         weight = (self._learn_decay ** (n - 1 - rows)) * usable
-        slot = (index + self.teeth * np.arange(n_wheels)[None]).ravel()
+        wheel_offset = np.arange(n_wheels)[None]
+        slot = (index + self.teeth * wheel_offset).ravel()
         size = n_wheels * self.teeth
         fade = self._learn_decay ** n
         self._sum = fade * self._sum + np.bincount(
             slot, (weight * ratio).ravel(), size).reshape(n_wheels, self.teeth)
         self._weight = fade * self._weight + np.bincount(
             slot, weight.ravel(), size).reshape(n_wheels, self.teeth)
+        slot = (angle_index + bins * wheel_offset).ravel()
+        self._angle_sum = fade * self._angle_sum + np.bincount(
+            slot, (weight * ratio).ravel(), n_wheels * bins).reshape(n_wheels, bins)
+        self._angle_weight = fade * self._angle_weight + np.bincount(
+            slot, weight.ravel(), n_wheels * bins).reshape(n_wheels, bins)
+        # Speed form: changes per tooth of angle over valid samples.
+        form_weight = (self._form_decay ** (n - 1 - rows)) * usable
+        form_fade = self._form_decay ** n
+        self._changes = form_fade * self._changes + (form_weight * change).sum(axis=0)
+        self._advance = form_fade * self._advance \
+            + (form_weight * speed * self._cycle).sum(axis=0)
 
         # Carry the state; shift phase and offset together by whole rings (keeps them small).
         ring = np.floor(offset[-1] / self.teeth) * self.teeth
@@ -153,10 +203,20 @@ class ToothErrorCorrector:
         self._previous = speed[-1].copy()
         return corrected
 
-    def _refresh_pattern(self) -> None:
-        seen = self._weight > 0.0
-        mean = np.where(seen, self._sum / np.where(seen, self._weight, 1.0), 0.0)
+    @staticmethod
+    def _centred(total: np.ndarray, weight: np.ndarray) -> np.ndarray:
+        seen = weight > 0.0
+        mean = np.where(seen, total / np.where(seen, weight, 1.0), 0.0)
         count = seen.sum(axis=1, keepdims=True)
         centre = mean.sum(axis=1, keepdims=True) / np.maximum(count, 1)
-        self._pattern = np.where(seen, mean - centre, 0.0)
+        return np.where(seen, mean - centre, 0.0)
+
+    def _refresh_pattern(self) -> None:
+        self._pattern = self._centred(self._sum, self._weight)
+        self._angle_pattern = self._centred(self._angle_sum, self._angle_weight)
+        judged = self._advance >= MIN_FORM_TEETH
+        per_tooth = self._changes / np.maximum(self._advance, 1e-12)
+        self._angle_mode = np.where(
+            judged & (per_tooth > ANGLE_MODE_ON), True,
+            np.where(judged & (per_tooth < ANGLE_MODE_OFF), False, self._angle_mode))
 
