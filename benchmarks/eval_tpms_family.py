@@ -385,6 +385,50 @@ def summary(records: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _md(x: Any, fmt: str = '.1f') -> str:
+    if x is None:
+        return 'miss'
+    if isinstance(x, float) and math.isnan(x):
+        return 'unk'
+    return format(x, fmt)
+
+
+def markdown(records: list[dict[str, Any]]) -> str:
+    """Per car and case tables (Markdown) for the closing note."""
+    lines = ['| car | case | drive | stiffness error at placard, mean (std) FL FR RL RR, kPa '
+             '| corr(err FL, v) | -20 %: truth / read, kPa | fused detect, s | stiffness '
+             'detect, s | false warning | max conf vib / rad / stiff (margin) |',
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+    for r in sorted(records, key=lambda r: (r['seed'], r['case'])):
+        err = ' '.join(f'{_md(m, "+.1f")} ({_md(s)})' for m, s in
+                       zip(r['nominal_mean_err_kpa'], r['nominal_std_kpa'], strict=True))
+        reading = (f'{r["end_truth_kpa"][0]:.0f} / '
+                   + ' '.join(_md(x, '.0f') for x in r['end_reading_kpa'])
+                   if r['case'] == 'diffusion20' else '')
+        conf = ' / '.join(f'{p["nominal_max_conf"]:.2f} ({p["margin"]:+.2f})'
+                          for p in r['confidence'].values())
+        tires = '+'.join(r['tires'])
+        lines.append(f'| {r["seed"]} | {r["case"]} {tires if len(r["tires"]) < 4 else ""} '
+                     f'| {r["drive"]} | {err} | {_md(r["speed_corr_fl"], ".2f")} | {reading} '
+                     f'| {_md(r["fused_detect_s"])} | '
+                     f'{_md(r["stiffness_detect_s"]) if r["case"] == "diffusion20" else ""} '
+                     f'| {",".join(r["false_warning_tires"]) or "-"} | {conf} |')
+    return '\n'.join(lines)
+
+
+def report(paths: list[Path]) -> None:
+    """Merge result files (later ones override the same car and case) and print tables."""
+    merged: dict[tuple[int, str], dict[str, Any]] = {}
+    for path in paths:
+        for rec in json.loads(path.read_text())['records']:
+            merged[(rec['seed'], rec['case'])] = rec
+    records = list(merged.values())
+    print(markdown(records))
+    print()
+    for key, value in summary(records).items():
+        print(f'- {key}: {value}')
+
+
 def main() -> None:
     """Command line."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -402,7 +446,12 @@ def main() -> None:
     parser.add_argument('--no-tooth-correction', action='store_true')
     parser.add_argument('--workers', type=int, default=1)
     parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
+    parser.add_argument('--report', type=Path, nargs='+',
+                        help='print Markdown tables from result files instead of running')
     args = parser.parse_args()
+    if args.report:
+        report(args.report)
+        return
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
