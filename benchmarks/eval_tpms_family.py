@@ -459,9 +459,10 @@ def main() -> None:
         list(pool_seeds[:args.cars])
     cases = [c for c in args.cases.split(',') if c]
     jobs = []
-    for i, seed in enumerate(seeds):
-        for j, case in enumerate(cases):
-            drive = args.drives or DRIVE_KINDS[(i + j) % len(DRIVE_KINDS)]
+    for seed in seeds:
+        for case in cases:
+            # by seed, so a car drives the same drive in any subset run
+            drive = args.drives or DRIVE_KINDS[(seed + CASES.index(case)) % len(DRIVE_KINDS)]
             jobs.append(Job(seed, case, drive, settings))
     print(f'{len(jobs)} runs: cars {seeds}, cases {cases}; {settings}', flush=True)
     t0 = time.perf_counter()
