@@ -543,6 +543,7 @@ class SuspensionImm:
                     [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
         self._q_model = q_model
         self._discretized: dict[tuple[float, float], ModeModel] = {}
+        self._solved: set[tuple[tuple[object, ...], int]] = set()
         self._p0 = self._prior()
         self.decision = FaultDecision(params.fault_threshold, params.hold_time_s, dt)
         self.covariance_repairs = 0
@@ -678,6 +679,11 @@ class SuspensionImm:
         pairs = list(zip(self.mode_spring_ratio.tolist(), self.mode_damper_ratio.tolist(),
                          strict=True))
         self._mode_models = [self._discretize(s, d) for s, d in pairs]
+        # What this instance solved itself decides when the steady-state gains take over,
+        # never what another instance left in the shared models: so two instances (the node
+        # and the offline engine, a second run in one process) give the same outputs.
+        self._mode_keys = [(self.vehicle, self.creep_factor, round(s, RATIO_DECIMALS),
+                            round(d, RATIO_DECIMALS)) for s, d in pairs]
         self._f = np.stack([m.f for m in self._mode_models])
         # F = [[F_x, F_xw], [0, F_w]]: the input (track) states do not depend on the vehicle
         # and F_w is the same for every mode, so F P F^T is computed by blocks (exact, about
@@ -761,7 +767,10 @@ class SuspensionImm:
         bank then stays exact; counted in ``steady_state_failures``)."""
         if known not in self._steady_bank:
             try:
-                gains = [m.steady_state(known, self._r[known]) for m in self._mode_models]
+                gains = []
+                for key, m in zip(self._mode_keys, self._mode_models, strict=True):
+                    gains.append(m.steady_state(known, self._r[known]))
+                    self._solved.add((key, known))
             except (np.linalg.LinAlgError, ValueError):
                 self.steady_state_failures += 1
                 self._steady_bank[known] = None
@@ -929,7 +938,7 @@ class SuspensionImm:
         warm = self.params.warmup_samples
         if self.params.steady_state_gains and self._steps >= warm and (
                 self._bank_age >= warm or known in self._steady_bank
-                or all(known in m.steady for m in self._mode_models)):
+                or all((key, known) in self._solved for key in self._mode_keys)):
             steady = self._steady_state_bank(known)
         if steady is not None:
             self._steady_cycle(z, steady)
