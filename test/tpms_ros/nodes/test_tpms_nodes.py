@@ -541,6 +541,170 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
         '/radius_broken', lambda s: 'recalibration required' in s.message) is not None, 5.0)
 
 
+# ---------------------------------------------------------------- issue 20 findings
+# Each of these failed before the nodes became processors with the issue's handling.
+
+
+def _calibrated_vibration(make_node: Callable[..., Any], tmp_path: Path,
+                          **extra: Any) -> Any:
+    cal_file = tmp_path / 'vibration.yaml'
+    save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
+                                                    np.full(4, 10.0)).to_dict())
+    node = _vibration_node(make_node, cal_file, **extra)
+    assert node.calibration_state == 'loaded'
+    return node
+
+
+def test_finding1_vibration_survives_a_future_stamp_and_a_replay_loop(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Finding 1: one wheel-speed message stamped 10 000 s ahead blinded the node (every later
+    output held back, tires all unknown); a replay looping back stopped it. Now the lone stamp
+    is dropped and counted, and a confirmed jump back restarts the filters on the new time
+    line (calibration kept) and outputs go on."""
+    _calibrated_vibration(make_node, tmp_path)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    feeder = WheelFeeder(tester, out, spin_until)
+    feeder.feed(_resonant_wheel_speeds(600, NOMINAL_HZ, seed=11))
+    assert all(out.msgs['/tpms/indication/vibration'][-1].known)
+    future = WheelSpeeds()
+    future.header.stamp = _time(feeder.next_ns + 10_000 * 10**9)
+    future.omega = [70.0] * 4
+    feeder.pub.publish(future)
+    feeder.feed(_resonant_wheel_speeds(200, NOMINAL_HZ, seed=12))
+    assert out.last_stamp('/tpms/tire_resonance') == feeder.sent[-1]
+    assert all(out.msgs['/tpms/indication/vibration'][-1].known)
+    assert spin_until(lambda: out.diag('/vibration_analyzer', lambda s: _values(s).get(
+        'rejected_future_stamp') == '1') is not None, 5.0)
+
+    feeder.next_ns = T0_NS                  # the replay starts over (loop:=true)
+    feeder.feed(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=13))
+    last = feeder.sent[-1]                 # answered within one output period
+    assert spin_until(lambda: last - 10**8 < out.last_stamp('/tpms/tire_resonance') <= last,
+                      5.0), (out.last_stamp('/tpms/tire_resonance'), last)
+    assert spin_until(lambda: out.diag('/vibration_analyzer', lambda s: 'time jump' in s.message
+                                       and s.level == bytes([1])) is not None, 5.0)
+    last = out.msgs['/tpms/tire_resonance'][-1]
+    assert last.calibrated and not any(out.msgs['/tpms/indication/vibration'][-1].underinflated)
+
+
+def test_finding6_vibration_rate_mismatch_names_the_rate(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Finding 6: a stream at another rate than sample_rate_hz was analysed as if at the design
+    rate (the resonance scales with it: a tire fault from a parameter). Now every tire is
+    unknown and the status names both rates, at ERROR."""
+    _calibrated_vibration(make_node, tmp_path, sample_rate_hz=2 * FS, analysis_rate_hz=FS)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    feeder = WheelFeeder(tester, out, spin_until)
+    assert spin_until(lambda: feeder.pub.get_subscription_count() > 0, 10.0)
+    for row in _resonant_wheel_speeds(800, NOMINAL_HZ, seed=14):
+        msg = WheelSpeeds()
+        msg.header.stamp = _time(feeder.next_ns)
+        msg.omega = row.tolist()
+        feeder.pub.publish(msg)
+        feeder.next_ns += round(1e9 / FS)
+    assert spin_until(lambda: len(out.msgs['/tpms/indication/vibration']) >= 30, 10.0)
+    for ind in out.msgs['/tpms/indication/vibration']:
+        assert not any(ind.known) and not any(ind.underinflated)
+    assert spin_until(lambda: out.diag('/vibration_analyzer', lambda s: s.level == bytes([2]) and (
+        f'rate {FS:.4g} Hz does not match sample_rate_hz {2 * FS:g}') in s.message)
+        is not None, 5.0)
+
+
+def test_finding7_vibration_says_when_a_wheel_recovers(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Finding 7 (and 3's vibration part): after a long sensor fault the wheel's estimate was
+    published as valid while its filters still held the fault (47.5 Hz for 39.4, ~100 s). Now
+    the wheel's filters restart when its sensor recovers and it stays unknown, the status
+    saying 'recovering', until estimated again."""
+    node = _calibrated_vibration(make_node, tmp_path)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    feeder = WheelFeeder(tester, out, spin_until)
+    feeder.feed(_resonant_wheel_speeds(600, NOMINAL_HZ, seed=15))
+    dead = _resonant_wheel_speeds(400, NOMINAL_HZ, seed=16)
+    dead[:, 0] = 0.0                        # FL dead for 2 s
+    feeder.feed(dead)
+    feeder.feed(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=17))   # 2 s clean: > bad_hold_s
+    ind = out.msgs['/tpms/indication/vibration'][-1]
+    assert list(ind.known) == [False, True, True, True]
+    assert not any(ind.underinflated)
+    assert node.processor.recovering().tolist() == [True, False, False, False]
+    assert spin_until(lambda: out.diag('/vibration_analyzer', lambda s: 'recovering' in s.message
+                                       and 'FL' in s.message) is not None, 5.0)
+
+
+def test_finding3_wheel_radius_dead_sensor_keeps_the_learned_state(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """Finding 3: a dead FL sensor (0) for 30 s took delta_12 to -1.99 and the gyro offset to
+    -24.7 rad/s, marked valid, and flagged a healthy tire; a stuck sensor was flagged low. Now
+    the wheel is bad (named at ERROR), unknown, the filters frozen, and the learned state is
+    where it was when the sensor comes back."""
+    cal_file = tmp_path / 'radius.yaml'
+    node = _radius_node(make_node, cal_file)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/wheel_radius': WheelRadiusOffsets,
+                             '/tpms/indication/wheel_radius': TpmsIndication})
+    feeder = RadiusFeeder(tester, out, spin_until)
+    eps = np.zeros(4)
+    t0 = T0_NS * 1e-9
+    feeder.feed(_drive(200, seed=21, t0=t0, eps=eps))
+    assert _call_trigger(tester, '/wheel_radius_analyzer/calibrate', spin_until).success
+    feeder.feed(_drive(400, seed=22, t0=t0 + 2.0, eps=eps))
+    assert node.calibration_state == 'calibrated'
+    before = out.msgs['/tpms/wheel_radius'][-1]
+    for seed, fault in ((23, 'dead'), (25, 'stuck')):
+        drive = _drive(300, seed=seed, t0=out.last_stamp('/tpms/wheel_radius') * 1e-9, eps=eps)
+        drive['omega'][:, 0] = 0.0 if fault == 'dead' else drive['omega'][0, 0]
+        feeder.feed(drive)
+        during = out.msgs['/tpms/indication/wheel_radius'][-1]
+        assert not during.known[0] and not any(during.underinflated), fault
+        assert spin_until(lambda: out.diag(
+            '/wheel_radius_analyzer', lambda status: status.level == bytes([2])
+            and 'FL (stuck or dead)' in status.message) is not None, 5.0), fault
+        after = out.msgs['/tpms/wheel_radius'][-1]
+        for name in ('delta_13', 'delta_24', 'delta_12', 'delta_34'):
+            assert abs(getattr(after, name) - getattr(before, name)) < 1e-3, (fault, name)
+        assert abs(after.gyro_offset - before.gyro_offset) < 0.01, fault
+        feeder.feed(_drive(200, seed=seed + 1,
+                           t0=out.last_stamp('/tpms/wheel_radius') * 1e-9, eps=eps))
+        back = out.msgs['/tpms/indication/wheel_radius'][-1]
+        assert all(back.known) and not any(back.underinflated), fault
+
+
+def test_finding5_shipped_yamls_apply_under_any_namespace_with_own_calibration(
+        make_node: Callable[..., Any], tmp_path: Path) -> None:
+    """Finding 5: the shipped YAMLs were keyed by the bare node name (ignored under a namespace)
+    and the calibration files were fixed paths shared between vehicles. Now a params file
+    (``/**``) configures the node under any namespace, and each node of each vehicle keeps its
+    calibration in its own file under $ROS_HOME."""
+    import os
+
+    for name, cls, key, value in (
+            ('vibration_analyzer', VibrationAnalyzerNode, 'bad_hold_s', 0.42),
+            ('wheel_radius_analyzer', WheelRadiusAnalyzerNode, 'validity_hold_s', 0.42)):
+        document = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())
+        assert list(document) == ['/**']
+        document['/**']['ros__parameters'][key] = value
+        params = tmp_path / f'{name}.yaml'
+        params.write_text(yaml.safe_dump(document))
+        nodes = [make_node(cls, namespace=f'/car{k}',
+                           cli_args=['--ros-args', '--params-file', str(params)])
+                 for k in (1, 2)]
+        files = set()
+        for k, node in enumerate(nodes, start=1):
+            assert getattr(node.parameters, key) == value
+            expected = os.path.join(os.environ['ROS_HOME'], 'vehicle_monitor', 'calibration',
+                                    f'car{k}', f'{name}.yaml')
+            assert node.processor.calibration_file == expected
+            files.add(expected)
+        assert len(files) == 2
+
+
 # ---------------------------------------------------------------- tpms_voter
 
 VOTER_TEST = {'set_on_s': 0.5, 'set_off_s': 1.0, 'max_age_s': 0.5, 'diagnostics_period_s': 0.1,
