@@ -241,7 +241,8 @@ def test_fault_is_named_never_a_vehicle_fault_and_recovers(
     first_settled = unsettled[-1] + 1 if unsettled.size else 0
     settle = max((stamps[min(first_settled, len(stamps) - 1)] - end_ns) * 1e-9, 0.0)
     level = max((st.level for st in named if text in st.message), default=-1)
-    print(f'RESULT {node} {name}: level {level} {text!r}; estimate within {TOL[node]} '
+    message = next(st.message for st in named if text in st.message)
+    print(f'RESULT {node} {name}: level {level} {message!r}; estimate within {TOL[node]} '
           f'{settle:.2f} s, published as measured again {recovery:.2f} s after the fault')
     # (+ SLACK_S: a time jump is confirmed by StampCheck.confirm_samples samples, 5 periods; a
     # burst holds the filter for BURST_PERIODS more periods)
