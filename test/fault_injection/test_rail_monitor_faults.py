@@ -250,3 +250,35 @@ def test_fault_is_named_never_a_vehicle_fault_and_recovers(
     # Warnings clear once their cause has cleared.
     final = result.statuses[-1][1]
     assert final.level == 0, (node, name, final.message)
+
+
+@pytest.mark.parametrize('seed', range(2))
+@pytest.mark.parametrize('node', ['suspension_monitor', 'creep_estimator'])
+def test_random_fault_sequences(node: str, seed: int, stream: list[Sample]) -> None:
+    """Three fault classes drawn at random (seeded; Hypothesis is not in the environment), each
+    over 0.3-1 s somewhere in 2-8 s: no exception, nothing non-finite published, no flag the
+    clean run does not raise, and at the end (14 s) the estimate within tolerance of the clean
+    run and the status OK."""
+    rng = np.random.default_rng(seed)
+    cases = _cases(node)
+    names = [n for n in cases if n != 'backward_jump']
+    chosen = rng.choice(names, size=3, replace=False)
+    starts = np.sort(rng.uniform(2.0, 8.0, size=3))
+    faulted = _for(node, stream)
+    # Latest first, so the earlier windows' indices still hold after a fault changes the length.
+    for name, start in sorted(zip(chosen, starts, strict=True), key=lambda c: -c[1]):
+        topic, fault, _ = cases[str(name)]
+        indices = window(faulted, topic, float(start), float(rng.uniform(0.3, 1.0)))
+        faulted = fault(faulted, indices[:1] if name == 'future_stamp' else indices)
+    processor = _make(node)
+    result = run(processor, faulted, status_every=1)
+    out_topic = next(iter(processor.outputs))
+    t0 = faulted[0].log_ns
+    outputs = [o for o in result.of(out_topic) if o.stamp_ns < t0 + 10**12]
+    stamps, est, flags, measured = _series(node, outputs)
+    ref_stamps, ref_est, ref_flags, _ = _series(node, _clean(node, stream).of(out_topic))
+    nearest = np.clip(np.searchsorted(ref_stamps, stamps), 0, len(ref_stamps) - 1)
+    assert not (flags & ~ref_flags[nearest]).any(), (seed, list(chosen))
+    assert measured[-1] and np.abs(est[-1] - ref_est[nearest[-1]]).max() <= TOL[node], (
+        seed, list(chosen))
+    assert result.statuses[-1][1].level == 0, (seed, list(chosen), result.statuses[-1][1])
