@@ -302,22 +302,34 @@ class Executor(Protocol):
         """Release what the executor holds."""
 
 
+class _Later:
+    """A local task's result, once it has run."""
+
+    result: RecordingResult | None = None
+
+
 class LocalExecutor:
-    """Runs each task in this process when submitted (tests, a single machine without Ray)."""
+    """Runs the tasks one by one in this process, in submission order, so a chained task's
+    predecessor has always run (tests, a single machine without Ray)."""
 
     def __init__(self) -> None:
-        self._done: list[RecordingResult] = []
+        self._queue: list[tuple[Task, Any, _Later]] = []
 
     def submit(self, task: Task, calibration: Any) -> tuple[Any, Any]:
-        result = run_recording(task, calibration)
-        self._done.append(result)
-        return result, result.calibration
+        later = _Later()
+        self._queue.append((task, calibration, later))
+        return later, later
 
     def next_done(self) -> RecordingResult:
-        return self._done.pop(0)
+        task, calibration, later = self._queue.pop(0)
+        if isinstance(calibration, _Later):
+            assert calibration.result is not None, 'a chained task ran before its predecessor'
+            calibration = calibration.result.calibration
+        later.result = run_recording(task, calibration)
+        return later.result
 
     def close(self) -> None:
-        self._done.clear()
+        self._queue.clear()
 
 
 def _ray_task(task: Task, calibration: Calibration | None,
