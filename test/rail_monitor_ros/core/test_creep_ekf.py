@@ -14,6 +14,7 @@ from rail_monitor_ros.core.creep_ekf import (
     CreepRun,
     lateral_states_measurement,
     measurement_channels,
+    pattern_fields,
 )
 from rail_monitor_ros.core.rail_model import car_end_state_space, full_car_state_space
 from rail_monitor_ros.offline.creep_runs import (
@@ -426,3 +427,34 @@ def test_sensor_offsets_estimated(creep_steps: RailSimulationResult) -> None:
     offsets = ekf.x[ekf.i_theta - ekf.n_offsets:ekf.i_theta]
     assert measurement_channels('C')[0] == 'y_b'
     assert offsets[0] == pytest.approx(5e-4, rel=0.3)
+
+
+@pytest.mark.parametrize('model', ['end', 'half'])
+@pytest.mark.parametrize('bogie', ['front', 'rear'])
+def test_pattern_fields_are_what_the_measurement_reads(model: str, bogie: str) -> None:
+    """pattern_fields names exactly the entries lateral_states_measurement reads: NaN in any
+    of them reaches the measurement, NaN everywhere else does not."""
+    rng = np.random.default_rng(9)
+    shapes = {'wheelset_lateral': 4, 'wheelset_lateral_rate': 4, 'wheelset_yaw': 4,
+              'wheelset_yaw_rate': 4, 'bogie_lateral': 2, 'bogie_lateral_rate': 2,
+              'bogie_yaw': 2, 'bogie_yaw_rate': 2, 'body_lateral': None,
+              'body_lateral_rate': None, 'body_yaw': None, 'body_yaw_rate': None}
+    fields = {name: rng.normal(size=(1, size) if size else 1) for name, size in shapes.items()}
+    for pattern in 'ABC':
+        used = pattern_fields(pattern, bogie, model)
+        only_used = {name: np.full_like(values, np.nan) for name, values in fields.items()}
+        for name, index in used:
+            if index is None:
+                only_used[name] = fields[name].copy()
+            else:
+                only_used[name][:, index] = fields[name][:, index]
+        z = lateral_states_measurement(only_used, pattern, bogie, 9.5, model)
+        assert np.isfinite(z).all(), (pattern, used)
+        for name, index in used:
+            probe = {key: value.copy() for key, value in fields.items()}
+            if index is None:
+                probe[name][:] = np.nan
+            else:
+                probe[name][:, index] = np.nan
+            z = lateral_states_measurement(probe, pattern, bogie, 9.5, model)
+            assert not np.isfinite(z).all(), (pattern, name, index)

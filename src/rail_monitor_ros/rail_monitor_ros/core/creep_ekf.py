@@ -1024,6 +1024,34 @@ class CreepEkf:
 
 # -- measurement assembly (shared by the node and the offline tools) ----------------------------
 
+def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
+                   ) -> tuple[tuple[str, int | None], ...]:
+    """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).
+
+    What :func:`lateral_states_measurement` reads and nothing else; a caller can tell which
+    required fields a message lacks (NaN) and report the pattern as not fed.
+    """
+    if pattern not in ('A', 'B', 'C'):
+        raise ValueError(f"pattern must be 'A', 'B' or 'C' for lateral states, got {pattern!r}")
+    if model not in MODELS:
+        raise ValueError(f'model must be one of {MODELS}, got {model!r}')
+    if bogie not in BOGIES:
+        raise ValueError(f'bogie must be one of {BOGIES}, got {bogie!r}')
+    j = BOGIES.index(bogie)
+    out: list[tuple[str, int | None]] = []
+    if pattern == 'A':
+        for w in (2 * j, 2 * j + 1):
+            out += [('wheelset_lateral', w), ('wheelset_lateral_rate', w), ('wheelset_yaw', w),
+                    ('wheelset_yaw_rate', w)]
+    out += [('bogie_lateral', j), ('bogie_lateral_rate', j)]
+    if pattern in ('A', 'B'):
+        out += [('bogie_yaw', j), ('bogie_yaw_rate', j)]
+    out += [('body_lateral', None), ('body_lateral_rate', None)]
+    if model == 'half' or pattern == 'A':
+        out += [('body_yaw', None), ('body_yaw_rate', None)]
+    return tuple(out)
+
+
 def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
                                bogie: str = 'front',
                                body_pivot_offset: float = RailVehicleParams().
