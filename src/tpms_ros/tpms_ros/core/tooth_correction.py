@@ -19,8 +19,10 @@ import math
 import numpy as np
 import scipy.signal as sig
 
-ANGLE_MODE_ON = 1.25     # changes per tooth above which the input is not a held tooth period
-ANGLE_MODE_OFF = 1.1     # ... and below which it is again
+# A held tooth period changes at most once per edge (<= 1 change per tooth); a window average
+# also changes when an edge leaves the window, 1 + (1 - edges per sample) changes per tooth.
+ANGLE_MODE_ON = 1.08     # changes per tooth above which the input is not a held tooth period
+ANGLE_MODE_OFF = 1.03    # ... and below which it is again
 BINS_PER_TOOTH = 4       # angle-domain pattern resolution
 MIN_FORM_TEETH = 200.0   # weighted teeth of data before the form is judged
 
