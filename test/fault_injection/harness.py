@@ -178,10 +178,17 @@ def burst(stream: list[Sample], indices: list[int]) -> list[Sample]:
     (a rate burst: ten times the rate)."""
     out: list[Sample] = []
     chosen = set(indices)
+    # the next sample of the same topic: topics may share stamps (the rail IMUs)
+    following: dict[int, int] = {}
+    last_of: dict[str, int] = {}
+    for i, sample in enumerate(stream):
+        if sample.topic in last_of:
+            following[last_of[sample.topic]] = i
+        last_of[sample.topic] = i
     for i, sample in enumerate(stream):
         out.append(sample)
-        if i in chosen and i + 1 < len(stream):
-            step = (stamp_of(stream[i + 1].message) - stamp_of(sample.message)) // 10
+        if i in chosen and i in following:
+            step = (stamp_of(stream[following[i]].message) - stamp_of(sample.message)) // 10
             for k in range(1, 10):
                 extra = copy.deepcopy(sample)
                 set_stamp(extra.message, stamp_of(sample.message) + k * step)
