@@ -25,10 +25,26 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
-from vehicle_monitor_common.parameters import ConfigurationError, build
+from vehicle_monitor_common.parameters import ConfigurationError, build, param
 
 OK, WARN, ERROR = 0, 1, 2
 T = TypeVar('T')
+
+
+@dataclass(frozen=True)
+class ProcessorParams:
+    """The node-only parameters every processor has, defined once: each node's ``*NodeParams``
+    inherits them (and may give a default of its own where its inputs' rates ask for it)."""
+
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01, high=60.0,
+                                        read_only=True)
+    silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
+                                     'error on /diagnostics, s', low=0.01, high=3600.0,
+                                     read_only=True)
+    jump_horizon_s: float = param(10.0, 'an input stamp this far ahead of the last one (or any '
+                                  'behind it) is a time jump once confirmed by the following '
+                                  'samples (filters restart, calibration kept), else dropped as '
+                                  'a corrupt stamp, s', low=0.01, high=1e6, read_only=True)
 
 
 def header_stamp_ns(message: Any) -> int:

@@ -69,6 +69,7 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ProcessorParams,
     Status,
     build_processor,
     header_stamp_ns,
@@ -90,7 +91,7 @@ LATERAL_FIELDS = ('wheelset_lateral', 'wheelset_lateral_rate', 'wheelset_yaw',
 
 
 @dataclass(frozen=True)
-class CreepEstimatorNodeParams:
+class CreepEstimatorNodeParams(ProcessorParams):
     """The node's own parameters (the method's are ``CreepEkfParams``)."""
 
     use_track_input: bool = param(True, 'use rail/track_irregularity when it is published '
@@ -110,17 +111,9 @@ class CreepEstimatorNodeParams:
                                     'saturated, m/s^2', low=0.1, high=1e4)
     gyro_limit_rad_s: float = param(5.0, 'pattern D: a yaw rate at or beyond this is saturated, '
                                     'rad/s', low=0.01, high=1e3)
-    jump_horizon_s: float = param(10.0, 'a stamp this far ahead of the last one (or any behind '
-                                  'it) is a time jump once confirmed, else dropped, s', low=0.01,
-                                  high=1e6, read_only=True)
     recovery_s: float = param(1.0, 'after an input fault or a time jump the estimate is '
                               'reported unknown (std widened) this long while the filter '
                               'settles, s', low=0.0, high=600.0)
-    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01, high=60.0,
-                                        read_only=True)
-    silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
-                                     'error on /diagnostics, s', low=0.01, high=3600.0,
-                                     read_only=True)
 
 
 @dataclass

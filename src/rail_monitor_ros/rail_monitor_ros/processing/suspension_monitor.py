@@ -67,6 +67,7 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ProcessorParams,
     Status,
     build_processor,
     header_stamp_ns,
@@ -80,7 +81,7 @@ MODES = 'rail/suspension/modes'
 
 
 @dataclass(frozen=True)
-class SuspensionMonitorNodeParams:
+class SuspensionMonitorNodeParams(ProcessorParams):
     """The node's own parameters (the method's are ``SuspensionImmParams``)."""
 
     pair_tolerance_s: float = param(1e-3, 'largest stamp difference of a bogie/body IMU pair, s',
@@ -101,17 +102,9 @@ class SuspensionMonitorNodeParams:
                                     low=0.01, high=1e3)
     frozen_samples: int = param(20, 'this many identical consecutive values = frozen sensor',
                                 low=2, high=100000)
-    jump_horizon_s: float = param(10.0, 'a stamp this far ahead of the last one (or any behind '
-                                  'it) is a time jump once confirmed, else dropped, s', low=0.01,
-                                  high=1e6, read_only=True)
     fault_recovery_s: float = param(2.0, 'after an input fault, a track model switch or a time '
                                     'jump, no fault is declared for this long (the IMM '
                                     'settles), s', low=0.0, high=60.0)
-    diagnostics_period_s: float = param(1.0, '/diagnostics period, s', low=0.01, high=60.0,
-                                        read_only=True)
-    silence_timeout_s: float = param(1.0, 'an input silent this long after it flowed is an '
-                                     'error on /diagnostics, s', low=0.01, high=3600.0,
-                                     read_only=True)
 
 
 class _Held:

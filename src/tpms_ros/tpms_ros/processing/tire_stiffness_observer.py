@@ -53,17 +53,23 @@ from tpms_ros.processing.calibrating_tpms import (
     ProcessAhead,
     calibrate_on_start_param,
     calibration_file_param,
-    jump_horizon_param,
     offline_calibration_file,
     output_phase_param,
     process_ahead_param,
-    silence_timeout_param,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
 from vehicle_monitor_common.input_health import StampCheck
 from vehicle_monitor_common.parameters import ConfigurationError, build, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.processing import (
+    ERROR,
+    OK,
+    WARN,
+    Input,
+    Output,
+    ProcessorParams,
+    Status,
+)
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
 DRIVER_INPUTS = 'vehicle/driver_inputs'
@@ -75,7 +81,7 @@ SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
 
 
 @dataclass(frozen=True)
-class TireStiffnessObserverNodeParams:
+class TireStiffnessObserverNodeParams(ProcessorParams):
     """The node's own parameters (the method's are :class:`StiffnessObserverParams`)."""
 
     use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
@@ -92,10 +98,6 @@ class TireStiffnessObserverNodeParams:
                                     'overhead)', low=0.001, high=10.0)
     process_ahead_s: float = process_ahead_param()
     output_phase_s: float = output_phase_param()
-    jump_horizon_s: float = jump_horizon_param()
-    diagnostics_period_s: float = param(1.0, '/diagnostics period, s', low=0.01, high=60.0,
-                                        read_only=True)
-    silence_timeout_s: float = silence_timeout_param()
 
 
 def chunk_problem(process_period_s: float, sample_rate_hz: float) -> str:

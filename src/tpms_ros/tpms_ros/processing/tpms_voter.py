@@ -43,7 +43,15 @@ from tpms_ros.core.tpms_voting import (
 )
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import ConfigurationError, build, flatten, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.processing import (
+    ERROR,
+    OK,
+    WARN,
+    Input,
+    Output,
+    ProcessorParams,
+    Status,
+)
 
 WARNING = 'tpms/warning'
 INDICATION_TYPE = 'vehicle_monitor_msgs/msg/TpmsIndication'
@@ -57,7 +65,7 @@ def indication_topic(method: str) -> str:
 
 
 @dataclass(frozen=True)
-class TpmsVoterNodeParams:
+class TpmsVoterNodeParams(ProcessorParams):
     """The node's own parameters (the rule's are :class:`VotingRuleParams`, each method's
     ``<method>.enabled`` and ``<method>.threshold`` a :class:`MethodVoteParams` group)."""
 
@@ -67,12 +75,6 @@ class TpmsVoterNodeParams:
                                      read_only=True)
     publish_rate_hz: float = param(2.0, 'rate of the periodic tpms/warning between '
                                    'indications, Hz', low=0.01, high=100.0, read_only=True)
-    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
-                                        high=60.0, read_only=True)
-    jump_horizon_s: float = param(10.0, 'an indication stamped more than this ahead of its '
-                                  "method's last (or any behind it) is a time jump: a lone one "
-                                  'is dropped, a confirmed one restarts the vote, s',
-                                  low=0.01, high=1e6, read_only=True)
     silence_timeout_s: float = param(2.0, 'an indication topic silent this long after it '
                                      'flowed is an error on /diagnostics, s', low=0.01,
                                      high=3600.0, read_only=True)
