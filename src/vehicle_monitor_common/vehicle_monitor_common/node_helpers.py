@@ -274,30 +274,43 @@ def ros_init_error(exc: Exception) -> str:
     return text.split(', at /')[0].strip()
 
 
-def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
-    """main() body shared by every executable (ros2/examples skeleton).
+def run_main(body: Callable[[list[Callable[[], None]]], int],
+             args: list[str] | None = None) -> int:
+    """The main() skeleton every executable shares (ros2/examples): rclpy init, ``body``, and
+    the teardown of what it created (``body`` appends the cleanups to the list it is given,
+    run in reverse) and rclpy shutdown, whatever happened.
 
-    A ConfigurationError (bad or unknown parameter, missing file) or bad ROS arguments (a
-    malformed params file) print one line and exit with 2; Ctrl-C and external shutdown end
-    quietly.
+    Bad ROS arguments (a malformed or missing params file) and a ConfigurationError (a bad or
+    unknown parameter, a missing file) print one line and exit with 2; Ctrl-C and external
+    shutdown end quietly.
     """
     try:
         rclpy.init(args=args)
     except RCLError as exc:
         print(f'error: {ros_init_error(exc)}', file=sys.stderr)
         return 2
-    node = None
+    cleanups: list[Callable[[], None]] = []
     try:
-        node = factory()
-        refuse_unknown_parameters(node)
-        rclpy.spin(node)
+        return body(cleanups)
     except ConfigurationError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        return 0
     finally:
-        if node is not None:
-            node.destroy_node()
+        for cleanup in reversed(cleanups):
+            cleanup()
         rclpy.try_shutdown()
-    return 0
+
+
+def run_node(factory: Callable[..., Node], args: list[str] | None = None) -> int:
+    """main() of a node executable: the node, spun until Ctrl-C (see :func:`run_main`)."""
+
+    def body(cleanups: list[Callable[[], None]]) -> int:
+        node = factory()
+        cleanups.append(node.destroy_node)
+        refuse_unknown_parameters(node)
+        rclpy.spin(node)
+        return 0
+
+    return run_main(body, args)

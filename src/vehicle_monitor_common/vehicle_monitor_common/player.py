@@ -32,13 +32,13 @@ from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from vehicle_monitor_common.bag_io import BagError, bag_topics, iter_raw, open_reader
-from vehicle_monitor_common.node_helpers import TypedParameters
+from vehicle_monitor_common.node_helpers import TypedParameters, run_main
 from vehicle_monitor_common.parameters import ConfigurationError, param
 
 # Reliable with a deep queue: a replay must not lose messages to a slow reader.
@@ -298,11 +298,10 @@ class ScenarioPlayer(Node):
 
 def run_player(factory: Callable[[], ScenarioPlayer], args: list[str] | None = None) -> int:
     """main() of a player/simulator executable: play, exit 0 when done, 1 on a replay error."""
-    rclpy.init(args=args)
-    player = None
-    code = 0
-    try:
+
+    def body(cleanups: list[Callable[[], None]]) -> int:
         player = factory()
+        cleanups.append(player.destroy_node)
         executor = SingleThreadedExecutor()
         executor.add_node(player)
         started = time.monotonic()
@@ -310,21 +309,12 @@ def run_player(factory: Callable[[], ScenarioPlayer], args: list[str] | None = N
             executor.spin_once(timeout_sec=0.05)
         if player.error:
             print(f'error: {player.error}', file=sys.stderr)
-            code = 1
-        elif player.done.is_set():
+            return 1
+        if player.done.is_set():
             total = sum(player.published.values())
-            elapsed = time.monotonic() - started
             player.get_logger().info(
                 f'replayed {total} messages on {len(player.published)} topics in '
-                f'{elapsed:.2f} s')
-    except ConfigurationError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if player is not None:
-            player.destroy_node()
-        rclpy.try_shutdown()
-    return code
+                f'{time.monotonic() - started:.2f} s')
+        return 0
 
+    return run_main(body, args)

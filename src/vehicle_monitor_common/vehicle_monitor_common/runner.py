@@ -37,11 +37,9 @@ import sys
 import time
 from typing import Any
 
-import rclpy
 from rclpy.context import Context
 from rclpy.executors import (
     Executor,
-    ExternalShutdownException,
     MultiThreadedExecutor,
     SingleThreadedExecutor,
 )
@@ -51,7 +49,7 @@ from rclpy.parameter import Parameter
 import yaml
 
 from vehicle_monitor_common.graph_spec import GraphSpec, NodeSpec, load_graph
-from vehicle_monitor_common.node_helpers import refuse_unknown_parameters
+from vehicle_monitor_common.node_helpers import refuse_unknown_parameters, run_main
 from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
 from vehicle_monitor_common.recorder import GraphRecorder
@@ -204,22 +202,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--timeout', type=float, default=None,
                         help='stop after this many seconds (default: when the players finish)')
     args = parser.parse_args(argv)
-    rclpy.init()
-    code = 0
-    graph = None
-    try:
+
+    def body(cleanups: list[Callable[[], None]]) -> int:
         launch_args = {}
         for text in args.launch_args:
             name, sep, value = text.partition(':=')
             if not sep or not name:
                 raise ConfigurationError(f'launch argument {text!r}: expected NAME:=VALUE')
             launch_args[name] = value
-        spec = _apply_overrides(load_graph(args.graph, launch_args), args.param)
-        graph = Graph(spec)
+        graph = Graph(_apply_overrides(load_graph(args.graph, launch_args), args.param))
+        cleanups.append(graph.destroy)
         started = time.monotonic()
         has_players = bool(graph.of_type(ScenarioPlayer))
         graph.spin_until(graph.players_done if has_players else (lambda: False), args.timeout)
         graph.drain()
+        code = 0
         for player in graph.of_type(ScenarioPlayer):
             if player.error:
                 print(f'error: {player.get_name()}: {player.error}', file=sys.stderr)
@@ -227,13 +224,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f'graph ran {time.monotonic() - started:.2f} s (wall)')
         for recorder in graph.of_type(GraphRecorder):
             print(recorder.summary())
-    except ConfigurationError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if graph is not None:
-            graph.destroy()
-        rclpy.try_shutdown()
-    return code
+        return code
+
+    return run_main(body)
