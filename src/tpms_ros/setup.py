@@ -1,7 +1,7 @@
 from glob import glob
 import os
 
-from setuptools import find_packages, setup
+from setuptools import setup
 
 package_name = 'tpms_ros'
 BAGS = os.path.join('..', '..', 'bags')  # relative to this package folder, as colcon wants
@@ -19,8 +19,6 @@ def shipped_bags(prefix: str) -> list[tuple[str, list[str]]]:
 
 setup(
     name=package_name,
-    version='0.1.0',
-    packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -29,12 +27,6 @@ setup(
         ('share/' + package_name + '/scenarios', glob('scenarios/*.yaml')),
         *shipped_bags('road_'),
     ],
-    install_requires=['setuptools'],
-    zip_safe=True,
-    maintainer='Vehicle monitor maintainers',
-    maintainer_email='maintainers@vehicle-monitor.dev',
-    description='Road vehicle monitoring: indirect TPMS, tire lateral forces, road simulator.',
-    license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'vehicle_simulator = tpms_ros.nodes.vehicle_simulator_node:main',

@@ -1,21 +1,13 @@
-from setuptools import find_packages, setup
+from setuptools import setup
 
 package_name = 'vehicle_monitor_common'
 
 setup(
     name=package_name,
-    version='0.1.0',
-    packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ],
-    install_requires=['setuptools'],
-    zip_safe=True,
-    maintainer='Vehicle monitor maintainers',
-    maintainer_email='maintainers@vehicle-monitor.dev',
-    description='Bag I/O, scenario player, graph runner and node helpers shared by the monitors.',
-    license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'run_graph = vehicle_monitor_common.runner:main',

@@ -11,6 +11,7 @@ calibration, and the status says so until every tire known before it is known ag
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 import math
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -19,53 +20,34 @@ import numpy as np
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
 from vehicle_monitor_common.calibration_store import Calibratable, CalibrationManager
 from vehicle_monitor_common.parameters import param
-from vehicle_monitor_common.processing import WARN, Output
+from vehicle_monitor_common.processing import WARN, Output, ProcessorParams
 
 INDICATION_TYPE = 'vehicle_monitor_msgs/msg/TpmsIndication'
 RESTART_NOTE_S = 1.0
 """A restart stays on the status at least this much data time (a status period sees it)."""
 
 
-def process_ahead_param() -> Any:
-    """The ``process_ahead_s`` parameter (the same definition as node_helpers')."""
-    return param(0.02, 'the buffered input also goes to the core this long (data time) before '
-                 'each output falls due, so little work is left when it does: lower output '
-                 'latency for one more core call per output, s (0: off)', low=0.0, high=10.0)
+@dataclass(frozen=True)
+class CalibratingTpmsParams(ProcessorParams):
+    """The node-only parameters the three calibrating TPMS processors (stiffness, vibration,
+    wheel radius) share, defined once: calibration and the timing of their chunked outputs."""
 
-
-def output_phase_param() -> Any:
-    """The ``output_phase_s`` parameter (the same definition as node_helpers')."""
-    return param(0.0, 'the first output comes this much data time later than otherwise, and '
-                 'every later one with it (the period stays): nodes composed in one process '
-                 'take different phases so that the work of their outputs does not coincide, s',
-                 low=0.0, high=10.0)
-
-
-def jump_horizon_param() -> Any:
-    """The ``jump_horizon_s`` parameter of the TPMS processors."""
-    return param(10.0, 'an input stamp more than this ahead of the last (or any behind it) is '
-                 'a time jump: a lone one is dropped and counted, a confirmed one restarts the '
-                 'filters (calibration kept), s', low=0.01, high=1e6, read_only=True)
-
-
-def silence_timeout_param() -> Any:
-    """The ``silence_timeout_s`` parameter (the node's adapter reports the silence)."""
-    return param(1.0, 'an input silent this long after it flowed is an error on /diagnostics, '
-                 's', low=0.01, high=3600.0, read_only=True)
-
-
-def calibration_file_param() -> Any:
-    """The ``calibration_file`` parameter of a calibrating node."""
-    return param('', 'YAML file the calibration is saved to and loaded from at start; empty: '
-                 '$ROS_HOME/vehicle_monitor/calibration/<namespace>/<node>.yaml; none: not '
-                 'persisted', read_only=True)
-
-
-def calibrate_on_start_param() -> Any:
-    """The ``calibrate_on_start`` parameter of a calibrating node."""
-    return param(False, 'start a calibration with the first data when no usable calibration '
-                 'file was loaded (only if tire pressures are known to be nominal)',
-                 read_only=True)
+    calibrate_on_start: bool = param(False, 'start a calibration with the first data when no '
+                                     'usable calibration file was loaded (only if tire '
+                                     'pressures are known to be nominal)', read_only=True)
+    calibration_file: str = param('', 'YAML file the calibration is saved to and loaded from at '
+                                  'start; empty: $ROS_HOME/vehicle_monitor/calibration/'
+                                  '<namespace>/<node>.yaml; none: not persisted',
+                                  read_only=True)
+    process_ahead_s: float = param(0.02, 'the buffered input also goes to the core this long '
+                                   '(data time) before each output falls due, so little work is '
+                                   'left when it does: lower output latency for one more core '
+                                   'call per output, s (0: off)', low=0.0, high=10.0)
+    output_phase_s: float = param(0.0, 'the first output comes this much data time later than '
+                                  'otherwise, and every later one with it (the period stays): '
+                                  'nodes composed in one process take different phases so that '
+                                  'the work of their outputs does not coincide, s', low=0.0,
+                                  high=10.0)
 
 
 def offline_calibration_file(configured: str) -> str:

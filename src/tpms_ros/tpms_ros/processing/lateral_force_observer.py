@@ -62,11 +62,18 @@ from tpms_ros.core.lateral_force_observer import (
     ObserverTuningParams,
     ObserverVehicleParams,
 )
-from tpms_ros.processing.calibrating_tpms import jump_horizon_param, silence_timeout_param
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.processing import (
+    ERROR,
+    OK,
+    WARN,
+    Input,
+    Output,
+    ProcessorParams,
+    Status,
+)
 
 IMU = 'vehicle/imu'
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
@@ -83,7 +90,7 @@ _NOT_REJECTIONS = ('beyond_validity', 'stale_wheel_speeds', 'stale_driver_inputs
 
 
 @dataclass(frozen=True)
-class LateralForceObserverNodeParams:
+class LateralForceObserverNodeParams(ProcessorParams):
     """Node-only parameters of lateral_force_observer: input alignment and checks, diagnostics
     (the method's own: :class:`ObserverVehicleParams` and :class:`ObserverTuningParams`)."""
 
@@ -100,10 +107,6 @@ class LateralForceObserverNodeParams:
     imu_frozen_s: float = param(0.5, 'an IMU whose ax, ay, roll and yaw rates all repeat '
                                 'their exact values this long is frozen: its samples are '
                                 'skipped until it moves again, s', low=0.01, high=60.0)
-    jump_horizon_s: float = jump_horizon_param()
-    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
-                                        high=60.0, read_only=True)
-    silence_timeout_s: float = silence_timeout_param()
 
 
 def _stamp_ns(message: Any) -> int:

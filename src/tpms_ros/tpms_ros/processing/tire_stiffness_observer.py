@@ -50,12 +50,9 @@ from tpms_ros.core.stiffness_observer import (
 )
 from tpms_ros.core.tires import TIRE_NAMES
 from tpms_ros.processing.calibrating_tpms import (
+    CalibratingTpmsParams,
     ProcessAhead,
-    calibrate_on_start_param,
-    calibration_file_param,
     offline_calibration_file,
-    output_phase_param,
-    process_ahead_param,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.calibration_store import CalibrationManager
@@ -67,7 +64,6 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
-    ProcessorParams,
     Status,
 )
 
@@ -81,7 +77,7 @@ SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
 
 
 @dataclass(frozen=True)
-class TireStiffnessObserverNodeParams(ProcessorParams):
+class TireStiffnessObserverNodeParams(CalibratingTpmsParams):
     """The node's own parameters (the method's are :class:`StiffnessObserverParams`)."""
 
     use_driver_inputs: bool = param(True, 'subscribe vehicle/driver_inputs for the torque and '
@@ -89,15 +85,11 @@ class TireStiffnessObserverNodeParams(ProcessorParams):
     driver_inputs_max_age_s: float = param(0.1, 'a driver-input message older than this is '
                                            'stale (torque and cornering gates skipped), s',
                                            low=1e-3, high=10.0)
-    calibrate_on_start: bool = calibrate_on_start_param()
-    calibration_file: str = calibration_file_param()
     publish_rate_hz: float = param(4.0, 'output rate in data time, Hz', low=0.01, high=100.0)
     process_period_s: float = param(0.25, 'wheel speeds go to the core in chunks of this much '
                                     'data time, s (no effect on the result; shorter: less '
                                     'work when an output falls due, more per-call '
                                     'overhead)', low=0.001, high=10.0)
-    process_ahead_s: float = process_ahead_param()
-    output_phase_s: float = output_phase_param()
 
 
 def chunk_problem(process_period_s: float, sample_rate_hz: float) -> str:

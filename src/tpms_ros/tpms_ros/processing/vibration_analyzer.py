@@ -51,14 +51,9 @@ from tpms_ros.core.vibration_analysis import (
 )
 from tpms_ros.processing.calibrating_tpms import (
     INDICATION_TYPE,
+    CalibratingTpmsParams,
     CalibratingTpmsProcessor,
-    calibrate_on_start_param,
-    calibration_file_param,
-    jump_horizon_param,
     offline_calibration_file,
-    output_phase_param,
-    process_ahead_param,
-    silence_timeout_param,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
@@ -73,18 +68,15 @@ fraction is at the wrong rate: the band-pass and the AR(2) are designed for samp
 
 
 @dataclass(frozen=True)
-class VibrationAnalyzerNodeParams:
+class VibrationAnalyzerNodeParams(CalibratingTpmsParams):
     """Node-only parameters of vibration_analyzer (the method's own: :class:`VibrationParams`)."""
 
     block_s: float = param(0.1, 'wheel-speed samples are processed in blocks of this '
                            'duration at most, s (no effect on the result; shorter: more '
                            'per-call overhead)', low=0.005, high=5.0, read_only=True)
-    process_ahead_s: float = process_ahead_param()
-    output_phase_s: float = output_phase_param()
     max_gap_s: float = param(0.05, 'a longer gap between wheel-speed stamps restarts the '
                              'filters; shorter ones are filled as missing samples, s',
                              low=1e-4, high=10.0)
-    jump_horizon_s: float = jump_horizon_param()
     bad_hold_s: float = param(1.0, 'a wheel stays unknown this long after a bad sample, s',
                               low=0.0, high=600.0)
     reset_after_fault_s: float = param(0.5, "a wheel's sensor fault (bad samples) lasting this "
@@ -93,11 +85,6 @@ class VibrationAnalyzerNodeParams:
                                        'again, s', low=0.0, high=600.0)
     publish_rate_hz: float = param(10.0, 'highest output rate (in data time); outputs follow '
                                    'processed blocks, Hz', low=0.01, high=1000.0)
-    calibrate_on_start: bool = calibrate_on_start_param()
-    calibration_file: str = calibration_file_param()
-    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
-                                        high=60.0, read_only=True)
-    silence_timeout_s: float = silence_timeout_param()
 
 
 def recovery_s(params: VibrationParams) -> float:

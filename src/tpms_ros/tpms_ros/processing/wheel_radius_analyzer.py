@@ -62,14 +62,9 @@ from tpms_ros.core.wheel_radius_analysis import (
 )
 from tpms_ros.processing.calibrating_tpms import (
     INDICATION_TYPE,
+    CalibratingTpmsParams,
     CalibratingTpmsProcessor,
-    calibrate_on_start_param,
-    calibration_file_param,
-    jump_horizon_param,
     offline_calibration_file,
-    output_phase_param,
-    process_ahead_param,
-    silence_timeout_param,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
@@ -93,7 +88,7 @@ Row = tuple[float, np.ndarray, float, float, np.ndarray]   # t, omega, yaw, stee
 
 
 @dataclass(frozen=True)
-class WheelRadiusAnalyzerNodeParams:
+class WheelRadiusAnalyzerNodeParams(CalibratingTpmsParams):
     """Node-only parameters of wheel_radius_analyzer (the method's own: WheelRadiusParams)."""
 
     max_latency_s: float = param(0.2, 'an IMU sample waits at most this long (IMU time) for '
@@ -108,20 +103,12 @@ class WheelRadiusAnalyzerNodeParams:
     max_wheel_deviation: float = param(0.3, "a wheel whose bin mean is off the median of the "
                                        'four by more than this fraction is a broken sensor '
                                        '(bad for that bin)', low=0.01, high=10.0)
-    jump_horizon_s: float = jump_horizon_param()
     publish_rate_hz: float = param(10.0, 'highest output rate (in data time), Hz', low=0.01,
                                    high=1000.0)
     process_period_s: float = param(0.1, 'aligned bins go to the core in chunks of this much '
                                     'IMU time, or sooner when an output falls due, s (no '
                                     'effect on the result; per-call overhead)', low=0.0,
                                     high=10.0)
-    process_ahead_s: float = process_ahead_param()
-    output_phase_s: float = output_phase_param()
-    calibrate_on_start: bool = calibrate_on_start_param()
-    calibration_file: str = calibration_file_param()
-    diagnostics_period_s: float = param(1.0, 'period of /diagnostics, s', low=0.01,
-                                        high=60.0, read_only=True)
-    silence_timeout_s: float = silence_timeout_param()
 
 
 def _stamp_ns(message: Any) -> int:
