@@ -15,6 +15,14 @@ from vehicle_monitor_common.runner import Graph
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _flatten(mapping: dict[str, Any], prefix: str = '') -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for key, value in mapping.items():
+        out += (_flatten(value, f'{prefix}{key}.') if isinstance(value, dict)
+                else [(f'{prefix}{key}', value)])
+    return out
+
+
 def _write(path: Path, data: Any) -> Path:
     path.write_text(yaml.safe_dump(data))
     return path
@@ -82,3 +90,35 @@ def test_shipped_launch_files_resolve(package: str, file: str) -> None:
         node_class(node.plugin)
         assert node.param_files and all(Path(f).is_file() for f in node.param_files)
         assert node.parameters['use_sim_time'] is False
+
+
+def test_shipped_road_launch_file_gives_two_independent_vehicles(ros_context: Any) -> None:
+    """The shipped road launch file under /car1 and /car2 in one process (as two `ros2 launch`
+    would on one computer): every node comes up configured by its /**-keyed params file, and
+    each calibrating node of each vehicle keeps its calibration in a file of its own."""
+    import os
+
+    path = ROOT / 'src' / 'tpms_ros' / 'launch' / 'road_monitor.launch.yaml'
+    specs = [load_graph(path, {'namespace': ns}) for ns in ('car1', 'car2')]
+    graph = Graph(GraphSpec(nodes=specs[0].nodes + specs[1].nodes), ros_context)
+    try:
+        names = sorted(n.get_fully_qualified_name() for n in graph.nodes)
+        assert names == sorted(f'/{car}/{node}' for car in ('car1', 'car2') for node in (
+            'tire_stiffness_observer', 'vibration_analyzer', 'wheel_radius_analyzer',
+            'tpms_voter', 'lateral_force_observer'))
+        files = {n.get_fully_qualified_name(): n.processor.calibration_file
+                 for n in graph.nodes if hasattr(n.processor, 'calibration_file')}
+        assert len(files) == 6 and len(set(files.values())) == 6
+        home = os.environ['ROS_HOME']
+        for fqn, file in files.items():
+            assert file == os.path.join(home, 'vehicle_monitor', 'calibration',
+                                        fqn.lstrip('/') + '.yaml')
+        # every node got its params file under its namespace (a file keyed by the bare node
+        # name would have been ignored there): the file's values are the node's overrides
+        for node in graph.nodes:
+            config = yaml.safe_load(
+                (ROOT / 'src' / 'tpms_ros' / 'config' / f'{node.get_name()}.yaml').read_text())
+            given = dict(_flatten(config['/**']['ros__parameters']))
+            assert given and set(given) <= set(node._parameter_overrides), node.get_name()
+    finally:
+        graph.destroy()
