@@ -22,12 +22,6 @@ from vehicle_monitor_common.offline_engine import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-# The suspension monitor's outputs are not yet reproducible: two SuspensionImm instances in one
-# process share their mode discretisations (SuspensionImm._discretized, with a mutable steady-state
-# dict filled during a run), so a second run in the same process differs from the first, and the
-# live node's differ from the engine's. Reported to the suspension monitor's owner; remove this
-# once fixed and the test asserts equality on every topic.
-KNOWN_DIFFERENCE = '/rail/suspension/modes'
 RAIL_BAGS = ('rail_imm_spring_damper_fault', 'rail_creep_steps', 'rail_healthy')
 
 
@@ -67,7 +61,4 @@ def test_engine_equals_live_graph_on_shipped_rail_bags(name: str, tmp_path: Path
         pytest.skip('the rail processors are not all registered yet')
     problems, topics = engine_vs_live(rail, ROOT / 'bags' / name, tmp_path)
     assert {'/rail/suspension/modes', '/rail/creep_factor', '/rail/creep_factor_imu'} <= topics
-    known = [p for p in problems if p.startswith(KNOWN_DIFFERENCE)]
-    assert [p for p in problems if p not in known] == []
-    if known:
-        pytest.xfail(f'{KNOWN_DIFFERENCE}: {len(known)} field(s) differ (see KNOWN_DIFFERENCE)')
+    assert problems == []
