@@ -1,22 +1,8 @@
 from glob import glob
-import os
 
 from setuptools import setup
 
 package_name = 'rail_monitor_ros'
-BAGS = os.path.join('..', '..', 'bags')  # relative to this package folder, as colcon wants
-
-
-def shipped_bags(prefix: str) -> list[tuple[str, list[str]]]:
-    """The workspace's scenario bags of this domain, installed to share/<package>/bags/<bag>/,
-    so `-p bag:=<name>` finds them from any directory."""
-    if not os.path.isdir(BAGS):  # a package built outside this workspace ships none
-        return []
-    return [('share/' + package_name + '/bags/' + name,
-             sorted(glob(os.path.join(BAGS, name, '*'))))
-            for name in sorted(os.listdir(BAGS)) if name.startswith(prefix)]
-
-
 setup(
     name=package_name,
     data_files=[
@@ -25,7 +11,6 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.yaml')),
         ('share/' + package_name + '/scenarios', glob('scenarios/*.yaml')),
-        *shipped_bags('rail_'),
     ],
     entry_points={
         'console_scripts': [

@@ -1,12 +1,27 @@
+from glob import glob
+import os
+
 from setuptools import setup
 
 package_name = 'vehicle_monitor_common'
+BAGS = os.path.join('..', '..', 'bags')  # relative to this package folder, as colcon wants
+
+
+def shipped_bags() -> list[tuple[str, list[str]]]:
+    """The workspace's scenario bags, installed to share/<package>/bags/<bag>/, so a
+    simulator's `-p bag:=<name>` finds them from any directory."""
+    if not os.path.isdir(BAGS):  # a package built outside this workspace ships none
+        return []
+    return [('share/' + package_name + '/bags/' + name,
+             sorted(glob(os.path.join(BAGS, name, '*'))))
+            for name in sorted(os.listdir(BAGS)) if os.path.isdir(os.path.join(BAGS, name))]
 
 setup(
     name=package_name,
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        *shipped_bags(),
     ],
     entry_points={
         'console_scripts': [

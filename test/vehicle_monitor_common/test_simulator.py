@@ -33,6 +33,6 @@ def test_unknown_bag_names_what_is_shipped(tmp_path: Path, monkeypatch: pytest.M
                                            make_node: Callable[..., Any]) -> None:
     """A bag that is neither a path nor shipped is refused, listing the shipped ones."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(ConfigurationError, match=r'no such bag.*rail_creep_steps'):
+    with pytest.raises(ConfigurationError, match=r"no such bag.*rail_creep_steps"):
         make_node(node_class('rail_monitor_ros/rail_simulator'),
                   parameter_overrides=[Parameter('bag', value='nope')])

@@ -21,7 +21,7 @@ from typing import Any
 from vehicle_monitor_common.bag_io import BagError, write_bag
 from vehicle_monitor_common.parameters import ConfigurationError, param
 from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer
-from vehicle_monitor_common.resources import share_dir, shipped_file
+from vehicle_monitor_common.resources import share_dir, shipped_file, workspace_bags
 from vehicle_monitor_common.series import TopicSeries
 
 # (scenario file, seed override or None) -> topics with their samples.
@@ -85,7 +85,7 @@ class SimulatorNode(ScenarioPlayer):
         return str(bag)
 
     def _find_bag(self, bag: str) -> Path:
-        """A recording to replay: a path as given, else a bag the package ships by name
+        """A recording to replay: a path as given, else a shipped bag by name
         (``road_puncture_15pct_fl`` or ``bags/road_puncture_15pct_fl``), from any directory.
 
         Raises:
@@ -94,12 +94,14 @@ class SimulatorNode(ScenarioPlayer):
         given = Path(bag)
         if given.exists():
             return given
-        shipped = share_dir(self.package, 'bags')
+        # installed (share/vehicle_monitor_common/bags), else the workspace's bags/
+        installed = share_dir('vehicle_monitor_common', 'bags')
+        shipped = installed if installed.is_dir() else workspace_bags()
         candidate = shipped / given.name
         if candidate.is_dir():
             return candidate
         available = ', '.join(sorted(p.name for p in shipped.glob('*') if p.is_dir()))
-        raise ConfigurationError(f'bag {bag}: no such bag, nor one that {self.package} ships '
+        raise ConfigurationError(f'bag {bag}: no such bag, nor a shipped one '
                                  f'(available: {available or "none"})')
 
     def destroy_node(self) -> None:
