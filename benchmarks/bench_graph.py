@@ -1,6 +1,6 @@
 """Node-graph benchmarks: replay speed, input-to-warning latency, CPU per node, composition.
 
-Prints (figures, not timed tests; SPEC §8 targets in brackets):
+Prints (figures, not timed tests; docs/targets.md targets in brackets):
 
 1. Replay as fast as possible of each registered scenario through its domain's graph, composed
    in one process on the EventsExecutor: real-time factor over wall time and over the process's

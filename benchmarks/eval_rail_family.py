@@ -11,7 +11,7 @@ Creep estimator (:class:`rail_monitor_ros.core.creep_ekf.CreepEkf`, as the creep
 runs it): c = 1 -> 0.5 at 5 s -> 0.75 at 10 s, per car at ``--speeds`` speeds in 20-70 m/s below
 0.9 x its critical speed. Configurations (``--creep-configs``):
 
-- ``C-spec/exact``, ``C-spec/map0.3``: pattern C with the SPEC's fields only (bogie and body
+- ``C-spec/exact``, ``C-spec/map0.3``: pattern C with the method page's fields only (bogie and body
   lateral displacement and velocity measured, every other RailLateralStates field NaN), the
   exact track (published = true + 0.01 mm noise) or a track map of 0.3 mm rms error.
 - ``C-all/exact``, ``C-all/map0.3``: pattern C with every field measured (what the node could
@@ -20,7 +20,7 @@ runs it): c = 1 -> 0.5 at 5 s -> 0.75 at 10 s, per car at ``--speeds`` speeds in
 
 Per step of c: time until the estimate stays within +/-5 % and +/-10 % of the truth, the worst
 relative error from the step on (and from 1 s after it), the share of rejected samples. The
-issue's targets: C (SPEC fields) with a 0.3 mm map, +/-5 % within 1 s on >= 90 % of cases; with
+issue's targets: C (contract fields) with a 0.3 mm map, +/-5 % within 1 s on >= 90 % of cases; with
 the exact track on every case; D without track, +/-10 % within 2 s on >= 90 %.
 
 Suspension IMM (:func:`rail_monitor_ros.offline.imm_runs.run_suspension_imm`, the full-car
@@ -90,7 +90,7 @@ from vehicle_monitor_common.parameters import build, flatten  # noqa: E402
 
 CREEP_CONFIGS = ('C-spec/exact', 'C-spec/map0.3', 'C-all/exact', 'C-all/map0.3', 'D/none',
                  'D/exact')
-# The fields SPEC §6 pattern C measures: bogie and body lateral displacement and velocity.
+# The fields docs/methods/creep_estimator.md pattern C measures: bogie and body lateral displacement and velocity.
 SPEC_C_FIELDS = ('bogie_lateral', 'bogie_lateral_rate', 'body_lateral', 'body_lateral_rate')
 MAP_ERROR = 3e-4
 # Issue 19 targets: config -> (tolerance, time limit s, required pass share).

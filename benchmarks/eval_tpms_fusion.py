@@ -1,6 +1,6 @@
 """Detection matrix of the TPMS voting fusion (Persson, Gustafsson, Drevö 2002) on the simulator.
 
-Issue 6 / SPEC §3, §8. Each case of the matrix is a seeded road scenario built from a shipped
+Issue 6 / docs/methods/, §8. Each case of the matrix is a seeded road scenario built from a shipped
 base scenario (its vehicle, tire, drive and sensor sections are kept; speed, steering, road and
 events are replaced): the car drives at the case's speed with mild cornering (sine steering
 scaled to ~1.5 m/s^2 peak lateral acceleration) and speed changes (-15 % and back), all tires

@@ -9,7 +9,7 @@ entry-point group of its setup.py::
 
 The main job (``monitor_demo``) and the evaluation CLI (``evaluate``) discover the domains
 through that group, so this package never imports a domain package. An evaluation yields one
-:class:`Metric` per method and key figure: the value computed from the run, the SPEC §8 target
+:class:`Metric` per method and key figure: the value computed from the run, the docs/targets.md target
 and whether it was met. Without ground truth the metrics carry what the estimators said (first
 warning, final estimate) and no target or verdict.
 """
@@ -43,7 +43,7 @@ class Metric:
         figure: what is measured, e.g. ``'detection time'``.
         value: the measured value; None when the run does not allow it (no truth, no output).
         unit: unit of ``value`` (``'s'``, ``'kPa'``, ``'%'``, ``''``).
-        target: the SPEC §8 target as text (``'<= 60 s'``); empty without truth.
+        target: the docs/targets.md target as text (``'<= 60 s'``); empty without truth.
         passed: whether the target is met; None when there is no target (no truth).
         detail: one line of evidence (which tires, counts of false warnings, ...).
     """
@@ -301,7 +301,7 @@ def _run_line(run: RunStats) -> str:
 
 def render_markdown_table(evaluations: Sequence[Evaluation]) -> str:
     """The scoreboard as a Markdown table."""
-    lines = ['| scenario | method | key figure | value | target (SPEC §8) | result |',
+    lines = ['| scenario | method | key figure | value | target (docs/targets.md) | result |',
              '| --- | --- | --- | --- | --- | --- |']
     for evaluation in evaluations:
         for m in evaluation.metrics:

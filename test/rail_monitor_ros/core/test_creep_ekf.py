@@ -1,4 +1,4 @@
-"""Creep-factor EKF core (SPEC §6): Jacobians, tracking of the paper's run, robustness."""
+"""Creep-factor EKF core (docs/methods/creep_estimator.md): Jacobians, tracking of the paper's run, robustness."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from rail_monitor_ros.simulation.rail_simulator import (
     simulate,
 )
 
-# SPEC §8: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on the
+# docs/targets.md: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on the
 # seeded run (known input, default settings), largest error after 1 s, steps to 40 % / 60 %:
 # A 1.3 / 1.4 %, B 2.1 / 3.1 %, C 1.9 / 3.2 %, D 4.1 / 2.1 %.
 SPEC_TARGET = {'A': 0.05, 'B': 0.05, 'C': 0.05, 'D': 0.10}
@@ -155,7 +155,7 @@ def test_cached_discretisation_close_to_exact() -> None:
 
 @pytest.mark.parametrize('pattern', 'ABCD')
 def test_spec_target(known_runs: dict[str, CreepRun], pattern: str) -> None:
-    """SPEC §8: within 5 % (A-C) / 10 % (D) of the truth from 1 s after each step on, no
+    """docs/targets.md: within 5 % (A-C) / 10 % (D) of the truth from 1 s after each step on, no
     steady bias, and each step detected (not just drifted to)."""
     run = known_runs[pattern]
     metrics = step_metrics(run, tolerance=0.05, window_s=1.0)
@@ -332,7 +332,7 @@ def test_lateral_states_measurement_body_channels() -> None:
             assert lateral_states_measurement(fields, pattern, model=model).shape == (
                 n, len(measurement_channels(pattern, model)))
     # End model, pattern A: the body's lateral displacement and yaw at its centre, as the
-    # message has them; B and C (SPEC §6): the body's lateral displacement and velocity only.
+    # message has them; B and C (docs/methods/creep_estimator.md): the body's lateral displacement and velocity only.
     assert measurement_channels('A')[-4:] == ('y_v', 'psi_v', 'dy_v', 'dpsi_v')
     end = lateral_states_measurement(fields, 'C')
     assert measurement_channels('C') == ('y_b', 'dy_b', 'y_v', 'dy_v')
@@ -385,7 +385,7 @@ def test_predict_through_gap_is_prediction_steps(creep_steps: RailSimulationResu
 
 def test_pattern_c_reads_only_the_spec_fields(creep_steps: RailSimulationResult) -> None:
     """Issue 19: pattern C is the bogie and body lateral displacement and velocity only; with
-    every other RailLateralStates field NaN no sample is rejected and the SPEC target holds
+    every other RailLateralStates field NaN no sample is rejected and the contract target holds
     (measured on the seeded run: settled 0.21 / 0.62 s, largest error after 1 s 2.0 / 2.9 %)."""
     fields = lateral_states_fields(creep_steps.measured_state, creep_steps.state_names)
     spec = ('bogie_lateral', 'bogie_lateral_rate', 'body_lateral', 'body_lateral_rate')

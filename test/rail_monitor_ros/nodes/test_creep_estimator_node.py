@@ -93,7 +93,7 @@ def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Pa
                                   spin_until: Callable[..., bool]) -> None:
     """Bag replay (player, as fast as possible): one CreepFactor per lateral-states sample with
     its stamp, known-input mode throughout, the drop to 40 % followed within 1 s (pattern A,
-    the one meeting the SPEC's 5 %)."""
+    the one meeting the method page's 5 %)."""
     series = to_topic_series(creep_drop, start_time=100.0)
     topics = ('/rail/lateral_states', '/rail/track_irregularity')
     bag = write_bag(tmp_path / 'creep_drop', {t: series[t] for t in topics})

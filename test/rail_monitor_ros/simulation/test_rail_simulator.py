@@ -216,7 +216,7 @@ def test_creep_scenario_and_ramps() -> None:
 
 
 def test_topic_series() -> None:
-    """to_topic_series gives the SPEC §1 topics with matching stamps, types and values."""
+    """to_topic_series gives the docs/contract.md topics with matching stamps, types and values."""
     result = simulate(shipped_scenario('rail_creep_steps'))
     topics = to_topic_series(result, low_adhesion_threshold=0.5)
     assert set(topics) == {'/rail/bogie/imu', '/rail/body/imu', '/rail/lateral_states',

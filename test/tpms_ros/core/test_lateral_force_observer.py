@@ -1,4 +1,4 @@
-"""Tests of the SKFMEC tire lateral force observer (Kim & Huh 2000, SPEC section 4).
+"""Tests of the SKFMEC tire lateral force observer (Kim & Huh 2000, docs/methods/lateral_force_observer.md).
 
 Truth: the 14-DOF vehicle of ``tpms_ros.simulation.vehicle_dynamics`` (combined-slip Magic
 Formula tires), through the scenario builders of ``benchmarks/bench_lateral_force_observer.py``.
@@ -83,7 +83,7 @@ def test_tuning_rejects_bad_values(field: str, value: Any) -> None:
 
 
 def test_params_build_from_flat_values() -> None:
-    """Flat values (a params file) set the named fields and leave the rest at the SPEC
+    """Flat values (a params file) set the named fields and leave the rest at the contract
     defaults."""
     params = build(ObserverVehicleParams, {'m': 2000.0, 'unknown': 1.0})
     assert params.m == 2000.0 and params.ms == 1661.0
@@ -238,7 +238,7 @@ def test_diverging_tuning_resets_instead_of_crashing(paper_case: TuningCase) -> 
 
 def test_real_time_factor() -> None:
     """Offline at 100 Hz the batch path needs well under 1 % of real time on one core
-    (CPU time; measured ~190x). Bounded at 100x, the SPEC target."""
+    (CPU time; measured ~190x). Bounded at 100x, the contract target."""
     factors = bench.bench(repeats=2)
     assert factors['rtf_run_cpu'] > 100.0, factors
 

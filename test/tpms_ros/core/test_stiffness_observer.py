@@ -7,7 +7,7 @@ rigid-body mode would random-walk the wheel speed, which a rolling wheel does no
 small white sensor noise. (2) Seeded road-simulator runs (``road_simulator``: 48-tooth encoder
 with tooth-spacing error and tooth-period timing, driveline resonances on the rear axle),
 built from the shipped Umeno and diffusion scenarios with a shorter duration and one pressure
-level, for the SPEC §8 targets.
+level, for the docs/targets.md targets.
 """
 
 from __future__ import annotations
@@ -438,7 +438,7 @@ def test_calibration_roundtrip_and_corrupt_dict_refused():
 
 
 # --------------------------------------------------------------------------------------------
-# On the road simulator (SPEC §8 targets, issue 5 checks)
+# On the road simulator (docs/targets.md targets, issue 5 checks)
 
 SCENARIOS = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros' / 'scenarios'
 CALIBRATION_S = 30.0

@@ -102,7 +102,7 @@ def test_recovers_offsets_gyro_offset_and_stiffness(driven: str) -> None:
 
 def test_lateral_filter_equals_filterpy() -> None:
     """The structured predict and sequential scalar updates equal filterpy's KalmanFilter with
-    the SPEC's F, G, H on the same data (sign: psi_dot_gyro = -angular_velocity.z)."""
+    the method page's F, G, H on the same data (sign: psi_dot_gyro = -angular_velocity.z)."""
     drive = simulate_drive(20.0, WEAR, seed=2)
     p = WheelRadiusParams(nominal_radius_m=R_N, track_front_m=TRACK, track_rear_m=TRACK,
                           **PURE_SLIP)

@@ -54,7 +54,7 @@ def _stamp(ns: int) -> Time:
 
 
 def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
-    """The node starts with its defaults (SPEC §4 vehicle) and with the shipped YAML, which
+    """The node starts with its defaults (docs/methods/lateral_force_observer.md vehicle) and with the shipped YAML, which
     sets every parameter."""
     default = make_node(LateralForceObserverNode)
     assert default.vehicle_parameters.m == 1814.0 and default.vehicle_parameters.tf == 0.784
@@ -145,7 +145,7 @@ def test_replay_tracks_truth_with_imu_stamps(
     fy_true = truth.fields['fy']
     error = 100 * np.sqrt(np.mean((fy - fy_true) ** 2, axis=0)) / np.abs(fy_true).max(axis=0)
     # Measured (seeded): 9.0, 7.6, 8.3, 6.7 % of peak for FL, FR, RL, RR (load-sensitive
-    # split); the SPEC target is 10 %.
+    # split); the contract target is 10 %.
     assert np.all(error < 10.0), error
     assert np.mean(error) < 8.5, error
     assert all(m.within_validity for m in outputs)  # |ay| stays below 0.5 g in this run

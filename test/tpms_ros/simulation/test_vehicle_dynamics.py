@@ -54,7 +54,7 @@ def steady_turns() -> list[tuple[float, HandlingResult]]:
 
 
 def test_defaults_are_spec_values() -> None:
-    """VehicleParams defaults are the Ford FC/HVE data of SPEC section 4."""
+    """VehicleParams defaults are the Ford FC/HVE data of docs/methods/lateral_force_observer.md."""
     spec = dict(m=1814.0, ms=1661.0, iz=2560.0, ix=580.0, iw=2.0, lf=1.076, lr=1.617, h=0.55,
                 hf=0.114, hr=0.004, e=0.48, rw=0.305, tf=0.784, tr=0.760, kphi_f=108205.8,
                 kphi_r=81436.7, cphi_f=826.8, cphi_r=658.9)
@@ -123,7 +123,7 @@ def _static_load_transfer(p: VehicleParams, ay: float) -> tuple[float, float]:
 def test_lateral_load_transfer_matches_static_formula(
         steady_turns: list[tuple[float, HandlingResult]]) -> None:
     """Steady-turn load transfer per axle equals the static formula within 0.2 %; the simple
-    SPEC formula (m ay h / track, split by roll stiffness) holds within 6 % per axle (it
+    textbook formula (m ay h / track, split by roll stiffness) holds within 6 % per axle (it
     ignores roll centres and tire roll) and 3 % for the sum of the two axles' moments."""
     p = PARAMS_NO_RESIST
     share_f = p.kphi_f / (p.kphi_f + p.kphi_r)

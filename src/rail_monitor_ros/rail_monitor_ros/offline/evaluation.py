@@ -1,11 +1,11 @@
-"""Scoring a rail graph's recording against ground truth (SPEC §8), and the rail figures.
+"""Scoring a rail graph's recording against ground truth (docs/targets.md), and the rail figures.
 
 ROS-free: works on the column-wise series of a recording
 (:func:`vehicle_monitor_common.evaluation.read_stamped_series`, header stamps). Registered for
 the main job and the evaluation CLI under ``vehicle_monitor.evaluations`` as ``rail``
 (:func:`domain`).
 
-Key figures, each against its SPEC §8 floor:
+Key figures, each against its docs/targets.md floor:
 
 - IMM (``rail/suspension/modes``), per fault onset in the truth of the monitored (front) bogie:
   detection delay, from the onset to the first sample at which the smoothed probability of the
@@ -51,7 +51,7 @@ MODES = '/rail/suspension/modes'
 TRUTH_SUSPENSION = '/truth/suspension'
 TRUTH_CREEP = '/truth/creep_factor'
 # Creep outputs scored: topic -> (method name, tolerance). Pattern D (accelerometers and gyro
-# only) has the looser SPEC floor.
+# only) has the looser target.
 CREEP_OUTPUTS = {'/rail/creep_factor': ('creep factor', 0.05),
                  '/rail/creep_factor_imu': ('creep factor (IMU, D)', 0.10)}
 READ_TOPICS = (MODES, TRUTH_SUSPENSION, TRUTH_CREEP, *CREEP_OUTPUTS)

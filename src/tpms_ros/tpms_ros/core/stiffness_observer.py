@@ -1,6 +1,6 @@
 """Tire stiffness by disturbance observer and least squares (Umeno et al. 1997): estimator core.
 
-Per wheel the chain is (paper Fig. 4, SPEC §2)::
+Per wheel the chain is (paper Fig. 4, docs/methods/tire_stiffness_observer.md)::
 
     omega_1 --tooth correction--> band-pass --> reduced-order observer --> [th, th_dot, w]
             --LS/RLS--> dK, dD   (driven axle: the partner's lagged speed as nuisance)
@@ -112,7 +112,7 @@ class PressureRelation:
 class StiffnessObserverParams:
     """Parameters of :class:`TireStiffnessObserver`, each its ROS parameter of the same name.
 
-    Defaults from the paper and SPEC §2. The ``tire`` group is the estimator's nominal model
+    Defaults from the paper and docs/methods/tire_stiffness_observer.md. The ``tire`` group is the estimator's nominal model
     (``tire.j1`` ...), ``pressure_relation`` the K <-> pressure line (``pressure_relation.slope``).
     """
 

@@ -1,11 +1,11 @@
-"""Scoring a road graph's recording against ground truth (SPEC §8), and the road figures.
+"""Scoring a road graph's recording against ground truth (docs/targets.md), and the road figures.
 
 ROS-free: works on the column-wise series of a recording
 (:func:`vehicle_monitor_common.evaluation.read_stamped_series`, header stamps). Registered for
 the main job and the evaluation CLI under ``vehicle_monitor.evaluations`` as ``road``
 (:func:`domain`).
 
-Key figures, each against its SPEC §8 floor:
+Key figures, each against its docs/targets.md floor:
 
 - TPMS (the fused ``tpms/warning``, and each method alone: its recorded
   ``tpms/indication/<method>`` voted by the voter core with that method only -- its own

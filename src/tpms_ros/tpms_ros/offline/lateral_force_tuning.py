@@ -118,7 +118,7 @@ def calibrate_zeta(params: ObserverVehicleParams, dt: float, ay: np.ndarray, p: 
 
 
 def fy_error_percent(track: LateralForceTrack, fy_true: np.ndarray) -> np.ndarray:
-    """Per-wheel RMS error of Fy as a percentage of that wheel's peak |Fy| (the SPEC figure)."""
+    """Per-wheel RMS error of Fy as a percentage of that wheel's peak |Fy| (the target figure)."""
     fy_true = np.asarray(fy_true, dtype=float)
     peak = np.max(np.abs(fy_true), axis=0)
     rms = np.sqrt(np.mean((track.fy - fy_true) ** 2, axis=0))

@@ -1,6 +1,6 @@
 """Road vehicle simulator: runs a scenario and returns sensor data with its ground truth.
 
-Pipeline (SPEC §2, §3, §7):
+Pipeline (docs/methods/tire_stiffness_observer.md, §3, §7):
 
 1. The scenario's profiles (speed, steer, pressures, friction) are sampled on the handling grid
    and the 14-DOF handling model (``vehicle_dynamics.simulate_handling``) gives the body motion,

@@ -11,14 +11,14 @@ candidate, its multi-body model with PAC2002 tires) is not installed and not ins
 offline on this machine, and it would not fit anyway: it is scalar Python called through an
 ODE solver (far from 5x real time at 1 kHz), has no friction-scale or per-wheel rolling-radius
 input, and parameterises suspension by corner rates rather than the per-axle roll stiffness and
-damping of SPEC section 4. The equations below are the textbook ones (Gillespie 1992, ch. 6-9;
+damping of docs/methods/lateral_force_observer.md. The equations below are the textbook ones (Gillespie 1992, ch. 6-9;
 Pacejka 2006, ch. 7), arranged so one derivative evaluation per step suffices.
 
 Equations (m, ms include the added mass; a_x = vx' - r vy, a_y = vy' + r vx)::
 
     m a_x + ms hs q'                  = sum Fx - F_drag                (pitch centre at ground)
     (Iy + ms hs^2) q' + ms hs a_x      = M_pitch,susp + ms g hs theta - hs F_drag
-    m a_y - ms e p'                   = sum Fy                          (SPEC section 4 form)
+    m a_y - ms e p'                   = sum Fy                          (docs/methods/lateral_force_observer.md form)
     (Ix + ms e^2) p' - ms e a_y        = M_roll,susp + ms g e phi       (roll axis e below CG)
     Iz r'                             = sum (x_i Fy_i - y_i Fx_i)
     ms z''                            = sum F_susp,i
@@ -26,15 +26,15 @@ Equations (m, ms include the added mass; a_x = vx' - r vy, a_y = vy' + r vx)::
     Iw omega_i'                       = T_i - Fx_i r_i - f_r Fz_i r_i sgn(omega_i)
 
 Suspension, per axle, in modal form: a heave wheel rate ks (per corner) with damper cs, and the
-roll stiffness/damping kphi, cphi of SPEC section 4 on the body-to-axle roll angle. This is the
-same as corner springs plus an anti-roll bar, but lets the (light) SPEC roll damping stand
+roll stiffness/damping kphi, cphi of docs/methods/lateral_force_observer.md on the body-to-axle roll angle. This is the
+same as corner springs plus an anti-roll bar, but lets the (light) Ford FC/HVE roll damping stand
 apart from a realistic heave damping. Lateral forces reach the sprung mass at the roll centres
 (hf, hr): the moment F_link,a h_a plus the unsprung-mass inertia moment is the geometric load
 transfer G_i (a vertical force pair on the axle's unsprung masses); the rest goes through the
-roll stiffness. The roll axis under the sprung CG is at h - e (SPEC: 0.07 m, equal within
+roll stiffness. The roll axis under the sprung CG is at h - e (contract: 0.07 m, equal within
 1 mm to the line through hf and hr at the sprung CG), i.e. h is read as the sprung CG height.
 
-Extra values (not in SPEC), each a parameter with its reason:
+Extra values (not in the Ford FC/HVE data), each a parameter with its reason:
     iy = 2300 kg m^2: sprung pitch inertia; measured passenger cars have pitch inertia
         0.85-0.95 of yaw inertia (Heydinger et al. 1999, SAE 1999-01-1336), 0.9 x 2560.
     unsprung_front_share = 0.52: of m - ms = 153 kg, front corners 39.8 kg, rear 36.7 kg
@@ -77,7 +77,7 @@ _N_WHEELS = 4
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Vehicle parameters. Defaults: Ford FC/HVE data of SPEC section 4 plus documented extras.
+    """Vehicle parameters. Defaults: Ford FC/HVE data of docs/methods/lateral_force_observer.md plus documented extras.
 
     Lengths in m, masses in kg, inertias in kg m^2, roll stiffness N m/rad, roll damping
     N m s/rad. tf, tr are half tracks. See the module docstring for the sources of the extras.
