@@ -90,7 +90,8 @@ from vehicle_monitor_common.parameters import build, flatten  # noqa: E402
 
 CREEP_CONFIGS = ('C-spec/exact', 'C-spec/map0.3', 'C-all/exact', 'C-all/map0.3', 'D/none',
                  'D/exact')
-# The fields docs/methods/creep_estimator.md pattern C measures: bogie and body lateral displacement and velocity.
+# The fields docs/methods/creep_estimator.md pattern C measures: bogie and body lateral
+# displacement and velocity.
 SPEC_C_FIELDS = ('bogie_lateral', 'bogie_lateral_rate', 'body_lateral', 'body_lateral_rate')
 MAP_ERROR = 3e-4
 # Issue 19 targets: config -> (tolerance, time limit s, required pass share).

@@ -1,4 +1,5 @@
-"""False alarms of the TPMS methods and the voting fusion on nominal mixed driving (docs/targets.md).
+"""False alarms of the TPMS methods and the voting fusion on nominal mixed driving
+(docs/targets.md).
 
 Per surface, 30 minutes of evaluated driving at placard pressure, simulated in segments with
 their own seeds (each segment is a fresh drive: the cores calibrate over its first

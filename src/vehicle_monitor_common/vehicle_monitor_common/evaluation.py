@@ -9,7 +9,8 @@ entry-point group of its setup.py::
 
 The main job (``monitor_demo``) and the evaluation CLI (``evaluate``) discover the domains
 through that group, so this package never imports a domain package. An evaluation yields one
-:class:`Metric` per method and key figure: the value computed from the run, the docs/targets.md target
+:class:`Metric` per method and key figure: the value computed from the run, the docs/targets.md
+target
 and whether it was met. Without ground truth the metrics carry what the estimators said (first
 warning, final estimate) and no target or verdict.
 """

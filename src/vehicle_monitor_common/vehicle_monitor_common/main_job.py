@@ -5,7 +5,8 @@ For each domain registered under ``vehicle_monitor.evaluations`` (road: ``tpms_r
 mode, every estimator node, a recorder) is brought up in this process as real rclpy nodes over
 real topics; the bag is replayed as fast as the graph keeps up (paced by the estimators' outputs,
 no message dropped); the recording is evaluated against its ground truth. Then it prints the
-scoreboard (one row per scenario and method: key figure, docs/targets.md target, pass/fail) and each
+scoreboard (one row per scenario and method: key figure, docs/targets.md target, pass/fail) and
+each
 graph's real-time factor, and writes into the output folder (default ``out/demo``):
 
 - ``results.json``: every metric and run figure, machine-readable;

@@ -1,4 +1,5 @@
-"""Creep-factor EKF core (docs/methods/creep_estimator.md): Jacobians, tracking of the paper's run, robustness."""
+"""Creep-factor EKF core (docs/methods/creep_estimator.md): Jacobians, tracking of the paper's
+run, robustness."""
 
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ from rail_monitor_ros.simulation.rail_simulator import (
     simulate,
 )
 
-# docs/targets.md: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on the
+# docs/targets.md: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on
+# the
 # seeded run (known input, default settings), largest error after 1 s, steps to 40 % / 60 %:
 # A 1.3 / 1.4 %, B 2.1 / 3.1 %, C 1.9 / 3.2 %, D 4.1 / 2.1 %.
 SPEC_TARGET = {'A': 0.05, 'B': 0.05, 'C': 0.05, 'D': 0.10}
@@ -332,7 +334,8 @@ def test_lateral_states_measurement_body_channels() -> None:
             assert lateral_states_measurement(fields, pattern, model=model).shape == (
                 n, len(measurement_channels(pattern, model)))
     # End model, pattern A: the body's lateral displacement and yaw at its centre, as the
-    # message has them; B and C (docs/methods/creep_estimator.md): the body's lateral displacement and velocity only.
+    # message has them; B and C (docs/methods/creep_estimator.md): the body's lateral displacement
+    # and velocity only.
     assert measurement_channels('A')[-4:] == ('y_v', 'psi_v', 'dy_v', 'dpsi_v')
     end = lateral_states_measurement(fields, 'C')
     assert measurement_channels('C') == ('y_b', 'dy_b', 'y_v', 'dy_v')

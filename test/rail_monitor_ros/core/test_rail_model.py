@@ -121,7 +121,8 @@ def test_full_car_is_two_half_cars_at_unit_dynamic_index() -> None:
 
 
 def test_half_car_follows_the_spec_equations() -> None:
-    """Spot checks of the assembled half car against docs/methods/creep_estimator.md, term by term."""
+    """Spot checks of the assembled half car against docs/methods/creep_estimator.md, term by
+    term."""
     c, sr, dr = 0.8, 1.2, 0.7
     model = half_car_state_space(PARAMS, c, sr, dr)
     a, b, names = model.a, model.b, model.state_names

@@ -1,4 +1,5 @@
-"""IMM suspension fault detection (docs/methods/suspension_monitor.md): parameters, filterpy equivalence, the
+"""IMM suspension fault detection (docs/methods/suspension_monitor.md): parameters, filterpy
+equivalence, the
 paper's scenario on the rail simulator's 14-DOF full car (full-car estimation model driven by
 the track) and on the paper's own truth (7-DOF half car, half-car model), healthy runs,
 numerical health, bad input and gaps in the data (the mode set, the decision and the track

@@ -1,4 +1,5 @@
-"""Tests of the SKFMEC tire lateral force observer (Kim & Huh 2000, docs/methods/lateral_force_observer.md).
+"""Tests of the SKFMEC tire lateral force observer (Kim & Huh 2000,
+docs/methods/lateral_force_observer.md).
 
 Truth: the 14-DOF vehicle of ``tpms_ros.simulation.vehicle_dynamics`` (combined-slip Magic
 Formula tires), through the scenario builders of ``benchmarks/bench_lateral_force_observer.py``.

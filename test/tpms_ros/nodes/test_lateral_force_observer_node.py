@@ -54,7 +54,8 @@ def _stamp(ns: int) -> Time:
 
 
 def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
-    """The node starts with its defaults (docs/methods/lateral_force_observer.md vehicle) and with the shipped YAML, which
+    """The node starts with its defaults (docs/methods/lateral_force_observer.md vehicle) and with
+    the shipped YAML, which
     sets every parameter."""
     default = make_node(LateralForceObserverNode)
     assert default.vehicle_parameters.m == 1814.0 and default.vehicle_parameters.tf == 0.784

@@ -148,7 +148,8 @@ events:
 
 
 def test_vehicle_overrides_reach_vehicle_params() -> None:
-    """Vehicle keys override VehicleParams fields; the rest keep the docs/methods/lateral_force_observer.md defaults."""
+    """Vehicle keys override VehicleParams fields; the rest keep the
+    docs/methods/lateral_force_observer.md defaults."""
     scenario = _scenario('vehicle: {driven_axle: front, m: 1900}\nadded_mass_kg: 50\n')
     assert scenario.vehicle.driven_axle == 'front'
     assert scenario.vehicle.m == 1900.0

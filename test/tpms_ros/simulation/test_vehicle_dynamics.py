@@ -54,7 +54,8 @@ def steady_turns() -> list[tuple[float, HandlingResult]]:
 
 
 def test_defaults_are_spec_values() -> None:
-    """VehicleParams defaults are the Ford FC/HVE data of docs/methods/lateral_force_observer.md."""
+    """VehicleParams defaults are the Ford FC/HVE data of
+    docs/methods/lateral_force_observer.md."""
     spec = dict(m=1814.0, ms=1661.0, iz=2560.0, ix=580.0, iw=2.0, lf=1.076, lr=1.617, h=0.55,
                 hf=0.114, hr=0.004, e=0.48, rw=0.305, tf=0.784, tr=0.760, kphi_f=108205.8,
                 kphi_r=81436.7, cphi_f=826.8, cphi_r=658.9)

@@ -1,4 +1,5 @@
-"""Wheel-rail creep factor by an augmented-state EKF (Chonan & Tsunashima; docs/methods/creep_estimator.md). No ROS.
+"""Wheel-rail creep factor by an augmented-state EKF (Chonan & Tsunashima;
+docs/methods/creep_estimator.md). No ROS.
 
 Estimation model (``model='end'``, default): one end of the full car,
 :func:`rail_monitor_ros.core.rail_model.car_end_state_space`: the monitored bogie with its two
@@ -18,7 +19,8 @@ from 1 s after each step): the half car's body is the body mass carried by one b
 yaw; seen from the bogie, the real body is lighter (2 mv / (1 + lv^2 / i_z^2)), yaws, the
 anti-yaw dampers act against its yaw and the other bogie pushes it. With the half car, pattern D
 was biased by +14 to +25 % (max 32 %), B and C reached 10-14 %. With the end model, and the
-track entering with its rate (below), all four patterns meet the targets (docs/targets.md) (figures in
+track entering with its rate (below), all four patterns meet the targets (docs/targets.md)
+(figures in
 the tests and the issue report).
 
 Choices and why:
@@ -55,7 +57,8 @@ Choices and why:
 * **Sensor offsets as states** (``sensor_offsets``): one random constant per measured channel,
   prior std ``offset_to_noise_ratio`` times the channel's noise std: the small constant offsets
   of real sensors otherwise bias c.
-* **Patterns B and C as docs/methods/creep_estimator.md defines them**: the body's lateral displacement and velocity
+* **Patterns B and C as docs/methods/creep_estimator.md defines them**: the body's lateral
+displacement and velocity
   only (no body yaw; other fields are not read, NaN there is not a rejection). Without the body
   yaw the body's model error had to come down (body_accel_process_std_mps2 0.5 -> 0.2 m/s^2)
   to keep C's figures on the seeded run (0.21 / 0.64 s, 1.8 / 3.0 %).
@@ -83,7 +86,8 @@ Choices and why:
   divergence detector (innovation consistency over a window, a run of outliers, or the
   estimate pinned at a bound) resets the filter and counts the reset with its reason.
 
-Observation patterns (docs/methods/creep_estimator.md): 'A' wheelset, bogie and body lateral/yaw states, 'B' bogie
+Observation patterns (docs/methods/creep_estimator.md): 'A' wheelset, bogie and body lateral/yaw
+states, 'B' bogie
 lateral and yaw with rates and body lateral with rate, 'C' bogie and body lateral displacement
 and velocity, 'D' the IMU only (bogie lateral acceleration, bogie yaw rate, body lateral
 acceleration above the bogie). For the body channels see :func:`measurement_channels`.
@@ -118,7 +122,8 @@ BOGIES = ('front', 'rear')
 MODELS = ('end', 'half')
 TRACK_MODELS = ('spectrum', 'slope_walk')
 
-# The observation patterns' channels (docs/methods/creep_estimator.md) over the monitored bogie's wheelsets w1 (leading)
+# The observation patterns' channels (docs/methods/creep_estimator.md) over the monitored bogie's
+# wheelsets w1 (leading)
 # and w2, the bogie b and the body; 'body' stands for the body's lateral motion, see
 # measurement_channels.
 _PATTERN_CHANNELS = {
@@ -1086,7 +1091,8 @@ def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
         return values if index is None else values[:, index]
 
     if model == 'end' and pattern in ('B', 'C'):
-        # docs/methods/creep_estimator.md: B and C measure the body's lateral displacement and velocity only; its yaw
+        # docs/methods/creep_estimator.md: B and C measure the body's lateral displacement and
+        # velocity only; its yaw
         # fields are not read (NaN there does not reject the sample).
         body = [col('body_lateral')]
         body_rate = [col('body_lateral_rate')]

@@ -1,10 +1,13 @@
 """Linear lateral rail vehicle models: the one source of the model matrices.
 
-The rail simulator integrates the 14-DOF full car as truth; the IMM suspension monitor (docs/methods/suspension_monitor.md)
-and the creep-factor EKF (docs/methods/creep_estimator.md) build their estimation models from the same functions with
+The rail simulator integrates the 14-DOF full car as truth; the IMM suspension monitor
+(docs/methods/suspension_monitor.md)
+and the creep-factor EKF (docs/methods/creep_estimator.md) build their estimation models from the
+same functions with
 their own parameters. No ROS import.
 
-Equations (docs/methods/creep_estimator.md, Chonan & Tsunashima, signs restored; x forward, y left, yaw counter-clockwise
+Equations (docs/methods/creep_estimator.md, Chonan & Tsunashima, signs restored; x forward, y
+left, yaw counter-clockwise
 seen from above). Wheelset i under bogie j, leading (s_i = +1) or trailing (s_i = -1)::
 
     mw y_wi''  = -(2 c f22 / v) y_wi' + 2 c f22 psi_wi - Ky (y_wi - y_bj - s_i a0 psi_bj)
@@ -50,7 +53,8 @@ _TABLE_1_BODY_MASS = 11000.0     # mv, the paper's body mass per bogie
 
 @dataclass(frozen=True)
 class RailVehicleParams:
-    """Lateral model parameters of a two-bogie passenger car (docs/methods/creep_estimator.md Table 1).
+    """Lateral model parameters of a two-bogie passenger car (docs/methods/creep_estimator.md
+    Table 1).
 
     Defaults: Chonan & Tsunashima Table 1; body yaw inertia and bogie pivot semi-spacing from
     the Manchester Benchmarks passenger coach (Iwnicki 1998), which the paper does not give.
@@ -290,7 +294,8 @@ def _check_ratio(name: str, value: float, upper: float) -> float:
     return value
 
 
-# Upper bounds of the sane range of the multipliers (contract: ratios outside a sane range refused).
+# Upper bounds of the sane range of the multipliers (contract: ratios outside a sane range
+# refused).
 MAX_SUSPENSION_RATIO = 5.0
 MAX_CREEP_FACTOR = 2.0
 
@@ -326,7 +331,8 @@ class _Assembly:
 
     def wheelset_creep(self, p: RailVehicleParams, creep_factor: float, wheelset: str,
                        track_input: str) -> None:
-        """Linear creep forces of one wheelset (docs/methods/creep_estimator.md eq. for y_wi and psi_wi)."""
+        """Linear creep forces of one wheelset (docs/methods/creep_estimator.md eq. for y_wi and
+        psi_wi)."""
         v = p.speed
         f11 = creep_factor * p.longitudinal_creep_coefficient
         f22 = creep_factor * p.lateral_creep_coefficient
@@ -399,7 +405,8 @@ def _rows_of_derivative(a: np.ndarray, b: np.ndarray, state_names: tuple[str, ..
 
 OBSERVATION_PATTERNS = ('A', 'B', 'C', 'D')
 
-# The papers' observation patterns over the half car (Chonan & Tsunashima §4.1; D: docs/methods/creep_estimator.md).
+# The papers' observation patterns over the half car (Chonan & Tsunashima §4.1; D:
+# docs/methods/creep_estimator.md).
 _HALF_CAR_PATTERN_STATES = {
     'A': ('y_w1', 'dy_w1', 'psi_w1', 'dpsi_w1', 'y_w2', 'dy_w2', 'psi_w2', 'dpsi_w2',
           'y_b', 'dy_b', 'psi_b', 'dpsi_b', 'y_v', 'dy_v'),
@@ -412,7 +419,8 @@ SENSOR_OUTPUT_NAMES = ('ddy_b', 'dpsi_b', 'ddy_v')
 def half_car_state_space(params: RailVehicleParams, creep_factor: float = 1.0,
                          spring_ratio: float = 1.0, damper_ratio: float = 1.0,
                          pattern: str = 'D') -> StateSpace:
-    """7-DOF half car (docs/methods/suspension_monitor.md/§6): two wheelsets (lateral, yaw), bogie (lateral, yaw), body.
+    """7-DOF half car (docs/methods/suspension_monitor.md/§6): two wheelsets (lateral, yaw), bogie
+    (lateral, yaw), body.
 
     State x = [y_w1, y_w1', psi_w1, psi_w1', y_w2, y_w2', psi_w2, psi_w2', y_b, y_b', psi_b,
     psi_b', y_v, y_v'] (Chonan & Tsunashima's order); inputs u = [y_r1, y_r2], the track
@@ -541,7 +549,8 @@ REDUCED_INPUT_NAMES = ('y_w1', 'y_w2', 'psi_w1', 'psi_w2')
 
 def reduced_bogie_body_model(params: RailVehicleParams, spring_ratio: float = 1.0,
                              damper_ratio: float = 1.0) -> StateSpace:
-    """The IMM's estimation model (docs/methods/suspension_monitor.md): the half car with the wheelset motion removed.
+    """The IMM's estimation model (docs/methods/suspension_monitor.md): the half car with the
+    wheelset motion removed.
 
     State x = [y_b, y_b', psi_b, psi_b', y_v, y_v']; outputs y = [bogie lateral acceleration,
     bogie yaw rate, body lateral acceleration]. The wheelsets act on the bogie only through the
@@ -754,7 +763,8 @@ def critical_speed(params: RailVehicleParams, creep_factor: float = 1.0, model: 
     return math.inf
 
 
-# == One end of the full car: the creep EKF's estimation model (docs/methods/creep_estimator.md) =========================
+# == One end of the full car: the creep EKF's estimation model (docs/methods/creep_estimator.md)
+# =========================
 
 CAR_END_COORDINATES = ('y_w1', 'psi_w1', 'y_w2', 'psi_w2', 'y_b', 'psi_b', 'y_v', 'psi_v')
 CAR_END_INPUT_NAMES = ('y_r1', 'y_r2', 'f_rear', 'm_rear')

@@ -1,4 +1,5 @@
-"""Rail secondary-suspension fault detection by Interacting Multiple Models (docs/methods/suspension_monitor.md).
+"""Rail secondary-suspension fault detection by Interacting Multiple Models
+(docs/methods/suspension_monitor.md).
 
 Mori, Tsunashima, Marumo: one Kalman filter per suspension mode on the reduced bogie-body model
 (bogie lateral and yaw, body lateral, with rates; :func:`reduced_bogie_body_model`), sensors
@@ -168,7 +169,8 @@ _SPD_TOLERANCE = 1e-9
 
 @dataclass(frozen=True)
 class SuspensionImmParams:
-    """Parameters of the IMM suspension monitor (defaults: paper, Table 1, docs/methods/suspension_monitor.md); each
+    """Parameters of the IMM suspension monitor (defaults: paper, Table 1,
+    docs/methods/suspension_monitor.md); each
     field is also the node's ROS parameter of that name (``parameters.param``).
 
     Attributes:

@@ -1,4 +1,5 @@
-"""``creep_estimator``: wheel-rail creep factor by augmented-state EKF (docs/methods/creep_estimator.md) on ROS 2.
+"""``creep_estimator``: wheel-rail creep factor by augmented-state EKF
+(docs/methods/creep_estimator.md) on ROS 2.
 
 Subscribes, per the ``pattern`` parameter, ``rail/lateral_states`` (RailLateralStates; patterns
 A-C) or ``rail/bogie/imu`` + ``rail/body/imu`` (sensor_msgs/Imu; pattern D), and optionally

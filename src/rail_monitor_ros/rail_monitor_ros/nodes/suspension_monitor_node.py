@@ -1,4 +1,5 @@
-"""``suspension_monitor``: secondary-suspension fault detection by IMM (docs/methods/suspension_monitor.md) on ROS 2.
+"""``suspension_monitor``: secondary-suspension fault detection by IMM
+(docs/methods/suspension_monitor.md) on ROS 2.
 
 Subscribes ``rail/bogie/imu``, ``rail/body/imu`` and, when enabled, ``rail/track_irregularity``
 and ``rail/creep_factor``; publishes ``rail/suspension/modes`` (ModeProbabilities) and

@@ -1,7 +1,8 @@
 """Rail vehicle simulator: the 14-DOF full car on a random track, with ground truth.
 
 Runs a :class:`~rail_monitor_ros.simulation.rail_scenario.RailScenario` and returns arrays
-(:class:`RailSimulationResult`); :func:`to_topic_series` turns them into the topics of docs/contract.md
+(:class:`RailSimulationResult`); :func:`to_topic_series` turns them into the topics of
+docs/contract.md
 for the bag writer and the live node. It draws nothing: the acceleration spectra and their
 figure are :mod:`rail_monitor_ros.offline.acceleration_spectra`. No ROS import.
 

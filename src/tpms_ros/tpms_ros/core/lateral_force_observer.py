@@ -1,6 +1,7 @@
 """Tire lateral force observer: scaled Kalman filter with model error compensator (SKFMEC).
 
-Kim & Huh (2000), docs/methods/lateral_force_observer.md. No ROS import: the node converts messages to the arrays used
+Kim & Huh (2000), docs/methods/lateral_force_observer.md. No ROS import: the node converts
+messages to the arrays used
 here. Wheel order FL, FR, RL, RR; frame x forward, y left, z up (REP 103), so a left turn gives
 positive lateral acceleration, yaw rate and roll angle (the right side goes down).
 
@@ -92,7 +93,8 @@ _SPD_CHECK_EVERY = 10
 
 @dataclass(frozen=True)
 class ObserverVehicleParams:
-    """The observer's own belief about the vehicle (docs/methods/lateral_force_observer.md defaults, Ford FC/HVE).
+    """The observer's own belief about the vehicle (docs/methods/lateral_force_observer.md
+    defaults, Ford FC/HVE).
 
     Deliberately separate from the simulator's ``VehicleParams``: the observer's model is a
     design choice that robustness studies perturb independently of the truth, and the core must

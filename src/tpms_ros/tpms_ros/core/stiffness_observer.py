@@ -112,7 +112,8 @@ class PressureRelation:
 class StiffnessObserverParams:
     """Parameters of :class:`TireStiffnessObserver`, each its ROS parameter of the same name.
 
-    Defaults from the paper and docs/methods/tire_stiffness_observer.md. The ``tire`` group is the estimator's nominal model
+    Defaults from the paper and docs/methods/tire_stiffness_observer.md. The ``tire`` group is the
+    estimator's nominal model
     (``tire.j1`` ...), ``pressure_relation`` the K <-> pressure line (``pressure_relation.slope``).
     """
 

@@ -1,4 +1,5 @@
-"""Voting fusion of TPMS indications (Persson, Gustafsson, Drevö, SAE 2002; docs/methods/tpms_voter.md).
+"""Voting fusion of TPMS indications (Persson, Gustafsson, Drevö, SAE 2002;
+docs/methods/tpms_voter.md).
 
 Neither method estimates absolute pressure, so decisions are fused, not states. Each method
 delivers per tire a flag t (this tire looks low) and a confidence c in 0..1. The paper's rule for

@@ -1,4 +1,5 @@
-"""TPMS by vibration analysis (Persson, Gustafsson, Drevö, SAE 2002; docs/methods/vibration_analyzer.md).
+"""TPMS by vibration analysis (Persson, Gustafsson, Drevö, SAE 2002;
+docs/methods/vibration_analyzer.md).
 
 The tire's torsional mode (40-50 Hz; the vertical mode is at 10-20 Hz) is excited by road
 roughness and shows in the wheel speed. Its frequency drops with pressure. Per wheel:

@@ -1,4 +1,5 @@
-"""TPMS by wheel radius analysis (Persson, Gustafsson, Drevö, SAE 2002; docs/methods/wheel_radius_analyzer.md).
+"""TPMS by wheel radius analysis (Persson, Gustafsson, Drevö, SAE 2002;
+docs/methods/wheel_radius_analyzer.md).
 
 A soft tire has a smaller effective rolling radius and turns faster. Two Kalman filters estimate
 relative radii between wheel pairs; a calibration learns their nominal levels (wear and
@@ -25,13 +26,15 @@ height at its mean traction, and the indication compares the current line at tha
 the outer wheels travel faster. The paper writes psi_dot = (v3 - v4) / L_rear, which is the SAE
 J670 convention (z down, yaw rate positive turning right). With delta_34 = r3 / r4 - 1 and
 r4 ~ r_n this gives psi_dot_m,rear = r_n (omega3 - omega4) / L_rear
-= psi_dot - (r_n omega3 / L_rear) delta_34, hence the method page's H row (1, 0, 0, -r_n omega3 / L, 0).
+= psi_dot - (r_n omega3 / L_rear) delta_34, hence the method page's H row (1, 0, 0, -r_n omega3 /
+L, 0).
 Deliberate deviation: the core puts the axle's mean speed (omega3 + omega4) / 2 in place of
 omega3 in H (second-order difference), because omega3's noise would otherwise sit in both the
 measurement and its regressor and bias delta along the ridge that is unobservable at constant
 speed (see ``process``).
 The IMU follows REP 103 (z up, yaw rate positive turning left), so the core feeds the filter
-psi_dot_gyro = -angular_velocity.z: then F and H are literally the method page's, psi_dot_m = (v_left -
+psi_dot_gyro = -angular_velocity.z: then F and H are literally the method page's, psi_dot_m =
+(v_left -
 v_right) / track, and the state's yaw rate and gyro offset are in the SAE sense. The reported
 ``gyro_offset`` is converted back to the IMU's own REP 103 sign (what to subtract from
 angular_velocity.z). Front axle: the front wheels roll along their steered heading, so the left-

@@ -1,4 +1,5 @@
-"""``tpms_voter``: voting fusion of the TPMS methods' indications (Persson 2002, docs/methods/tpms_voter.md).
+"""``tpms_voter``: voting fusion of the TPMS methods' indications (Persson 2002,
+docs/methods/tpms_voter.md).
 
 A transport adapter (:class:`~vehicle_monitor_common.processor_node.ProcessorNode`) around
 :class:`tpms_ros.processing.tpms_voter.TpmsVoterProcessor`, which holds the logic (indication

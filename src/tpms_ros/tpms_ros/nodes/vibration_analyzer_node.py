@@ -1,4 +1,5 @@
-"""``vibration_analyzer``: TPMS by tire torsional resonance (Persson 2002, docs/methods/vibration_analyzer.md) on ROS.
+"""``vibration_analyzer``: TPMS by tire torsional resonance (Persson 2002,
+docs/methods/vibration_analyzer.md) on ROS.
 
 A transport adapter around
 :class:`tpms_ros.processing.vibration_analyzer.VibrationAnalyzerProcessor`, which holds the

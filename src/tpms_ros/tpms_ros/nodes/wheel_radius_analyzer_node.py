@@ -1,4 +1,5 @@
-"""``wheel_radius_analyzer``: TPMS by relative rolling radii (Persson 2002, docs/methods/wheel_radius_analyzer.md) on ROS.
+"""``wheel_radius_analyzer``: TPMS by relative rolling radii (Persson 2002,
+docs/methods/wheel_radius_analyzer.md) on ROS.
 
 A transport adapter around
 :class:`tpms_ros.processing.wheel_radius_analyzer.WheelRadiusAnalyzerProcessor`, which holds the

@@ -1,7 +1,8 @@
 """The lateral force observer's logic, ROS-free: alignment, input checks, time jumps, outputs.
 
 Wraps :class:`tpms_ros.core.lateral_force_observer.LateralForceObserver` (tire forces by SKFMEC,
-Kim & Huh 2000, docs/methods/lateral_force_observer.md); the node (``tpms_ros.nodes.lateral_force_observer_node``) and the
+Kim & Huh 2000, docs/methods/lateral_force_observer.md); the node
+(``tpms_ros.nodes.lateral_force_observer_node``) and the
 offline engine both run it.
 
 Inputs (relative topics):

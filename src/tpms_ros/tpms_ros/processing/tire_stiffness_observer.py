@@ -1,6 +1,7 @@
 """The tire stiffness observer's logic, ROS-free: stamp checks, chunking, calibration, outputs.
 
-Wraps :class:`tpms_ros.core.stiffness_observer.TireStiffnessObserver` (Umeno 1997, docs/methods/tire_stiffness_observer.md);
+Wraps :class:`tpms_ros.core.stiffness_observer.TireStiffnessObserver` (Umeno 1997,
+docs/methods/tire_stiffness_observer.md);
 the node (``tpms_ros.nodes.tire_stiffness_observer_node``) and the offline engine both run it.
 
 Inputs (relative topics): ``vehicle/wheel_speeds`` (WheelSpeeds, 1 kHz, raw CDR: decoded by

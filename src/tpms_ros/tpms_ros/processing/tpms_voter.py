@@ -1,6 +1,7 @@
 """The TPMS voter's logic, ROS-free: indication checks, voting in data time, warnings, status.
 
-Wraps :class:`tpms_ros.core.tpms_voting.TpmsVoter` (Persson 2002, docs/methods/tpms_voter.md); the node
+Wraps :class:`tpms_ros.core.tpms_voting.TpmsVoter` (Persson 2002, docs/methods/tpms_voter.md); the
+node
 (``tpms_ros.nodes.tpms_voter_node``) and the offline engine both run it.
 
 Inputs: ``tpms/indication/<method>`` (TpmsIndication) for each name in ``methods``. Output:

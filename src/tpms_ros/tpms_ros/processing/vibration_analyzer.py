@@ -1,7 +1,8 @@
 """The vibration analyzer's logic, ROS-free: stamps, blocks, calibration, sensor faults, outputs.
 
 Wraps :class:`tpms_ros.core.vibration_analysis.VibrationAnalyzer` (TPMS by tire torsional
-resonance, Persson 2002, docs/methods/vibration_analyzer.md); the node (``tpms_ros.nodes.vibration_analyzer_node``) and
+resonance, Persson 2002, docs/methods/vibration_analyzer.md); the node
+(``tpms_ros.nodes.vibration_analyzer_node``) and
 the offline engine both run it.
 
 Input (relative topic): ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz, raw CDR: decoded by

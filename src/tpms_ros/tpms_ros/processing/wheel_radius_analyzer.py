@@ -1,7 +1,8 @@
 """The wheel-radius analyzer's logic, ROS-free: alignment, calibration, sensor faults, outputs.
 
 Wraps :class:`tpms_ros.core.wheel_radius_analysis.WheelRadiusAnalyzer` (TPMS by relative
-rolling radii, Persson 2002, docs/methods/wheel_radius_analyzer.md); the node (``tpms_ros.nodes.wheel_radius_analyzer_node``)
+rolling radii, Persson 2002, docs/methods/wheel_radius_analyzer.md); the node
+(``tpms_ros.nodes.wheel_radius_analyzer_node``)
 and the offline engine both run it.
 
 Inputs (relative topics): ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz, raw CDR),

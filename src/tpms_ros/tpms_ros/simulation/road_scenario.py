@@ -92,7 +92,8 @@ class Rates:
 
 @dataclass(frozen=True)
 class TireSpec:
-    """Torsional tire of docs/methods/tire_stiffness_observer.md and how it follows inflation pressure (same for all tires).
+    """Torsional tire of docs/methods/tire_stiffness_observer.md and how it follows inflation
+    pressure (same for all tires).
 
     Attributes:
         j1: rim-side inertia, kg m^2.

@@ -11,14 +11,16 @@ candidate, its multi-body model with PAC2002 tires) is not installed and not ins
 offline on this machine, and it would not fit anyway: it is scalar Python called through an
 ODE solver (far from 5x real time at 1 kHz), has no friction-scale or per-wheel rolling-radius
 input, and parameterises suspension by corner rates rather than the per-axle roll stiffness and
-damping of docs/methods/lateral_force_observer.md. The equations below are the textbook ones (Gillespie 1992, ch. 6-9;
+damping of docs/methods/lateral_force_observer.md. The equations below are the textbook ones
+(Gillespie 1992, ch. 6-9;
 Pacejka 2006, ch. 7), arranged so one derivative evaluation per step suffices.
 
 Equations (m, ms include the added mass; a_x = vx' - r vy, a_y = vy' + r vx)::
 
     m a_x + ms hs q'                  = sum Fx - F_drag                (pitch centre at ground)
     (Iy + ms hs^2) q' + ms hs a_x      = M_pitch,susp + ms g hs theta - hs F_drag
-    m a_y - ms e p'                   = sum Fy                          (docs/methods/lateral_force_observer.md form)
+    m a_y - ms e p'                   = sum Fy
+    (docs/methods/lateral_force_observer.md form)
     (Ix + ms e^2) p' - ms e a_y        = M_roll,susp + ms g e phi       (roll axis e below CG)
     Iz r'                             = sum (x_i Fy_i - y_i Fx_i)
     ms z''                            = sum F_susp,i
@@ -26,7 +28,8 @@ Equations (m, ms include the added mass; a_x = vx' - r vy, a_y = vy' + r vx)::
     Iw omega_i'                       = T_i - Fx_i r_i - f_r Fz_i r_i sgn(omega_i)
 
 Suspension, per axle, in modal form: a heave wheel rate ks (per corner) with damper cs, and the
-roll stiffness/damping kphi, cphi of docs/methods/lateral_force_observer.md on the body-to-axle roll angle. This is the
+roll stiffness/damping kphi, cphi of docs/methods/lateral_force_observer.md on the body-to-axle
+roll angle. This is the
 same as corner springs plus an anti-roll bar, but lets the (light) Ford FC/HVE roll damping stand
 apart from a realistic heave damping. Lateral forces reach the sprung mass at the roll centres
 (hf, hr): the moment F_link,a h_a plus the unsprung-mass inertia moment is the geometric load
@@ -77,7 +80,8 @@ _N_WHEELS = 4
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Vehicle parameters. Defaults: Ford FC/HVE data of docs/methods/lateral_force_observer.md plus documented extras.
+    """Vehicle parameters. Defaults: Ford FC/HVE data of docs/methods/lateral_force_observer.md
+    plus documented extras.
 
     Lengths in m, masses in kg, inertias in kg m^2, roll stiffness N m/rad, roll damping
     N m s/rad. tf, tr are half tracks. See the module docstring for the sources of the extras.
