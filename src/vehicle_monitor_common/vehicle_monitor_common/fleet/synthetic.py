@@ -109,9 +109,11 @@ def _shifted(topics: Mapping[str, TopicSeries], start: dt.datetime) -> dict[str,
 def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
              log: Callable[[str], None] = print) -> Path:
     """Write the fleet (see the module docstring); the manifest's path."""
-    from rail_monitor_ros.simulation.rail_simulator import scenario_topics as rail_topics
-    from tpms_ros.simulation.road_simulator import scenario_topics as road_topics
+    from vehicle_monitor_common.evaluation import domains
 
+    # each domain's simulator, through its registration (this package depends on no domain)
+    synthesizers = {domain.name: domain.synthesize for domain in domains()}
+    road_topics, rail_topics = synthesizers.get('road'), synthesizers.get('rail')
     out = Path(out)
     rng = np.random.default_rng(plan.seed)
     road_base = _scenario('tpms_ros', 'diffusion_15pct.yaml')
@@ -119,7 +121,7 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
     vehicles: dict[str, Any] = {}
     truth: dict[str, Any] = {}
     recordings: list[dict[str, Any]] = []
-    jobs: list[tuple[str, str, dict[str, Any], dt.datetime, Callable[..., Any]]] = []
+    jobs: list[tuple[str, str, dict[str, Any], dt.datetime, Callable[..., Any] | None]] = []
     leaking = set(rng.choice(plan.cars, plan.leaking_cars, replace=False).tolist())
     degrading = set(rng.choice(plan.trains, plan.degrading_trains, replace=False).tolist())
     for index in range(plan.cars):
@@ -162,10 +164,12 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
                          rail_topics))
     with tempfile.TemporaryDirectory(prefix='fleet-scenarios-') as scratch:
         for number, (vehicle, drive_name, scenario, start, synthesize) in enumerate(jobs, 1):
+            if synthesize is None:
+                raise RuntimeError(f'{vehicle}: its domain is not installed')
             path = Path(scratch) / f'{vehicle}_{drive_name}.yaml'
             path.write_text(yaml.safe_dump(scenario, sort_keys=False), encoding='utf-8')
             bag = out / 'drives' / vehicle / drive_name
-            write_bag(bag, _shifted(synthesize(path), start), overwrite=True)
+            write_bag(bag, _shifted(synthesize(path, None), start), overwrite=True)
             recordings.append({'path': str(bag.relative_to(out)), 'vehicle': vehicle,
                                'time': start.isoformat()})
             log(f'[{number}/{len(jobs)}] {vehicle}/{drive_name}')
