@@ -70,3 +70,17 @@ def test_bad_vehicle_options_are_one_line_errors(tmp_path: Path,
     assert 'error: calibration' in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(['bags/rail_healthy', '--manifest', 'm.yaml'])
+
+
+@pytest.mark.timeout(300)
+def test_offline_evaluation_scores_every_message(tmp_path: Path) -> None:
+    """--offline: the graph's processors over the bag in the offline engine, nothing dropped,
+    scored as a live recording is (the IMM bag's two fault onsets within target)."""
+    from vehicle_monitor_common.evaluate_cli import Task, run_task
+
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'rail_imm_spring_damper_fault'
+    evaluation, stats = run_task(Task('imm', 'rail', bag, 'bag', offline=True), tmp_path,
+                                 quiet=True)
+    assert stats is not None and stats.dropped == 0 and stats.published == 8004
+    imm = [m for m in evaluation.metrics if m.method == 'IMM' and m.passed is not None]
+    assert imm and all(m.passed for m in imm)
