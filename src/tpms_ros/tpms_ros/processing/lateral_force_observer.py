@@ -74,6 +74,7 @@ from vehicle_monitor_common.processing import (
     Output,
     ProcessorParams,
     Status,
+    header_stamp_ns,
 )
 
 IMU = 'vehicle/imu'
@@ -108,11 +109,6 @@ class LateralForceObserverNodeParams(ProcessorParams):
     imu_frozen_s: float = param(0.5, 'an IMU whose ax, ay, roll and yaw rates all repeat '
                                 'their exact values this long is frozen: its samples are '
                                 'skipped until it moves again, s', low=0.01, high=60.0)
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class LateralForceObserverProcessor:
@@ -227,7 +223,7 @@ class LateralForceObserverProcessor:
             check.last_ns = None
 
     def _on_imu(self, msg: Any) -> list[Output]:
-        stamp = _stamp_ns(msg)
+        stamp = header_stamp_ns(msg)
         if not self._accept_stamp('imu', stamp):
             return []
         acc, rate = msg.linear_acceleration, msg.angular_velocity
@@ -263,7 +259,7 @@ class LateralForceObserverProcessor:
         return self._drain()
 
     def _on_driver_inputs(self, msg: Any) -> list[Output]:
-        stamp = _stamp_ns(msg)
+        stamp = header_stamp_ns(msg)
         if not self._accept_stamp('driver_inputs', stamp):
             return []
         try:

@@ -66,6 +66,7 @@ from vehicle_monitor_common.processing import (
     Input,
     Output,
     Status,
+    header_stamp_ns,
 )
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
@@ -119,11 +120,6 @@ def _to_go_s(first_ns: int, last_ns: int, count: int, rate_hz: float,
     else:
         spanned_s = (last_ns - first_ns) * 1e-9 * count / (count - 1)
     return 0.999 / rate_hz - spanned_s
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class TireStiffnessObserverProcessor:
@@ -245,7 +241,7 @@ class TireStiffnessObserverProcessor:
         try:
             torque = np.asarray(msg.wheel_torque, dtype=float)
             steering = float(msg.steering_angle)
-            stamp = _stamp_ns(msg)
+            stamp = header_stamp_ns(msg)
         except (TypeError, ValueError, AttributeError):
             return
         if torque.shape != (4,):

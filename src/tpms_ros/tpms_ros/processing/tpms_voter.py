@@ -52,6 +52,7 @@ from vehicle_monitor_common.processing import (
     Output,
     ProcessorParams,
     Status,
+    header_stamp_ns,
 )
 
 WARNING = 'tpms/warning'
@@ -95,11 +96,6 @@ def voter_params(rule: VotingRuleParams, votes: Any) -> VoterParams:
     """The core's parameters from the rule and the per-method groups."""
     return VoterParams(**flatten(rule), method_thresholds={
         m: vote.threshold for m, vote in vars(votes).items()})
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class TpmsVoterProcessor:
@@ -169,7 +165,7 @@ class TpmsVoterProcessor:
         if message.method != method:
             self.rejected['method_mismatch'] += 1
             return []
-        stamp = _stamp_ns(message)
+        stamp = header_stamp_ns(message)
         verdict = self._checks[method].check(stamp)
         if verdict in ('out_of_order', 'repeated', 'future_stamp'):
             self.rejected[verdict] += 1

@@ -70,7 +70,15 @@ from tpms_ros.processing.calibrating_tpms import (
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.processing import (
+    ERROR,
+    OK,
+    WARN,
+    Input,
+    Output,
+    Status,
+    header_stamp_ns,
+)
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
 IMU = 'vehicle/imu'
@@ -110,11 +118,6 @@ class WheelRadiusAnalyzerNodeParams(CalibratingTpmsParams):
                                     'IMU time, or sooner when an output falls due, s (no '
                                     'effect on the result; per-call overhead)', low=0.0,
                                     high=10.0)
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class WheelRadiusAnalyzerProcessor(
@@ -237,7 +240,7 @@ class WheelRadiusAnalyzerProcessor(
         return tuple(t <= limit for t in since)
 
     def _on_imu(self, msg: Any) -> list[Output]:
-        ns, outputs = self._accept('imu', _stamp_ns(msg))
+        ns, outputs = self._accept('imu', header_stamp_ns(msg))
         if ns is None:
             return outputs
         # a NaN yaw rate goes through: the core counts it and skips the gyro update
@@ -253,7 +256,7 @@ class WheelRadiusAnalyzerProcessor(
             self.received['driver_inputs'] += 1
             self.counts['wrong_size'] += 1
             return []
-        ns, outputs = self._accept('driver_inputs', _stamp_ns(msg))
+        ns, outputs = self._accept('driver_inputs', header_stamp_ns(msg))
         if ns is None:
             return outputs
         self._driver.append((ns, float(msg.steering_angle), torque))

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 import math
 from typing import Any
 
+from vehicle_monitor_common.processing import header_stamp_ns
+
 TIRES = ('fl', 'fr', 'rl', 'rr')
 
 #: Columns of the summary table besides the recording's identification (in this order).
@@ -37,11 +39,6 @@ EVENT_FIELDS: dict[str, type] = {
     'start_ns': int, 'end_ns': int, 'start_s': float, 'end_s': float, 'duration_s': float,
     'peak': float, 'open_at_end': bool,
 }
-
-
-def _stamp_ns(message: Any) -> int:
-    stamp = message.header.stamp
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 @dataclass
@@ -132,7 +129,7 @@ class _TireFlags(Summarizer):
 
     def add(self, message: Any) -> None:
         super().add(message)
-        stamp = _stamp_ns(message)
+        stamp = header_stamp_ns(message)
         flags = getattr(message, self.flag_field)
         confidence = message.confidence
         assert self.episodes is not None
@@ -191,7 +188,7 @@ class SuspensionSummary(Summarizer):
 
     def add(self, message: Any) -> None:
         super().add(message)
-        stamp = _stamp_ns(message)
+        stamp = header_stamp_ns(message)
         for i, value in enumerate((float(message.spring_ratio), float(message.damper_ratio))):
             if math.isfinite(value):
                 self.sums[i] += value
@@ -236,7 +233,7 @@ class CreepSummary(Summarizer):
 
     def add(self, message: Any) -> None:
         super().add(message)
-        stamp = _stamp_ns(message)
+        stamp = header_stamp_ns(message)
         value = float(message.creep_factor)
         if math.isfinite(value) and not value >= self.minimum:
             self.minimum = value
