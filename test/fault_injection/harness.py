@@ -167,6 +167,32 @@ def reverse_order(stream: list[Sample], indices: list[int]) -> list[Sample]:
     return out
 
 
+def loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
+    """From the window's start on, the recording is replayed from its beginning (the player's
+    ``loop:=true``, or a second replay into running nodes): the stamps jump back by the
+    window's start."""
+    first = min(indices)
+    return stream[:first] + [copy.deepcopy(s) for s in stream[:len(stream) - first]]
+
+
+def on_wheel(fault: Fault, wheel: int = 0) -> Fault:
+    """A value fault of the ``omega`` field on one wheel only (one sensor fails, the others
+    carry on)."""
+
+    def apply(stream: list[Sample], indices: list[int]) -> list[Sample]:
+        faulted = fault(stream, indices)
+        out = list(stream)
+        for i in indices:
+            sample = copy.deepcopy(stream[i])
+            omega = np.array(sample.message.omega, dtype=float)
+            omega[wheel] = np.asarray(faulted[i].message.omega, dtype=float)[wheel]
+            sample.message.omega = omega
+            out[i] = sample
+        return out
+
+    return apply
+
+
 def drop(stream: list[Sample], indices: list[int]) -> list[Sample]:
     """The window's samples never arrive (a gap)."""
     chosen = set(indices)

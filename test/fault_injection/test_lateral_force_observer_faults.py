@@ -20,6 +20,8 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    loop,
+    on_wheel,
     recorded_stream,
     run,
     set_values,
@@ -57,24 +59,6 @@ def clean(stream: list[Sample]) -> Run:
     return run(make_processor({}, '/lateral_force_observer'), stream, status_every=10**9)
 
 
-def loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window's start on, the recording is replayed from its beginning."""
-    return stream[:indices[0]] + [copy.deepcopy(s) for s in stream[:len(stream) - indices[0]]]
-
-
-def only_fl(fault: Any) -> Any:
-    """A value fault on the FL wheel speed only."""
-    def apply(stream: list[Sample], indices: list[int]) -> list[Sample]:
-        faulted = fault(stream, indices)
-        out = list(stream)
-        for i in indices:
-            sample = copy.deepcopy(stream[i])
-            omega = np.array(sample.message.omega, dtype=float)
-            omega[0] = np.asarray(faulted[i].message.omega, dtype=float)[0]
-            sample.message.omega = omega
-            out[i] = sample
-        return out
-    return apply
 
 
 def frozen_imu(stream: list[Sample], indices: list[int]) -> list[Sample]:
@@ -102,11 +86,11 @@ WHEEL = value_faults('omega', 60.0)
 AY = value_faults('linear_acceleration.y', 3.0)
 # fault class -> (fault, input it hits, status text, status level)
 CASES: dict[str, tuple[Any, str, str, int]] = {
-    'wheel_nan': (only_fl(WHEEL['nan']), WHEELS, 'bad wheel speeds', ERROR),
-    'wheel_inf': (only_fl(WHEEL['inf']), WHEELS, 'bad wheel speeds', ERROR),
-    'wheel_negative': (only_fl(WHEEL['negative']), WHEELS, 'bad wheel speeds', ERROR),
-    'wheel_absurd': (only_fl(WHEEL['absurd']), WHEELS, 'bad wheel speeds', ERROR),
-    'wheel_dead': (only_fl(WHEEL['dead']), WHEELS, 'bad wheel speeds', ERROR),
+    'wheel_nan': (on_wheel(WHEEL['nan']), WHEELS, 'bad wheel speeds', ERROR),
+    'wheel_inf': (on_wheel(WHEEL['inf']), WHEELS, 'bad wheel speeds', ERROR),
+    'wheel_negative': (on_wheel(WHEEL['negative']), WHEELS, 'bad wheel speeds', ERROR),
+    'wheel_absurd': (on_wheel(WHEEL['absurd']), WHEELS, 'bad wheel speeds', ERROR),
+    'wheel_dead': (on_wheel(WHEEL['dead']), WHEELS, 'bad wheel speeds', ERROR),
     'imu_nan': (AY['nan'], IMU, 'rejected by the filter', WARN),
     'imu_absurd': (AY['absurd'], IMU, 'rejected by the filter', WARN),
     'imu_frozen': (frozen_imu, IMU, 'IMU frozen', ERROR),

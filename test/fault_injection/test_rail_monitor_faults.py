@@ -22,6 +22,7 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    loop,
     recorded_stream,
     run,
     set_values,
@@ -83,11 +84,6 @@ def _clean(node: str, stream: list[Sample]) -> Run:
     return _CLEAN[node]
 
 
-def _loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window's start on, the recording is replayed from its beginning (``loop:=true``
-    of the player): the stamps jump back by the window's start."""
-    return stream[:indices[0]] + [copy.deepcopy(s) for s in stream[:len(stream) - indices[0]]]
-
 
 def _burst(topics: tuple[str, ...]) -> Any:
     """Each sample of the window's topics comes with 9 more, stamped a tenth of that topic's
@@ -136,7 +132,7 @@ def _cases(node: str) -> dict[str, tuple[str, Any, str]]:
         'repeated_stamps': (main, TIMING_FAULTS['repeated_stamps'], 'repeated'),
         'out_of_order': (main, TIMING_FAULTS['out_of_order'], 'out_of_order'),
         'future_stamp': (main, shift_stamps(10_000.0), 'future_stamp'),
-        'backward_jump': (main, _loop, 'time jump'),
+        'backward_jump': (main, loop, 'time jump'),
         # (pattern D: a silent body IMU leaves the bogie samples unpaired: missing)
         'gap': (main, TIMING_FAULTS['gap'], 'unpaired' if node == 'creep_estimator_imu'
                 else 'no '),

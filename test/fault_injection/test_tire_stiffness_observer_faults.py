@@ -13,7 +13,6 @@ measured times are printed (``-s``) and documented in docs/methods/tire_stiffnes
 
 from __future__ import annotations
 
-import copy
 import math
 from typing import Any
 
@@ -22,7 +21,9 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    loop,
     non_finite_valid,
+    on_wheel,
     recorded_stream,
     run,
     shift_stamps,
@@ -89,11 +90,6 @@ def clean(stream: list[Sample], calibration: dict[str, Any]) -> Run:
     return run(calibrated(calibration), stream, status_every=100)
 
 
-def _loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window's start on, the recording is replayed from its beginning (``loop:=true``
-    of the player): the stamps jump back by the window's start."""
-    return stream[:indices[0]] + [copy.deepcopy(s) for s in stream[:len(stream) - indices[0]]]
-
 
 VALUE = value_faults('omega', 60.0)
 # fault class -> (fault, status text, status level)
@@ -107,26 +103,12 @@ CASES: dict[str, tuple[Any, str, int]] = {
     'repeated_stamps': (TIMING_FAULTS['repeated_stamps'], 'repeated', WARN),
     'out_of_order': (TIMING_FAULTS['out_of_order'], 'out_of_order', WARN),
     'future_stamp': (shift_stamps(10_000.0), 'future_stamp', WARN),
-    'backward_jump': (_loop, 'time jump', WARN),
+    'backward_jump': (loop, 'time jump', WARN),
     'gap': (TIMING_FAULTS['gap'], 'timing', ERROR),
     'rate_burst': (TIMING_FAULTS['rate_burst'], 'input rate', ERROR),
     'wrong_size': (truncated_payload, 'malformed', WARN),
 }
 
-
-def _only_fl(fault: Any) -> Any:
-    """Value faults on the FL wheel only (one sensor fails, the others carry on)."""
-    def apply(stream: list[Sample], indices: list[int]) -> list[Sample]:
-        faulted = fault(stream, indices)
-        out = list(stream)
-        for i in indices:
-            sample = copy.deepcopy(stream[i])
-            omega = np.array(sample.message.omega, dtype=float)
-            omega[0] = np.asarray(faulted[i].message.omega, dtype=float)[0]
-            sample.message.omega = omega
-            out[i] = sample
-        return out
-    return apply
 
 
 def _pressures(outputs: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -142,7 +124,7 @@ def test_fault_is_named_never_a_tire_fault_and_recovers(
     """One fault class over 3 s, then clean data (see the module docstring)."""
     fault, text, level = CASES[name]
     if name in VALUE:
-        fault = _only_fl(fault)
+        fault = on_wheel(fault)
     indices = window(stream, WHEELS, FAULT_START_S, FAULT_S)
     t0 = stream[0].log_ns
     if name == 'backward_jump':
@@ -231,7 +213,7 @@ def test_random_fault_sequences(seed: int, stream: list[Sample], calibration: di
     # Latest first, so the earlier windows' indices still hold after a fault changes the length.
     for name, start in sorted(zip(chosen, starts, strict=True), key=lambda c: -c[1]):
         fault = CASES[str(name)][0]
-        fault = _only_fl(fault) if name in VALUE else fault
+        fault = on_wheel(fault) if name in VALUE else fault
         indices = window(faulted, WHEELS, float(start), float(rng.uniform(0.5, 2.0)))
         faulted = fault(faulted, indices[:1] if name == 'future_stamp' else indices)
     result = run(calibrated(calibration), faulted, status_every=500)

@@ -16,6 +16,7 @@ from typing import Any
 from harness import (
     TIMING_FAULTS,
     Sample,
+    loop,
     run,
     shift_stamps,
     truncated_payload,
@@ -59,11 +60,6 @@ def stream() -> list[Sample]:
     return out
 
 
-def _loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window on every method replays from the start (a looped replay)."""
-    first = min(indices)
-    return stream[:first] + [copy.deepcopy(s) for s in stream[:len(stream) - first]]
-
 
 def _wrong_size(stream: list[Sample], indices: list[int]) -> list[Sample]:
     out = list(stream)
@@ -84,7 +80,7 @@ CASES: dict[str, tuple[Any, str, int]] = {
     'stuck': (TIMING_FAULTS['repeated_stamps'], 'repeated', WARN),
     'out_of_order': (TIMING_FAULTS['out_of_order'], 'out_of_order', WARN),
     'future_stamp': (shift_stamps(10_000.0), 'future_stamp', WARN),
-    'backward_jump': (_loop, 'time jump', WARN),
+    'backward_jump': (loop, 'time jump', WARN),
     'gap': (TIMING_FAULTS['gap'], 'stale methods: stiffness', WARN),
     'rate_burst': (TIMING_FAULTS['rate_burst'], 'ok', 0),
     'wrong_size': (_wrong_size, 'invalid', WARN),

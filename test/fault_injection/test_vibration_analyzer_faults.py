@@ -15,7 +15,6 @@ measured times are printed (``-s``) and documented in docs/methods/vibration_ana
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 import warnings
 
@@ -24,7 +23,9 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    loop,
     non_finite_valid,
+    on_wheel,
     recorded_stream,
     run,
     shift_stamps,
@@ -93,36 +94,17 @@ def clean(stream: list[Sample], calibration: dict[str, Any]) -> Run:
     return run(calibrated(calibration), stream, status_every=10**9)
 
 
-def loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window's start on, the recording is replayed from its beginning (``loop:=true``
-    of the player): the stamps jump back by the window's start."""
-    return stream[:indices[0]] + [copy.deepcopy(s) for s in stream[:len(stream) - indices[0]]]
-
-
-def only_fl(fault: Any) -> Any:
-    """A value fault on the FL wheel only (one sensor fails, the others carry on)."""
-    def apply(stream: list[Sample], indices: list[int]) -> list[Sample]:
-        faulted = fault(stream, indices)
-        out = list(stream)
-        for i in indices:
-            sample = copy.deepcopy(stream[i])
-            omega = np.array(sample.message.omega, dtype=float)
-            omega[0] = np.asarray(faulted[i].message.omega, dtype=float)[0]
-            sample.message.omega = omega
-            out[i] = sample
-        return out
-    return apply
 
 
 VALUE = value_faults('omega', 60.0)
 # fault class -> (fault, status text, status level)
 CASES: dict[str, tuple[Any, str, int]] = {
-    'nan': (only_fl(VALUE['nan']), 'bad wheel speeds', ERROR),
-    'inf': (only_fl(VALUE['inf']), 'bad wheel speeds', ERROR),
-    'negative': (only_fl(VALUE['negative']), 'bad wheel speeds', ERROR),
-    'absurd': (only_fl(VALUE['absurd']), 'bad wheel speeds', ERROR),
-    'dead': (only_fl(VALUE['dead']), 'bad wheel speeds', ERROR),
-    'stuck': (only_fl(VALUE['stuck']), 'bad wheel speeds', ERROR),
+    'nan': (on_wheel(VALUE['nan']), 'bad wheel speeds', ERROR),
+    'inf': (on_wheel(VALUE['inf']), 'bad wheel speeds', ERROR),
+    'negative': (on_wheel(VALUE['negative']), 'bad wheel speeds', ERROR),
+    'absurd': (on_wheel(VALUE['absurd']), 'bad wheel speeds', ERROR),
+    'dead': (on_wheel(VALUE['dead']), 'bad wheel speeds', ERROR),
+    'stuck': (on_wheel(VALUE['stuck']), 'bad wheel speeds', ERROR),
     'repeated_stamps': (TIMING_FAULTS['repeated_stamps'], 'repeated', WARN),
     'out_of_order': (TIMING_FAULTS['out_of_order'], 'out_of_order', WARN),
     'future_stamp': (shift_stamps(10_000.0), 'future_stamp', WARN),

@@ -25,6 +25,8 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    loop,
+    on_wheel,
     recorded_stream,
     run,
     shift_stamps,
@@ -98,25 +100,6 @@ def clean(stream: list[Sample], calibration: dict[str, Any]) -> Run:
     return run(calibrated(calibration), stream, status_every=10**9)
 
 
-def loop(stream: list[Sample], indices: list[int]) -> list[Sample]:
-    """From the window's start on, the recording is replayed from its beginning (``loop:=true``
-    of the player): the stamps jump back by the window's start."""
-    return stream[:indices[0]] + [copy.deepcopy(s) for s in stream[:len(stream) - indices[0]]]
-
-
-def only_fl(fault: Any) -> Any:
-    """A value fault on the FL wheel only (one sensor fails, the others carry on)."""
-    def apply(stream: list[Sample], indices: list[int]) -> list[Sample]:
-        faulted = fault(stream, indices)
-        out = list(stream)
-        for i in indices:
-            sample = copy.deepcopy(stream[i])
-            omega = np.array(sample.message.omega, dtype=float)
-            omega[0] = np.asarray(faulted[i].message.omega, dtype=float)[0]
-            sample.message.omega = omega
-            out[i] = sample
-        return out
-    return apply
 
 
 def wrong_torque_size(stream: list[Sample], indices: list[int]) -> list[Sample]:
@@ -132,13 +115,13 @@ def wrong_torque_size(stream: list[Sample], indices: list[int]) -> list[Sample]:
 VALUE = value_faults('omega', 60.0)
 # fault class -> (fault, input it hits, status text, status level)
 CASES: dict[str, tuple[Any, str, str, int]] = {
-    'nan': (only_fl(VALUE['nan']), WHEELS, 'FL (invalid)', ERROR),
-    'inf': (only_fl(VALUE['inf']), WHEELS, 'FL (invalid)', ERROR),
-    'negative': (only_fl(VALUE['negative']), WHEELS, 'FL (invalid)', ERROR),
-    'absurd': (only_fl(VALUE['absurd']), WHEELS, 'FL (invalid)', ERROR),
-    'dead': (only_fl(VALUE['dead']), WHEELS, 'FL (stuck or dead)', ERROR),
-    'stuck': (only_fl(VALUE['stuck']), WHEELS, 'FL (stuck or dead)', ERROR),
-    'implausible': (only_fl(VALUE['negative']), WHEELS, 'FL', ERROR),  # replaced below
+    'nan': (on_wheel(VALUE['nan']), WHEELS, 'FL (invalid)', ERROR),
+    'inf': (on_wheel(VALUE['inf']), WHEELS, 'FL (invalid)', ERROR),
+    'negative': (on_wheel(VALUE['negative']), WHEELS, 'FL (invalid)', ERROR),
+    'absurd': (on_wheel(VALUE['absurd']), WHEELS, 'FL (invalid)', ERROR),
+    'dead': (on_wheel(VALUE['dead']), WHEELS, 'FL (stuck or dead)', ERROR),
+    'stuck': (on_wheel(VALUE['stuck']), WHEELS, 'FL (stuck or dead)', ERROR),
+    'implausible': (on_wheel(VALUE['negative']), WHEELS, 'FL', ERROR),  # replaced below
     'repeated_stamps': (TIMING_FAULTS['repeated_stamps'], WHEELS, 'repeated', WARN),
     'out_of_order': (TIMING_FAULTS['out_of_order'], WHEELS, 'out_of_order', WARN),
     'future_stamp': (shift_stamps(10_000.0), WHEELS, 'future_stamp', WARN),
