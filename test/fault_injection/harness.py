@@ -293,6 +293,25 @@ def run(processor: Processor, stream: Iterable[Sample], status_every: int = 1) -
     return result
 
 
+def learned_calibration(make_processor: Callable[[dict[str, Any], str], Any],
+                        values: dict[str, Any], fqn: str, stream: Iterable[Sample]
+                        ) -> dict[str, Any]:
+    """The calibration a calibrating processor learns on a clean stream (calibrate_on_start)."""
+    processor = make_processor({**values, 'calibrate_on_start': True}, fqn)
+    run(processor, stream, status_every=10**9)
+    state = processor.calibration_state()
+    assert state is not None, processor.calibration.detail
+    return dict(state)
+
+
+def restarted(make_processor: Callable[[dict[str, Any], str], Any], values: dict[str, Any],
+              fqn: str, calibration: dict[str, Any]) -> Any:
+    """A processor with a stored calibration loaded, as a node after a restart."""
+    processor = make_processor(values, fqn)
+    processor.load_calibration_state(calibration)
+    return processor
+
+
 def non_finite_valid(outputs: Iterable[Output], value: str, valid: str) -> list[Output]:
     """Outputs publishing a non-finite ``value`` element where ``valid`` says it is valid."""
     bad = []

@@ -23,10 +23,12 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    learned_calibration,
     loop,
     non_finite_valid,
     on_wheel,
     recorded_stream,
+    restarted,
     run,
     shift_stamps,
     stamp_of,
@@ -74,18 +76,12 @@ def stream() -> list[Sample]:
 @pytest.fixture(scope='module')
 def calibration(stream: list[Sample]) -> dict[str, Any]:
     """The calibration learned on the clean stream."""
-    processor = make_processor({**FAST, 'calibrate_on_start': True}, '/vibration_analyzer')
-    run(processor, stream, status_every=10**9)
-    state = processor.calibration_state()
-    assert state is not None, processor.calibration.detail
-    return state
+    return learned_calibration(make_processor, FAST, '/vibration_analyzer', stream)
 
 
 def calibrated(calibration: dict[str, Any]) -> VibrationAnalyzerProcessor:
     """A processor with the calibration loaded, as after a restart of the node."""
-    processor = make_processor(FAST, '/vibration_analyzer')
-    processor.load_calibration_state(calibration)
-    return processor
+    return restarted(make_processor, FAST, '/vibration_analyzer', calibration)
 
 
 @pytest.fixture(scope='module')

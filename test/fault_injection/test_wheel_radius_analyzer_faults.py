@@ -25,9 +25,11 @@ from harness import (
     TIMING_FAULTS,
     Run,
     Sample,
+    learned_calibration,
     loop,
     on_wheel,
     recorded_stream,
+    restarted,
     run,
     shift_stamps,
     stamp_of,
@@ -80,18 +82,12 @@ def stream() -> list[Sample]:
 @pytest.fixture(scope='module')
 def calibration(stream: list[Sample]) -> dict[str, Any]:
     """The calibration learned on the clean stream's first 80 s (road_graph.yaml's)."""
-    processor = make_processor({**FAST, 'calibrate_on_start': True}, '/wheel_radius_analyzer')
-    run(processor, stream, status_every=10**9)
-    state = processor.calibration_state()
-    assert state is not None, processor.calibration.detail
-    return state
+    return learned_calibration(make_processor, FAST, '/wheel_radius_analyzer', stream)
 
 
 def calibrated(calibration: dict[str, Any]) -> WheelRadiusAnalyzerProcessor:
     """A processor with the calibration loaded, as after a restart of the node."""
-    processor = make_processor(FAST, '/wheel_radius_analyzer')
-    processor.load_calibration_state(calibration)
-    return processor
+    return restarted(make_processor, FAST, '/wheel_radius_analyzer', calibration)
 
 
 @pytest.fixture(scope='module')
