@@ -20,7 +20,8 @@ import numpy as np
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
 from vehicle_monitor_common.calibration_store import Calibratable, CalibrationManager
 from vehicle_monitor_common.parameters import param
-from vehicle_monitor_common.processing import WARN, Output, ProcessorParams
+from vehicle_monitor_common.processing import Output, ProcessorParams
+from vehicle_monitor_common.status_report import StatusProblems
 
 INDICATION_TYPE = 'vehicle_monitor_msgs/msg/TpmsIndication'
 RESTART_NOTE_S = 1.0
@@ -227,7 +228,7 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
             'known': known.tolist(),
         })
 
-    def _tire_status(self, received: bool) -> tuple[dict[str, Any], list[tuple[int, str]]]:
+    def _tire_status(self, received: bool) -> tuple[dict[str, Any], StatusProblems]:
         """Status values and problems about calibration, tires and time jumps."""
         cal = self._calibration
         low = [TIRE_NAMES[i] for i in np.flatnonzero(self._last_flags)]
@@ -240,17 +241,17 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
             'last_stamp_s': self._last_stamp_s,
             'time_jumps': self.time_jumps,
         }
-        problems: list[tuple[int, str]] = []
+        problems = StatusProblems()
         if cal.file_problem:
             values['calibration_file_problem'] = cal.file_problem
         if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
-            problems.append((WARN, cal.detail))
+            problems.warn(cal.detail)
         elif received and not self._last_known.all():
             unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]
-            problems.append((WARN, f'tires unknown: {", ".join(unknown)}'))
+            problems.warn(f'tires unknown: {", ".join(unknown)}')
         if self._restarted:
-            problems.append((WARN, f'{self._restart_reason}: filters restarted (calibration '
-                                   'kept), estimating again once converged'))
+            problems.warn(f'{self._restart_reason}: filters restarted (calibration kept), '
+                          'estimating again once converged')
         if self._last_flags.any():
-            problems.append((WARN, f'low tires indicated: {", ".join(low)}'))
+            problems.warn(f'low tires indicated: {", ".join(low)}')
         return values, problems

@@ -67,15 +67,13 @@ from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_spe
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
 from vehicle_monitor_common.processing import (
-    ERROR,
-    OK,
-    WARN,
     Input,
     Output,
     ProcessorParams,
     Status,
     header_stamp_ns,
 )
+from vehicle_monitor_common.status_report import StatusProblems
 
 IMU = 'vehicle/imu'
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
@@ -391,48 +389,42 @@ class LateralForceObserverProcessor:
         values.update({f'rejected_{k}': v for k, v in self.rejected.items()})
         values.update({f'rejected_by_filter_{k}': v for k, v in health.rejected.items()})
         values.update({f'skipped_{k}': v for k, v in self.skipped.items()})
-        problems: list[tuple[int, str]] = []
+        problems = StatusProblems()
         if self._imu_frozen or events.get('imu_frozen'):
-            problems.append((ERROR, f'IMU frozen (ax, ay, p, r repeat exactly): '
-                                    f'{events.get("imu_frozen", 0)} samples skipped, no '
-                                    'forces published'))
+            problems.error(f'IMU frozen (ax, ay, p, r repeat exactly): '
+                           f'{events.get("imu_frozen", 0)} samples skipped, no forces published')
         if events.get('wheel_speeds_implausible') or events.get('wheel_speeds_invalid'):
-            problems.append((ERROR, 'bad wheel speeds (a wheel non-finite, dead or off the '
-                                    'others): samples rejected'))
+            problems.error('bad wheel speeds (a wheel non-finite, dead or off the others): '
+                           'samples rejected')
         if self._restarted:
-            problems.append((WARN, f'time jump of {self._last_jump_s:+.3g} s: filter '
-                                   'restarted, estimating again once inputs align'))
+            problems.warn(f'time jump of {self._last_jump_s:+.3g} s: filter restarted, '
+                          'estimating again once inputs align')
         if self._last is None:
-            problems.append((WARN, 'waiting for IMU, wheel speeds and driver inputs'))
-            return Status(max(lv for lv, _ in problems), '; '.join(t for _, t in problems),
-                          values)
+            problems.warn('waiting for IMU, wheel speeds and driver inputs')
+            return problems.status(values)
         values['fy_n'] = self._last.fy.tolist()
         values['fz_n'] = self._last.fz.tolist()
         if not self._last.within_validity or events.get('beyond_validity'):
-            problems.append((WARN, f'|ay| above {limit_g:g} g: load-ratio split outside its '
-                                   f'validity ({events.get("beyond_validity", 0)} samples)'))
+            problems.warn(f'|ay| above {limit_g:g} g: load-ratio split outside its validity '
+                          f'({events.get("beyond_validity", 0)} samples)')
         for reason in ('stale_wheel_speeds', 'stale_driver_inputs'):
             if events.get(reason):
-                problems.append((WARN, f'{events[reason]} IMU samples skipped: {reason}'))
+                problems.warn(f'{events[reason]} IMU samples skipped: {reason}')
         if events.get('wheel_speeds_rate_burst'):
-            problems.append((WARN, f"wheel-speed rate burst in {events['wheel_speeds_rate_burst']}"
-                                   f' IMU intervals (over 3 x {self._samples_per_interval:.3g} '
-                                   'samples)'))
+            problems.warn(f"wheel-speed rate burst in {events['wheel_speeds_rate_burst']} IMU "
+                          f'intervals (over 3 x {self._samples_per_interval:.3g} samples)')
         rejected_now = sum(v for k, v in events.items() if k not in _NOT_REJECTIONS)
         if rejected_now:
-            problems.append((WARN, f'{rejected_now} input messages rejected: ' + ', '.join(
-                f'{v} {k}' for k, v in sorted(events.items())
-                if k not in _NOT_REJECTIONS)))
+            problems.warn(f'{rejected_now} input messages rejected: ' + ', '.join(
+                f'{v} {k}' for k, v in sorted(events.items()) if k not in _NOT_REJECTIONS))
         filter_rejected = sum(health.rejected.values())
         if filter_rejected > self._filter_rejected_seen:
-            problems.append((WARN, f'{filter_rejected - self._filter_rejected_seen} samples '
-                                   'rejected by the filter (non-finite or saturated)'))
+            problems.warn(f'{filter_rejected - self._filter_rejected_seen} samples rejected by '
+                          'the filter (non-finite or saturated)')
             self._filter_rejected_seen = filter_rejected
         if health.covariance_resets:
             values['note'] = 'covariance lost positive definiteness: filter reset (counted)'
-        level = max((lv for lv, _ in problems), default=OK)
-        return Status(level, '; '.join(t for _, t in problems) or 'estimating tire forces',
-                      values)
+        return problems.status(values, 'estimating tire forces')
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> LateralForceObserverProcessor:

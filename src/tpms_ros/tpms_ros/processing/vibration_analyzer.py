@@ -59,7 +59,8 @@ from tpms_ros.processing.calibrating_tpms import (
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import ERROR, OK, WARN, Input, Output, Status
+from vehicle_monitor_common.processing import Input, Output, Status
+from vehicle_monitor_common.status_report import StatusProblems
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
 RESONANCE = 'tpms/tire_resonance'
@@ -317,38 +318,35 @@ class VibrationAnalyzerProcessor(
         tire_values, tire_problems = self._tire_status(received)
         values.update(tire_values)
         # every problem is listed; the worst sets the level
-        problems: list[tuple[int, str]] = []
+        problems = StatusProblems()
         if self.rate_mismatch():
-            problems.append((ERROR, f'wheel-speed rate {self._input_rate_hz:.4g} Hz does not '
-                                    f'match sample_rate_hz {p.sample_rate_hz:g}: every tire '
-                                    'unknown, set sample_rate_hz'))
+            problems.error(f'wheel-speed rate {self._input_rate_hz:.4g} Hz does not match '
+                           f'sample_rate_hz {p.sample_rate_hz:g}: every tire unknown, set '
+                           'sample_rate_hz')
         elif self.counts['missing_samples'] > self.counts['received']:
-            problems.append((WARN, 'wheel speeds arrive slower than sample_rate_hz: check the '
-                                   'parameter'))
+            problems.warn('wheel speeds arrive slower than sample_rate_hz: check the parameter')
         # Sensor faults: wheels inside their hold after a bad sample.
         bad = self._last_stamp_s - self._last_bad_s < self.node_params.bad_hold_s
         if received and bad.any():
             names = ', '.join(TIRE_NAMES[i] for i in np.flatnonzero(bad))
-            problems.append((ERROR, f'bad wheel speeds (non-finite, negative, absurd, stuck or '
-                                    f'dead): {names} unknown'))
+            problems.error(f'bad wheel speeds (non-finite, negative, absurd, stuck or dead): '
+                           f'{names} unknown')
         recovering = self.recovering()
         if recovering.any():
             names = ', '.join(TIRE_NAMES[i] for i in np.flatnonzero(recovering))
-            problems.append((WARN, f'recovering after a filter restart (sensor fault, gap, time '
-                                   f'jump or rate): {names} unknown until estimated again '
-                                   f'(at least {recovery_s(p):.3g} s of data)'))
+            problems.warn(f'recovering after a filter restart (sensor fault, gap, time jump or '
+                          f'rate): {names} unknown until estimated again (at least '
+                          f'{recovery_s(p):.3g} s of data)')
         # Rejected messages are reported while they are recent (counts stay in the values).
         recent = {k: v - self._rejected_at_status.get(k, 0) for k, v in rejected.items()}
         self._rejected_at_status = rejected
         if any(recent.values()):
-            problems.append((WARN, 'wheel-speed messages rejected: ' + ', '.join(
-                f'{n} {reason}' for reason, n in sorted(recent.items()) if n)))
-        problems += tire_problems
-        level = max((lv for lv, _ in problems), default=OK)
+            problems.warn('wheel-speed messages rejected: ' + ', '.join(
+                f'{n} {reason}' for reason, n in sorted(recent.items()) if n))
+        problems.extend(tire_problems)
         rejected_total = sum(rejected.values()) + int(rejected_values.sum())
-        message = '; '.join(text for _, text in problems) or (
-            f'ok ({rejected_total} samples rejected so far)' if rejected_total else 'ok')
-        return Status(level, message, values)
+        return problems.status(values, f'ok ({rejected_total} samples rejected so far)'
+                               if rejected_total else 'ok')
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> VibrationAnalyzerProcessor:

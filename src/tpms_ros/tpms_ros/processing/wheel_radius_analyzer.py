@@ -70,15 +70,8 @@ from tpms_ros.processing.calibrating_tpms import (
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import (
-    ERROR,
-    OK,
-    WARN,
-    Input,
-    Output,
-    Status,
-    header_stamp_ns,
-)
+from vehicle_monitor_common.processing import Input, Output, Status, header_stamp_ns
+from vehicle_monitor_common.status_report import StatusProblems
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
 IMU = 'vehicle/imu'
@@ -449,38 +442,34 @@ class WheelRadiusAnalyzerProcessor(
             values.update({f'noise_scale.{name}': float(v) for name, v in
                            zip(PAIR_NAMES, core_cal.noise_scale, strict=True)})
         # every problem is listed; the worst sets the level
-        problems: list[tuple[int, str]] = []
+        problems = StatusProblems()
         bad = self.bad_wheels() if received else np.zeros(N_TIRES, dtype=bool)
         if bad.any():
             names = ', '.join(f'{TIRE_NAMES[w]} ({self._fault_kind[w] or "invalid"})'
                               for w in np.flatnonzero(bad))
-            problems.append((ERROR, f'bad wheel speeds: {names}; filters frozen, tires '
-                                    'unknown'))
+            problems.error(f'bad wheel speeds: {names}; filters frozen, tires unknown')
         if received and not self._gyro_ok:
-            problems.append((WARN, 'gyro stopped: lateral filter paused'))
+            problems.warn('gyro stopped: lateral filter paused')
         events = {'bad_gyro': counts['bad_gyro'], 'bad_torque': counts['bad_torque'],
                   'rate_bursts': self.counts['rate_bursts']}
         recent_events = {k: v - self._events_at_status.get(k, 0) for k, v in events.items()}
         self._events_at_status = events
         if recent_events['bad_gyro']:
-            problems.append((WARN, f"{recent_events['bad_gyro']} non-finite yaw rates: gyro "
-                                   'updates skipped'))
+            problems.warn(f"{recent_events['bad_gyro']} non-finite yaw rates: gyro updates "
+                          'skipped')
         if recent_events['bad_torque']:
-            problems.append((WARN, f"{recent_events['bad_torque']} non-finite wheel torques: "
-                                   'longitudinal updates skipped'))
+            problems.warn(f"{recent_events['bad_torque']} non-finite wheel torques: "
+                          'longitudinal updates skipped')
         if recent_events['rate_bursts']:
-            problems.append((WARN, f"wheel-speed rate bursts in {recent_events['rate_bursts']} "
-                                   f'bins (over 3 x {self._samples_per_bin:.3g} samples per '
-                                   'bin)'))
+            problems.warn(f"wheel-speed rate bursts in {recent_events['rate_bursts']} bins "
+                          f'(over 3 x {self._samples_per_bin:.3g} samples per bin)')
         recent = {k: v - self._rejected_at_status.get(k, 0) for k, v in rejected.items()}
         self._rejected_at_status = rejected
         if any(recent.values()):
-            problems.append((WARN, 'messages rejected: ' + ', '.join(
-                f'{n} {reason}' for reason, n in sorted(recent.items()) if n)))
-        problems += tire_problems
-        level = max((lv for lv, _ in problems), default=OK)
-        message = '; '.join(text for _, text in problems) or 'ok'
-        return Status(level, message, values)
+            problems.warn('messages rejected: ' + ', '.join(
+                f'{n} {reason}' for reason, n in sorted(recent.items()) if n))
+        problems.extend(tire_problems)
+        return problems.status(values)
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> WheelRadiusAnalyzerProcessor:
