@@ -146,11 +146,15 @@ class TypedParameters(Generic[P]):
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
 
-    def _candidate(self, parameters: list[Parameter]) -> P:
+    def candidate_values(self, parameters: list[Parameter]) -> dict[str, Any]:
+        """Dotted name -> value of this group's parameters were ``parameters`` set (unchecked)."""
         values = flatten(self.value)
         values.update({p.name: _from_ros(self.specs[p.name].default, p.value)
                        for p in parameters if p.name in self.specs})
-        return build(self._cls, values)  # type: ignore[no-any-return]
+        return values
+
+    def _candidate(self, parameters: list[Parameter]) -> P:
+        return build(self._cls, self.candidate_values(parameters))  # type: ignore[no-any-return]
 
     def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
         for p in parameters:

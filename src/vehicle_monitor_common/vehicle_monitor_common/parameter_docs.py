@@ -44,8 +44,9 @@ def node_specs(node: Any) -> list[ParameterSpec]:
     """The parameter definitions a node declared through TypedParameters, in declaration order."""
     from vehicle_monitor_common.node_helpers import TypedParameters
 
-    return [spec for v in vars(node).values() if isinstance(v, TypedParameters)
-            for spec in v.specs.values()]
+    # A processor node keeps its groups in a list; a player holds its one group directly.
+    held = [item for v in vars(node).values() for item in (v if isinstance(v, list) else [v])]
+    return [spec for v in held if isinstance(v, TypedParameters) for spec in v.specs.values()]
 
 
 def collect() -> Iterator[tuple[str, list[ParameterSpec]]]:

@@ -6,9 +6,10 @@ messages to publish, each as an :class:`Output` (topic, stamp, fields); it repor
 a :class:`Status`. All of a node's logic lives there: time checks, buffering and chunking,
 calibration, gating, output timing in data time. Then
 
-* the **node** (``node_helpers.ProcessorNode``) is a transport adapter: it subscribes the
-  processor's inputs, hands each message over, fills and publishes the outputs, publishes the
-  status on ``/diagnostics`` from its timer, and serves ``~/calibrate``;
+* the **node** (``processor_node.ProcessorNode``) is a transport adapter: it declares the
+  parameters, builds the processor with its ``make_processor``, subscribes the processor's
+  inputs, hands each message over, fills and publishes the outputs, publishes the status on
+  ``/diagnostics`` from its timer, and serves ``~/calibrate``;
 * the **offline engine** (``offline_engine``) reads a recording, hands every message to the
   processors of a graph in recorded order (outputs that other processors subscribe go to them
   at once), and writes or summarises what they publish: the same outputs as the live graph,
@@ -125,10 +126,14 @@ class Processor(Protocol):
 class CalibratingProcessor(Processor, Protocol):
     """A processor whose method learns a calibration (the TPMS methods).
 
-    The node serves ``request_calibration`` as ``~/calibrate`` and persists the state through
-    ``calibration_store``; the offline engine carries a vehicle's state from one recording to
-    the next in time order, as it would live on the car.
+    The node serves ``request_calibration`` as ``~/calibrate``, persists the state through
+    ``calibration_store`` and logs ``events``; the offline engine carries a vehicle's state from
+    one recording to the next in time order, as it would live on the car.
     """
+
+    events: list[str]
+    """What the calibration did since the node last looked (loaded, started, done, failed):
+    lines for the node's log, which it clears once logged."""
 
     def request_calibration(self) -> tuple[bool, str]:
         """Start learning over the next calibration window of data; (accepted, message)."""

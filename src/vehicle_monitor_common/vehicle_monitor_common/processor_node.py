@@ -1,10 +1,15 @@
 """The transport adapter every estimator node is: a :class:`~rclpy.node.Node` around a processor.
 
-A node subclass declares its parameters (``TypedParameters``), builds its processor
-(:mod:`vehicle_monitor_common.processing`) and calls :meth:`ProcessorNode.attach`; from then on
-this class subscribes every input of the processor (sensor QoS, overridable), hands each message
-over, publishes the outputs it returns (reliable, depth 10), publishes its status on
-``/diagnostics`` from a timer, and serves ``~/calibrate`` when the processor can calibrate.
+A node is declared, not written: its class names its default name, its parameter groups (the
+processor's parameter dataclasses, each with the processor method its changes go to), the
+processor's factory (the ``make_processor(values, fqn)`` the offline engine runs, so node and
+engine build the processor the same way) and its ``/diagnostics`` hardware id. This class
+declares the parameters (``TypedParameters``: one definition each), builds the processor from
+their values and attaches it (:meth:`ProcessorNode.attach`): it subscribes every input of the
+processor (sensor QoS, overridable), hands each message over, publishes the outputs it returns
+(reliable, depth 10), publishes its status on ``/diagnostics`` from a timer, forwards parameter
+changes, and, for a calibrating processor, serves ``~/calibrate``, keeps the calibration in the
+node's own file (``node_helpers.calibration_path``) and logs the calibration's events.
 
 Input silence is watched here, once for every node: each input's message count and the age of
 its last message (node clock) go on the diagnostics; an input silent for longer than
@@ -20,22 +25,31 @@ stamps, which the processors check for jumps of their own.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 import importlib
-from typing import Any
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import JumpThreshold, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from vehicle_monitor_common.node_helpers import (
     OUTPUT_QOS,
     Diagnostics,
+    TypedParameters,
+    calibration_path,
+    run_node,
     sensor_subscription,
     time_msg,
 )
+from vehicle_monitor_common.parameters import flatten
 from vehicle_monitor_common.processing import ERROR, WARN, Output, Processor
+
+P = TypeVar('P')
 
 
 def message_class(msgtype: str) -> Any:
@@ -54,10 +68,103 @@ def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
     return message
 
 
+@dataclass(frozen=True)
+class ParameterGroup:
+    """One parameter dataclass a node declares, and where its changes go.
+
+    Attributes:
+        definition: the dataclass; or, for a group whose fields depend on a parameter declared
+            before it (the voter's per-method votes), a function of the values declared so far
+            that returns it.
+        forward_to: the processor method a change of the group is handed to, called with the
+            current value of every group forwarded to that method, in declaration order (the
+            observer's vehicle and tuning groups go to one ``set_model(vehicle, tuning)``);
+            empty: changes are not forwarded.
+    """
+
+    definition: type[Any] | Callable[[Mapping[str, Any]], type[Any]]
+    forward_to: str = ''
+
+
 class ProcessorNode(Node):
-    """A node whose logic is a processor (see the module docstring)."""
+    """A node whose logic is a processor (see the module docstring).
+
+    A subclass with ``parameter_groups`` is built whole by this constructor; one without
+    (a test's) calls :meth:`attach` itself.
+    """
 
     processor: Processor
+    default_name: ClassVar[str] = ''
+    parameter_groups: ClassVar[tuple[ParameterGroup, ...]] = ()
+    # staticmethods: the factory and the check are plain functions of the values
+    make_processor: ClassVar[staticmethod[[Mapping[str, Any], str], Processor]]
+    hardware_id: ClassVar[str] = ''
+    """The ``/diagnostics`` hardware id, formatted with the parameter values (``{bogie}``)."""
+    cross_check: ClassVar[staticmethod[[Mapping[str, Any]], str] | None] = None
+    """Why a combination of values across the groups is refused ('' when it is not): run on
+    every candidate set at runtime (each group checks its own fields itself)."""
+
+    def __init__(self, node_name: str = '', **kwargs: Any) -> None:
+        super().__init__(node_name or self.default_name, **kwargs)
+        self.typed_parameters: list[TypedParameters[Any]] = []
+        if not self.parameter_groups:
+            return
+        values: dict[str, Any] = {}
+        for group in self.parameter_groups:
+            definition = group.definition
+            cls = definition if isinstance(definition, type) else definition(values)
+            typed = TypedParameters(self, cls, on_change=self._forwarder(group.forward_to))
+            self.typed_parameters.append(typed)
+            values.update(flatten(typed.value))
+        if self.cross_check is not None:
+            self.add_on_set_parameters_callback(self._check_across_groups)
+        if 'calibration_file' in values:
+            # Live, the calibration is kept per node and namespace (the offline engine keeps
+            # a vehicle's calibration itself): the factory gets the resolved file.
+            values['calibration_file'] = calibration_path(self, values['calibration_file'])
+        self.attach(self.create_processor(values), self.hardware_id.format_map(values),
+                    values['diagnostics_period_s'], values['silence_timeout_s'])
+
+    @classmethod
+    def main(cls, args: list[str] | None = None) -> None:
+        """Entry point of the node's executable (``ros2 run``)."""
+        raise SystemExit(run_node(cls, args))
+
+    def create_processor(self, values: Mapping[str, Any]) -> Processor:
+        """The processor from the parameter values: the factory the offline engine runs too."""
+        return self.make_processor(values, self.get_fully_qualified_name())
+
+    @property
+    def parameter_values(self) -> dict[str, Any]:
+        """Every parameter of every group, dotted name -> current validated value."""
+        return {name: value for typed in self.typed_parameters
+                for name, value in flatten(typed.value).items()}
+
+    def parameters_of(self, cls: type[P]) -> P:
+        """The current validated value of the group declared from ``cls``."""
+        for typed in self.typed_parameters:
+            if isinstance(typed.value, cls):
+                return typed.value
+        raise KeyError(f'{self.get_name()} declares no {cls.__name__} group')
+
+    def _forwarder(self, method: str) -> Callable[[Any], None] | None:
+        if not method:
+            return None
+        sharing = [i for i, group in enumerate(self.parameter_groups)
+                   if group.forward_to == method]
+
+        def forward(_: Any) -> None:
+            getattr(self.processor, method)(*(self.typed_parameters[i].value for i in sharing))
+
+        return forward
+
+    def _check_across_groups(self, parameters: list[Parameter]) -> SetParametersResult:
+        candidate: dict[str, Any] = {}
+        for typed in self.typed_parameters:
+            candidate.update(typed.candidate_values(parameters))
+        assert self.cross_check is not None
+        problem = self.cross_check(candidate)
+        return SetParametersResult(successful=not problem, reason=problem)
 
     def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float,
                silence_timeout_s: float) -> None:
@@ -80,11 +187,13 @@ class ProcessorNode(Node):
         for topic, spec in processor.inputs.items():
             sensor_subscription(self, message_class(spec.msgtype), topic,
                                 self._input_callback(topic), raw=spec.raw)
-        if hasattr(processor, 'request_calibration'):
+        self._calibrating = hasattr(processor, 'request_calibration')
+        if self._calibrating:
             self.create_service(Trigger, '~/calibrate', self._on_calibrate)
         self._diagnostics = Diagnostics(self, hardware_id, diagnostics_period_s,
                                         update=self._update_diagnostics)
         self._update_diagnostics()
+        self._log_calibration_events()
 
     def _input_callback(self, topic: str) -> Callable[[Any], None]:
         return lambda message: self.deliver(topic, message)
@@ -95,6 +204,15 @@ class ProcessorNode(Node):
         self._last_arrival_ns[topic] = self.get_clock().now().nanoseconds
         for output in self.processor.process(topic, message):
             self.publish_output(output)
+        self._log_calibration_events()
+
+    def _log_calibration_events(self) -> None:
+        if not self._calibrating:
+            return
+        events: list[str] = self.processor.events  # type: ignore[attr-defined]
+        for event in events:
+            self.get_logger().info(event)
+        events.clear()
 
     def publish_output(self, output: Output) -> None:
         """Fill the output's message and publish it, stamped with the sample it answers."""

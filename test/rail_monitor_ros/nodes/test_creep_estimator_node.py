@@ -19,7 +19,7 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor, RailLateralStates, TrackIrregularity
 import yaml
 
-from rail_monitor_ros.core.creep_ekf import CreepEkf
+from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams
 from rail_monitor_ros.nodes.creep_estimator_node import CreepEstimatorNode
 from rail_monitor_ros.offline.creep_runs import simulation_inputs
 from rail_monitor_ros.simulation.rail_scenario import RailEvent, shipped_scenario
@@ -85,7 +85,7 @@ def test_config_yaml_matches_declared_defaults(make_node: Callable[..., Any]) ->
     for name, value in data.items():
         assert node.get_parameter(name).value == pytest.approx(value), name
         assert plain.get_parameter(name).value == pytest.approx(value), name
-    assert node.estimator.params.pattern == 'C'
+    assert node.processor.ekf.params.pattern == 'C'
 
 
 def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Path,
@@ -109,7 +109,7 @@ def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Pa
     assert spin_until(player.done.is_set, timeout_s=10.0)
     stamps = np.array([stamp_ns(m.header.stamp) for m in got])
     np.testing.assert_array_equal(stamps, series['/rail/lateral_states'].stamps_ns)
-    counts = node.counts
+    counts = node.processor.counts
     # The track stream is not known to be alive before its first message arrives, and DDS may
     # deliver the first few lateral-states samples before it: those few run without the track.
     assert counts['known_input'] >= n - 10 and counts['unpaired'] == 0, counts
@@ -121,7 +121,7 @@ def test_replay_tracks_creep_drop(creep_drop: RailSimulationResult, tmp_path: Pa
     # track are the first ones (what the offline run replicates).
     y, track, _ = simulation_inputs(creep_drop, 'A')
     missing_track = n - counts['known_input']
-    ekf = CreepEkf(node.params)
+    ekf = CreepEkf(node.parameters_of(CreepEkfParams))
     offline = [ekf.step(y[k], None if k < missing_track else track[k]).creep_factor
                for k in range(n)]
     np.testing.assert_allclose(c, offline, rtol=1e-9)
@@ -171,10 +171,10 @@ def test_pattern_d_pairs_imus_and_track(creep_drop: RailSimulationResult,
     # The last sample waits for a later stamp on each stream or for its parts: all are there.
     assert spin_until(lambda: len(got) >= n, timeout_s=20.0), f'{len(got)} of {n}'
     assert [stamp_ns(m.header.stamp) for m in got] == stamps.tolist()
-    counts = node.counts
+    counts = node.processor.counts
     # The first sample may go before the track stream's first message (not yet alive).
     assert counts['unpaired'] == 0 and counts['known_input'] >= n - 1
-    assert node.estimator.rejected == {}
+    assert node.processor.ekf.rejected == {}
     assert all(math.isfinite(m.creep_factor) for m in got)
 
 
@@ -243,7 +243,7 @@ def test_bad_input_counted_and_estimate_protected(
     assert spin_until(lambda: any(
         any(kv.key == 'received' and int(kv.value) >= sent + 2 for kv in d.status[0].values)
         for d in diagnostics), timeout_s=10.0)
-    counts = node.counts
+    counts = node.processor.counts
     assert counts['received'] == sent + 2
     assert counts['processed'] == sent
     assert counts['predicted_missing'] == 6
@@ -251,7 +251,7 @@ def test_bad_input_counted_and_estimate_protected(
     # Samples 200-249 repeat sample 199 (50 repeats); from the 4th repeat (0.02 s) on they are
     # rejected: 47.
     assert counts['frozen'] == 47
-    assert counts['non_finite'] == 1 and node.estimator.rejected == {}   # refused before it
+    assert counts['non_finite'] == 1 and node.processor.ekf.rejected == {}   # refused before it
     status = next(d.status[0] for d in reversed(diagnostics)
                   if any(kv.key == 'received' and int(kv.value) >= sent + 2
                          for kv in d.status[0].values))
@@ -279,10 +279,10 @@ def test_parameters_validated(make_node: Callable[..., Any]) -> None:
                   parameter_overrides=[Parameter('pattern', value='E')])
     node = make_node(CreepEstimatorNode, node_name='ok')
     (result,) = node.set_parameters([Parameter('vehicle.speed', value=30.0)])
-    assert result.successful and node.estimator.speed == pytest.approx(30.0)
+    assert result.successful and node.processor.ekf.speed == pytest.approx(30.0)
     (result,) = node.set_parameters([Parameter('vehicle.speed', value=-3.0)])
     assert not result.successful
     (result,) = node.set_parameters([Parameter('pattern', value='A')])
     assert not result.successful                      # read-only: model structure
     (result,) = node.set_parameters([Parameter('low_adhesion_threshold', value=0.3)])
-    assert result.successful and node.estimator.params.low_adhesion_threshold == 0.3
+    assert result.successful and node.processor.ekf.params.low_adhesion_threshold == 0.3

@@ -21,8 +21,15 @@ from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import DriverInputs, TireForces, WheelSpeeds
 import yaml
 
-from tpms_ros.core.lateral_force_observer import LateralForceObserver
-from tpms_ros.nodes.lateral_force_observer_node import LateralForceObserverNode
+from tpms_ros.core.lateral_force_observer import (
+    LateralForceObserver,
+    ObserverTuningParams,
+    ObserverVehicleParams,
+)
+from tpms_ros.nodes.lateral_force_observer_node import (
+    LateralForceObserverNode,
+    LateralForceObserverNodeParams,
+)
 from tpms_ros.simulation.road_simulator import simulate_file, to_topic_series
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
@@ -58,18 +65,19 @@ def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     the shipped YAML, which
     sets every parameter."""
     default = make_node(LateralForceObserverNode)
-    assert default.vehicle_parameters.m == 1814.0 and default.vehicle_parameters.tf == 0.784
+    assert default.parameter_values['m'] == 1814.0 and default.parameter_values['tf'] == 0.784
     node = make_node(LateralForceObserverNode, node_name='lateral_force_observer',
                      cli_args=['--ros-args', '--params-file', str(CONFIG)])
     shipped = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']
-    groups = (node.vehicle_parameters, node.tuning_parameters, node.parameters)
+    groups = [node.parameters_of(cls) for cls in (ObserverVehicleParams, ObserverTuningParams,
+                                                   LateralForceObserverNodeParams)]
     owner = {f.name: group for group in groups for f in dataclasses.fields(group)}
     assert set(shipped) == set(owner)
     for name, value in shipped.items():
         got = getattr(owner[name], name)
         assert (list(got) if isinstance(got, tuple) else got) == pytest.approx(value), name
-    assert node.observer.params == default.observer.params
-    assert node.observer.tuning == default.observer.tuning
+    assert node.processor.observer.params == default.processor.observer.params
+    assert node.processor.observer.tuning == default.processor.observer.tuning
 
 
 @pytest.mark.parametrize('values, match', [
@@ -92,9 +100,9 @@ def test_invalid_parameters_refused_at_runtime(make_node: Callable[..., Any]) ->
     assert not result.successful and 'ms' in result.reason
     (result,) = node.set_parameters([Parameter('gp', value=[1.0])])
     assert not result.successful and 'gp' in result.reason
-    assert node.vehicle_parameters.ms == 1661.0
+    assert node.parameter_values['ms'] == 1661.0
     (result,) = node.set_parameters([Parameter('m', value=2014.0)])
-    assert result.successful and node.observer.params.m == 2014.0
+    assert result.successful and node.processor.observer.params.m == 2014.0
 
 
 def test_replay_tracks_truth_with_imu_stamps(
@@ -112,11 +120,11 @@ def test_replay_tracks_truth_with_imu_stamps(
         'sync_topics': ['/vehicle/tire_forces'], 'publish_clock': False}))
     imu = series['/vehicle/imu']
     assert spin_until(lambda: len(outputs) >= len(imu), 40.0), \
-        (len(outputs), node.received, node.skipped, node.rejected)
+        (len(outputs), node.processor.received, node.processor.skipped, node.processor.rejected)
     assert spin_until(player.done.is_set, 10.0) and player.error is None
     got_stamps = np.array([stamp_ns(m.header.stamp) for m in outputs])
     np.testing.assert_array_equal(got_stamps, imu.stamps_ns)
-    assert not node.rejected and not any(node.skipped.values())
+    assert not node.processor.rejected and not any(node.processor.skipped.values())
 
     # Offline: the same rule (wheel speeds averaged over the IMU interval, driver inputs held)
     # through the core gives the same numbers.
@@ -199,7 +207,7 @@ class Feeder:
             imu.angular_velocity.z = ay / 19.5
             self.imu.publish(imu)
             self.sent += 11 + (k not in driver_off)
-            assert self.spin_until(lambda: sum(node.received.values()) >= self.sent, 5.0)
+            assert self.spin_until(lambda: sum(node.processor.received.values()) >= self.sent, 5.0)
 
 
 def test_bad_input_stale_topics_and_validity(
@@ -220,14 +228,14 @@ def test_bad_input_stale_topics_and_validity(
     feeder.send(node, 80, 90, wheel_nan=True)
     feeder.wheels.publish(b'\x00\x01\x00\x00' + bytes(20))   # not a WheelSpeeds
     feeder.sent += 1
-    assert spin_until(lambda: node.received['imu'] >= 91, 5.0)
-    assert spin_until(lambda: node.rejected.get('wheel_speeds_malformed') == 1, 5.0)
-    assert node.rejected['imu_out_of_order'] == 1
-    assert node.observer.health.rejected == {'non_finite': 1}
-    assert node.rejected['wheel_speeds_invalid'] == 10
+    assert spin_until(lambda: node.processor.received['imu'] >= 91, 5.0)
+    assert spin_until(lambda: node.processor.rejected.get('wheel_speeds_malformed') == 1, 5.0)
+    assert node.processor.rejected['imu_out_of_order'] == 1
+    assert node.processor.observer.health.rejected == {'non_finite': 1}
+    assert node.processor.rejected['wheel_speeds_invalid'] == 10
     # Driver inputs held for 50 ms, then stale until they come back.
-    assert node.skipped['stale_driver_inputs'] == 5
-    assert node.skipped['stale_wheel_speeds'] == 0
+    assert node.processor.skipped['stale_driver_inputs'] == 5
+    assert node.processor.skipped['stale_wheel_speeds'] == 0
     stamps = [stamp_ns(m.header.stamp) for m in feeder.outputs]
     assert stamps == sorted(set(stamps))
     assert np.all(np.isfinite([m.fy for m in feeder.outputs]))

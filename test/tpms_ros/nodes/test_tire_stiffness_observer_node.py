@@ -21,12 +21,11 @@ from std_srvs.srv import Trigger
 from vehicle_monitor_msgs.msg import DriverInputs, TireStiffness, TpmsIndication, WheelSpeeds
 import yaml
 
-from tpms_ros.core.stiffness_observer import TireStiffnessObserver
+from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
 from tpms_ros.nodes.tire_stiffness_observer_node import TireStiffnessObserverNode
 from tpms_ros.simulation.road_scenario import ScenarioEvent, load_scenario
 from tpms_ros.simulation.road_simulator import RoadSimulationResult, simulate_scenario
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns
-from vehicle_monitor_common.parameters import flatten
 
 PKG = Path(__file__).resolve().parents[3] / 'src' / 'tpms_ros'
 CONFIG = PKG / 'config' / 'tire_stiffness_observer.yaml'
@@ -88,27 +87,27 @@ class Harness:
         """Publish every sample; wait after each burst until the observer has taken it."""
         assert self.spin_until(lambda: self.pub.get_subscription_count() > 0, 10.0)
         for start in range(0, len(stamps), burst):
-            target = observer.received + min(burst, len(stamps) - start)
+            target = observer.processor.received + min(burst, len(stamps) - start)
             for stamp, row in zip(stamps[start:start + burst], omega[start:start + burst],
                                   strict=True):
                 msg = WheelSpeeds()
                 msg.header.stamp = Time(sec=int(stamp) // 10**9, nanosec=int(stamp) % 10**9)
                 msg.omega = [float(v) for v in row]
                 self.pub.publish(msg)
-            assert self.spin_until(lambda t=target: observer.received >= t, 10.0), \
-                f'observer got {observer.received} of {target}'
+            assert self.spin_until(lambda t=target: observer.processor.received >= t, 10.0), \
+                f'observer got {observer.processor.received} of {target}'
 
 
 def test_defaults_and_shipped_yaml(make_node: Callable[..., Any]) -> None:
     """The node starts with its defaults and with the shipped YAML, which sets every key."""
     default = make_node(TireStiffnessObserverNode)
-    assert default.parameters.sample_rate_hz == 1000.0
-    assert default.calibration_state == 'uncalibrated'
+    assert default.parameter_values['sample_rate_hz'] == 1000.0
+    assert default.processor.calibration.state == 'uncalibrated'
     node = make_node(TireStiffnessObserverNode, node_name='tire_stiffness_observer',
                      cli_args=['--ros-args', '--params-file', str(CONFIG)])
     shipped = dict(_dotted(
         yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']))
-    declared = {**flatten(node.parameters), **flatten(node.node_parameters)}
+    declared = node.parameter_values
     assert set(shipped) == set(declared)
     for name, value in shipped.items():
         got = declared[name]
@@ -139,12 +138,13 @@ def test_invalid_parameters_refused_at_runtime(make_node: Callable[..., Any]) ->
     assert not result.successful and 'band_hz' in result.reason
     (result,) = node.set_parameters([Parameter('forgetting_factor', value=1.5)])
     assert not result.successful
-    assert node.parameters.band_high_hz == 60.0 and node.parameters.forgetting_factor == 0.98
+    assert node.parameter_values['band_high_hz'] == 60.0
+    assert node.parameter_values['forgetting_factor'] == 0.98
     (result,) = node.set_parameters([Parameter('forgetting_factor', value=0.95)])
     assert result.successful
-    assert node.observer.params.forgetting_factor == 0.95  # rebuilt with the new value
+    assert node.processor.observer.params.forgetting_factor == 0.95  # rebuilt with the new value
     (result,) = node.set_parameters([Parameter('drive_compensation', value='difference')])
-    assert result.successful and node.observer.params.drive_compensation == 'difference'
+    assert result.successful and node.processor.observer.params.drive_compensation == 'difference'
 
 
 def test_tracks_truth_calibrates_and_persists(
@@ -161,7 +161,7 @@ def test_tracks_truth_calibrates_and_persists(
     future = client.call_async(Trigger.Request())
     assert spin_until(future.done, 10.0)
     assert future.result().success, future.result().message
-    assert node.calibration_state == 'calibrating'
+    assert node.processor.calibration.state == 'calibrating'
 
     stamps = _stamps(drive)
     harness.feed(node, stamps, drive.wheel_speed)
@@ -175,7 +175,7 @@ def test_tracks_truth_calibrates_and_persists(
     assert {m.method for m in harness.indication} == {'stiffness'}
 
     # The node is a thin wrapper: the core fed the same chunks offline gives the same numbers.
-    offline = TireStiffnessObserver(node.observer.params, node.observer.tires)
+    offline = TireStiffnessObserver(node.processor.observer.params, node.processor.observer.tires)
     offline.start_calibration(FAST['calibration_s'])
     seconds = (stamps - stamps[0]) * 1e-9
     expected = [offline.update(drive.wheel_speed[s:s + 250], stamps=seconds[s:s + 250])
@@ -184,7 +184,7 @@ def test_tracks_truth_calibrates_and_persists(
     want = np.array([e.pressure_kpa for e in expected])
     np.testing.assert_allclose(got, want, rtol=1e-12, equal_nan=True)
 
-    assert node.calibration_state == 'calibrated' and cal_file.exists()
+    assert node.processor.calibration.state == 'calibrated' and cal_file.exists()
     assert harness.stiffness[-1].calibrated
     t_out = (out_stamps - START_NS) * 1e-9
     truth = np.column_stack([np.interp(t_out, drive.handling.t, drive.pressure_kpa[:, w])
@@ -201,8 +201,8 @@ def test_tracks_truth_calibrates_and_persists(
 
     reloaded = make_node(TireStiffnessObserverNode, node_name='tire_stiffness_observer_2',
                          parameter_overrides=_overrides(params))
-    assert reloaded.calibration_state == 'loaded'
-    assert reloaded.observer.calibration_state() == yaml.safe_load(cal_file.read_text())
+    assert reloaded.processor.calibration.state == 'loaded'
+    assert reloaded.processor.observer.calibration_state() == yaml.safe_load(cal_file.read_text())
 
 
 @pytest.mark.parametrize('content', ['k_nominal: [1, 2\n', 'version: 99\nk_nominal: [1]\n',
@@ -217,7 +217,8 @@ def test_corrupt_calibration_file_reported(
     node = make_node(TireStiffnessObserverNode, parameter_overrides=_overrides(
         {'calibration_file': str(cal_file), 'calibrate_on_start': True}))
     # calibrate_on_start recalibrates because nothing usable was loaded.
-    assert node.calibration_state == 'calibrating' and node.calibration_file_problem
+    calibration = node.processor.calibration
+    assert calibration.state == 'calibrating' and calibration.file_problem
     assert spin_until(lambda: any('calibration file unusable' in s.message
                                   for s in harness.diagnostics), 5.0)
     status = next(s for s in harness.diagnostics if 'calibration file unusable' in s.message)
@@ -242,14 +243,15 @@ def test_bad_input_rejected_and_wheel_unknown(
     harness.feed(node, stamps[5500:], omega[5500:])
     # A payload that is not a WheelSpeeds (a replay publishes a damaged bag's bytes as they are).
     harness.pub.publish(b'\x00\x01\x00\x00' + bytes(20))
-    assert spin_until(lambda: node.rejected['malformed'] == 1, 5.0)
-    assert node.rejected == {'malformed': 1, 'repeated': 1, 'out_of_order': 2, 'future_stamp': 0}
+    assert spin_until(lambda: node.processor.rejected['malformed'] == 1, 5.0)
+    assert dict(node.processor.rejected) == {'malformed': 1, 'repeated': 1, 'out_of_order': 2,
+                                             'future_stamp': 0}
     assert spin_until(lambda: len(harness.indication) >= 24, 10.0)
     last = harness.indication[-1]
     assert not last.known[0] and not last.underinflated[0] and last.confidence[0] == 0.0
     assert all(last.known[1:])   # calibrated after 4 s and still judged on good data
     assert list(harness.stiffness[-1].valid) == [False, True, True, True]
-    assert node.observer.counters['invalid_sample'][0] == 1000
+    assert node.processor.observer.counters['invalid_sample'][0] == 1000
     assert spin_until(lambda: any(s.level == bytes([2]) and 'FL: invalid_sample' in s.message
                                   for s in harness.diagnostics), 5.0)
 
@@ -265,7 +267,7 @@ def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
     driver = harness.node.create_publisher(DriverInputs, 'vehicle/driver_inputs', DEEP)
     assert spin_until(lambda: driver.get_subscription_count() > 0, 10.0)
     stamps = _stamps(drive)[:3000]
-    p = node.parameters
+    p = node.parameters_of(StiffnessObserverParams)
     speed = 60.0 / 3.6
     steering = float(np.arctan(2.0 * p.max_lateral_accel_mps2 * p.wheelbase_m / speed ** 2))
     for stamp in range(int(stamps[0]), int(stamps[-1]) + 1, 10_000_000):   # 100 Hz
@@ -276,9 +278,9 @@ def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
         driver.publish(msg)
     assert spin_until(lambda: len(node.processor._driver) >= 250, 10.0)
     harness.feed(node, stamps, drive.wheel_speed[:3000])
-    assert spin_until(lambda: node.processed >= 2750, 10.0)
-    counts = node.observer.counters
+    assert spin_until(lambda: node.processor.processed >= 2750, 10.0)
+    counts = node.processor.observer.counters
     # Every sample after the first second's settling (tooth-correction warm-up).
-    assert counts['cornering'][0] + counts['settling'][0] >= node.processed - 1
+    assert counts['cornering'][0] + counts['settling'][0] >= node.processor.processed - 1
     assert counts['cornering'][0] >= 1500, counts['cornering']
     assert counts['steering_invalid'][0] == 0 and counts['torque_invalid'][0] == 0

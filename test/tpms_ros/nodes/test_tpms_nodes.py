@@ -175,12 +175,12 @@ def test_vibration_starts_with_defaults_and_shipped_config(make_node: Callable[.
                                                            tmp_path: Path) -> None:
     """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
     node = make_node(VibrationAnalyzerNode)
-    assert node.core_parameters.sample_rate_hz == 1000.0
-    assert node.calibration_state == 'uncalibrated'
+    assert node.parameter_values['sample_rate_hz'] == 1000.0
+    assert node.processor.calibration.state == 'uncalibrated'
     shipped = make_node(VibrationAnalyzerNode, node_name='vibration_shipped',
                         parameter_overrides=[*_shipped('vibration_analyzer'), Parameter(
                             'calibration_file', value=str(tmp_path / 'v.yaml'))])
-    assert shipped.core_parameters.mode_band_hz == (40.0, 50.0)
+    assert shipped.parameter_values['mode_band_hz'] == (40.0, 50.0)
     with pytest.raises(ConfigurationError, match='memory_s'):
         make_node(VibrationAnalyzerNode, node_name='bad1',
                   parameter_overrides=[Parameter('memory_s', value=-1.0)])
@@ -192,7 +192,7 @@ def test_vibration_starts_with_defaults_and_shipped_config(make_node: Callable[.
     (result,) = node.set_parameters([Parameter('sample_rate_hz', value=500.0)])
     assert not result.successful
     (result,) = node.set_parameters([Parameter('z_flag', value=4.0)])
-    assert result.successful and node.analyzer.params.z_flag == 4.0
+    assert result.successful and node.processor.core.params.z_flag == 4.0
 
 
 def test_vibration_calibrates_persists_reloads_and_flags_a_low_tire(
@@ -207,10 +207,10 @@ def test_vibration_calibrates_persists_reloads_and_flags_a_low_tire(
     feeder = WheelFeeder(tester, out, spin_until)
     feeder.feed(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=1))
     response = _call_trigger(tester, '/vibration_analyzer/calibrate', spin_until)
-    assert response.success and node.calibration_state == 'calibrating'
+    assert response.success and node.processor.calibration.state == 'calibrating'
     feeder.feed(_resonant_wheel_speeds(int(4.2 * FS), NOMINAL_HZ, seed=2))
-    assert node.calibration_state == 'calibrated'
-    nominal = node.analyzer.calibration.nominal_frequency_hz
+    assert node.processor.calibration.state == 'calibrated'
+    nominal = node.processor.core.calibration.nominal_frequency_hz
     np.testing.assert_allclose(nominal, NOMINAL_HZ, atol=1.0)
     stored = load_calibration(cal_file).state
     assert stored is not None and np.allclose(stored['nominal_frequency_hz'], nominal)
@@ -232,8 +232,8 @@ def test_vibration_calibrates_persists_reloads_and_flags_a_low_tire(
 
     again = make_node(VibrationAnalyzerNode, node_name='vibration_again',
                       parameter_overrides=[Parameter('calibration_file', value=str(cal_file))])
-    assert again.calibration_state == 'loaded'
-    np.testing.assert_array_equal(again.analyzer.calibration.nominal_frequency_hz, nominal)
+    assert again.processor.calibration.state == 'loaded'
+    np.testing.assert_array_equal(again.processor.core.calibration.nominal_frequency_hz, nominal)
 
 
 def test_vibration_bad_input_rejected_and_wheel_unknown(
@@ -244,7 +244,7 @@ def test_vibration_bad_input_rejected_and_wheel_unknown(
     save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
                                                     np.full(4, 10.0)).to_dict())
     node = _vibration_node(make_node, cal_file)
-    assert node.calibration_state == 'loaded'
+    assert node.processor.calibration.state == 'loaded'
     tester = make_node('tester')
     out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
                              '/tpms/indication/vibration': TpmsIndication})
@@ -291,20 +291,20 @@ def test_vibration_processes_ahead_of_each_output_without_changing_it(
         node = _vibration_node(make_node, tmp_path / f'v{ahead_s}.yaml', namespace=namespace,
                                process_ahead_s=ahead_s, block_s=0.5)
         chunks: list[int] = []
-        process = node.analyzer.process
+        process = node.processor.core.process
 
         def counted(block: np.ndarray, process: Callable[..., Any] = process,
                     chunks: list[int] = chunks) -> Any:
             chunks.append(len(block))
             return process(block)
 
-        node.analyzer.process = counted
+        node.processor.core.process = counted
         tester = make_node(f'tester{len(results)}')
         out = Collector(tester, {f'{namespace}/tpms/tire_resonance': TireResonance})
         WheelFeeder(tester, out, spin_until, namespace).feed(omega)
         results[ahead_s] = (chunks, out.msgs[f'{namespace}/tpms/tire_resonance'])
     (plain_chunks, plain), (ahead_chunks, ahead) = results[0.0], results[0.02]
-    period = round(FS / node.parameters.publish_rate_hz)               # 20 samples
+    period = round(FS / node.parameter_values['publish_rate_hz'])               # 20 samples
     assert plain_chunks == [period] * 50           # cut where each output falls due
     assert ahead_chunks == [period - 4, 4] * 50    # 0.02 s at 200 Hz left for the output
     assert [stamp_ns(m.header.stamp) for m in ahead] == [stamp_ns(m.header.stamp) for m in plain]
@@ -338,7 +338,8 @@ def test_vibration_corrupt_calibration_file_is_reported(
     cal_file = tmp_path / 'vibration.yaml'
     cal_file.write_text('version: 1\nmethod: vibration\nnominal_frequency_hz: [1, 2\n')
     node = _vibration_node(make_node, cal_file)
-    assert node.calibration_state == 'file_corrupt' and node.analyzer.calibration is None
+    assert node.processor.calibration.state == 'file_corrupt'
+    assert node.processor.core.calibration is None
     tester = make_node('tester')
     out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
                              '/tpms/indication/vibration': TpmsIndication})
@@ -441,11 +442,11 @@ def test_wheel_radius_starts_with_defaults_and_shipped_config(
         make_node: Callable[..., Any], tmp_path: Path) -> None:
     """Defaults and the shipped YAML start; bad values are refused at start and at runtime."""
     node = make_node(WheelRadiusAnalyzerNode)
-    assert node.core_parameters.driven_axle == 'front'
+    assert node.parameter_values['driven_axle'] == 'front'
     shipped = make_node(WheelRadiusAnalyzerNode, node_name='radius_shipped',
                         parameter_overrides=[*_shipped('wheel_radius_analyzer'), Parameter(
                             'calibration_file', value=str(tmp_path / 'r.yaml'))])
-    assert shipped.core_parameters.static_load_n == (4200.0, 4200.0, 3300.0, 3300.0)
+    assert shipped.parameter_values['static_load_n'] == (4200.0, 4200.0, 3300.0, 3300.0)
     with pytest.raises(ConfigurationError, match='static_load_n'):
         make_node(WheelRadiusAnalyzerNode, node_name='bad1', parameter_overrides=[
             Parameter('static_load_n', value=[4000.0, 4000.0, 3000.0])])
@@ -455,7 +456,7 @@ def test_wheel_radius_starts_with_defaults_and_shipped_config(
     (result,) = node.set_parameters([Parameter('min_speed_mps', value=50.0)])
     assert not result.successful and 'min_speed_mps' in result.reason
     (result,) = node.set_parameters([Parameter('mu_max', value=0.2)])
-    assert result.successful and node.analyzer.params.mu_max == 0.2
+    assert result.successful and node.processor.core.params.mu_max == 0.2
 
 
 def test_wheel_radius_aligns_calibrates_persists_and_reloads(
@@ -474,7 +475,7 @@ def test_wheel_radius_aligns_calibrates_persists_and_reloads(
     feeder.feed(drives[0])
     assert _call_trigger(tester, '/wheel_radius_analyzer/calibrate', spin_until).success
     feeder.feed(drives[1])
-    assert node.calibration_state == 'calibrated', node._calibration.detail
+    assert node.processor.calibration.state == 'calibrated', node.processor.calibration.detail
 
     stamps = {stamp_ns(m.header.stamp) for m in out.msgs['/tpms/wheel_radius']}
     assert stamps <= set(feeder.imu_sent) and len(stamps) > 100
@@ -487,7 +488,7 @@ def test_wheel_radius_aligns_calibrates_persists_and_reloads(
         assert abs(getattr(last, name) - value) < 1e-3, (name, getattr(last, name), value)
     # the alignment is exact: the core fed offline with the 10 ms means of the wheel speeds
     # (two 200 Hz samples per IMU stamp) and the driver input before each IMU stamp agrees
-    offline = WheelRadiusAnalyzer(node.analyzer.params)
+    offline = WheelRadiusAnalyzer(node.processor.core.params)
     for drive in drives:
         ref = offline.process(
             drive['t_imu'], 0.5 * (drive['omega'][0::2] + drive['omega'][1::2]),
@@ -499,11 +500,11 @@ def test_wheel_radius_aligns_calibrates_persists_and_reloads(
     assert stored is not None and stored['method'] == 'wheel_radius'
 
     again = _radius_node(make_node, cal_file, name='radius_again')
-    assert again.calibration_state == 'loaded'
-    np.testing.assert_allclose(again.analyzer.calibration.nominal_offsets,
-                               node.analyzer.calibration.nominal_offsets)
-    np.testing.assert_allclose(again.analyzer.calibration.noise_scale,
-                               node.analyzer.calibration.noise_scale)
+    assert again.processor.calibration.state == 'loaded'
+    np.testing.assert_allclose(again.processor.core.calibration.nominal_offsets,
+                               node.processor.core.calibration.nominal_offsets)
+    np.testing.assert_allclose(again.processor.core.calibration.noise_scale,
+                               node.processor.core.calibration.noise_scale)
 
 
 def test_wheel_radius_nan_wheel_is_unknown_and_counted(
@@ -515,7 +516,7 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
     save_calibration(cal_file, WheelRadiusCalibration(
         np.zeros(4), np.full(4, 2e-4), np.full(4, 30.0)).to_dict())
     node = _radius_node(make_node, cal_file)
-    assert node.calibration_state == 'loaded'
+    assert node.processor.calibration.state == 'loaded'
     tester = make_node('tester')
     out = Collector(tester, {'/tpms/wheel_radius': WheelRadiusOffsets,
                              '/tpms/indication/wheel_radius': TpmsIndication})
@@ -536,7 +537,7 @@ def test_wheel_radius_nan_wheel_is_unknown_and_counted(
 
     cal_file.write_text('version: 1\nmethod: wheel_radius\nnominal_offsets: 3\n')
     broken = _radius_node(make_node, cal_file, name='radius_broken')
-    assert broken.calibration_state == 'file_corrupt'
+    assert broken.processor.calibration.state == 'file_corrupt'
     assert spin_until(lambda: out.diag(
         '/radius_broken', lambda s: 'recalibration required' in s.message) is not None, 5.0)
 
@@ -551,7 +552,7 @@ def _calibrated_vibration(make_node: Callable[..., Any], tmp_path: Path,
     save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
                                                     np.full(4, 10.0)).to_dict())
     node = _vibration_node(make_node, cal_file, **extra)
-    assert node.calibration_state == 'loaded'
+    assert node.processor.calibration.state == 'loaded'
     return node
 
 
@@ -655,7 +656,7 @@ def test_finding3_wheel_radius_dead_sensor_keeps_the_learned_state(
     feeder.feed(_drive(200, seed=21, t0=t0, eps=eps))
     assert _call_trigger(tester, '/wheel_radius_analyzer/calibrate', spin_until).success
     feeder.feed(_drive(400, seed=22, t0=t0 + 2.0, eps=eps))
-    assert node.calibration_state == 'calibrated'
+    assert node.processor.calibration.state == 'calibrated'
     before = out.msgs['/tpms/wheel_radius'][-1]
     for seed, fault in ((23, 'dead'), (25, 'stuck')):
         drive = _drive(300, seed=seed, t0=out.last_stamp('/tpms/wheel_radius') * 1e-9, eps=eps)
@@ -697,7 +698,7 @@ def test_finding5_shipped_yamls_apply_under_any_namespace_with_own_calibration(
                  for k in (1, 2)]
         files = set()
         for k, node in enumerate(nodes, start=1):
-            assert getattr(node.parameters, key) == value
+            assert node.parameter_values[key] == value
             expected = os.path.join(os.environ['ROS_HOME'], 'vehicle_monitor', 'calibration',
                                     f'car{k}', f'{name}.yaml')
             assert node.processor.calibration_file == expected
@@ -725,11 +726,11 @@ def _indication(method: str, ns: int, flags: list[bool], conf: list[float],
 def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., Any]) -> None:
     """Defaults and the shipped YAML start; h_i <= h0 and bad method names are refused."""
     node = make_node(TpmsVoterNode)
-    assert node.voter.params.method_thresholds == {
+    assert node.processor.voter.params.method_thresholds == {
         'stiffness': 0.8, 'vibration': 0.8, 'wheel_radius': 0.8}
     shipped = make_node(TpmsVoterNode, node_name='voter_shipped',
                         parameter_overrides=_shipped('tpms_voter'))
-    assert shipped.node_parameters.methods == ('stiffness', 'vibration', 'wheel_radius')
+    assert shipped.parameter_values['methods'] == ('stiffness', 'vibration', 'wheel_radius')
     with pytest.raises(ConfigurationError, match='must be in \\(h0'):
         make_node(TpmsVoterNode, node_name='bad1',
                   parameter_overrides=[Parameter('vibration.threshold', value=0.4)])
@@ -741,7 +742,8 @@ def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., 
     (result,) = node.set_parameters([Parameter('h0', value=0.85)])
     assert not result.successful
     (result,) = node.set_parameters([Parameter('wheel_radius.threshold', value=0.9)])
-    assert result.successful and node.voter.params.method_thresholds['wheel_radius'] == 0.9
+    assert result.successful
+    assert node.processor.voter.params.method_thresholds['wheel_radius'] == 0.9
 
 
 def test_voter_agreement_warns_single_weak_does_not_and_clears(
@@ -793,7 +795,8 @@ def test_voter_agreement_warns_single_weak_does_not_and_clears(
         if not out.msgs['/tpms/warning'][-1].active and not cleared:
             cleared['t'] = 0.1 * k
     assert 4.0 + 1.0 - 1e-6 <= cleared['t'] <= 4.0 + 1.2
-    assert node.voter.rejected == {'unknown_method': 0, 'out_of_order': 0, 'time_backwards': 0}
+    assert node.processor.voter.rejected == {'unknown_method': 0, 'out_of_order': 0,
+                                             'time_backwards': 0}
 
 
 def test_voter_stale_method_and_bad_indication_reported(

@@ -4,11 +4,12 @@ docs/methods/tpms_voter.md).
 A transport adapter (:class:`~vehicle_monitor_common.processor_node.ProcessorNode`) around
 :class:`tpms_ros.processing.tpms_voter.TpmsVoterProcessor`, which holds the logic (indication
 checks and time jumps, voting in data time, the warning, the status) and is run by the offline
-engine too. Here: the parameters (the read-only ``methods``; per method ``<method>.enabled``
-and ``<method>.threshold``; the rule, :class:`VotingRuleParams`), changes forwarded to the
-processor, and what only ROS has: the timer of the periodic ``tpms/warning`` between
-indications (``publish_rate_hz``, data time extrapolated with the node clock) and the node
-clock's jump callback (a ``/clock`` reset re-anchors that extrapolation).
+engine too. Here: the parameter groups (the read-only ``methods``; per method
+``<method>.enabled`` and ``<method>.threshold``; the rule, :class:`VotingRuleParams`) and the
+rule across them (every threshold above ``h0``: the core's), and what only ROS has: the node
+clock the processor extrapolates data time with, the timer of the periodic ``tpms/warning``
+between indications (``publish_rate_hz``) and the node clock's jump callback (a ``/clock``
+reset re-anchors that extrapolation).
 
 Topics: in ``tpms/indication/<method>`` (TpmsIndication) per method; out ``tpms/warning``
 (TpmsWarning), ``/diagnostics`` (an indication topic silent for ``silence_timeout_s`` is an
@@ -17,81 +18,58 @@ ERROR naming it).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import JumpThreshold, TimeJump
 from rclpy.duration import Duration
-from rclpy.parameter import Parameter
 
-from tpms_ros.core.tpms_voting import (
-    TpmsVoter,
-    VoterParams,
-    VotingRuleParams,
-    method_votes_params,
-)
-from tpms_ros.processing.tpms_voter import TpmsVoterNodeParams, TpmsVoterProcessor
-from vehicle_monitor_common.node_helpers import TypedParameters, run_node
-from vehicle_monitor_common.parameters import flatten
-from vehicle_monitor_common.processor_node import ProcessorNode
+from tpms_ros.core.tpms_voting import VotingRuleParams, method_votes_params
+from tpms_ros.processing.tpms_voter import TpmsVoterNodeParams, TpmsVoterProcessor, voter_params
+from vehicle_monitor_common.parameters import build
+from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
 __all__ = ['TpmsVoterNode', 'TpmsVoterNodeParams', 'main']
+
+
+def _votes_params(values: Mapping[str, Any]) -> type[Any]:
+    return method_votes_params(values['methods'])
+
+
+def _threshold_problem(values: Mapping[str, Any]) -> str:
+    try:
+        voter_params(build(VotingRuleParams, values), build(_votes_params(values), values))
+    except (TypeError, ValueError) as exc:
+        return str(exc)
+    return ''
 
 
 class TpmsVoterNode(ProcessorNode):
     """Wraps :class:`TpmsVoterProcessor`: indication topics in, warnings and diagnostics out."""
 
     processor: TpmsVoterProcessor
+    default_name = 'tpms_voter'
+    parameter_groups = (ParameterGroup(TpmsVoterNodeParams),
+                        ParameterGroup(VotingRuleParams, 'set_params'),
+                        ParameterGroup(_votes_params, 'set_params'))
+    hardware_id = 'tpms/voter'
+    cross_check = staticmethod(_threshold_problem)
 
-    def __init__(self, node_name: str = 'tpms_voter', **kwargs: Any) -> None:
+    def __init__(self, node_name: str = '', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._node_params = TypedParameters(self, TpmsVoterNodeParams)
-        n = self._node_params.value
-        self._rule = TypedParameters(self, VotingRuleParams, on_change=self._sync)
-        self._votes = TypedParameters(self, method_votes_params(n.methods),
-                                      on_change=self._sync)
-        processor = TpmsVoterProcessor(self._rule.value, self._votes.value, n,
-                                       clock=lambda: self.get_clock().now().nanoseconds)
-        # The rule across the groups (every h_i > h0) is the core's: checked on the candidate.
-        self.add_on_set_parameters_callback(self._validate_votes)
-        self.attach(processor, 'tpms/voter', n.diagnostics_period_s, n.silence_timeout_s)
+        n = self.parameters_of(TpmsVoterNodeParams)
         self.create_timer(1.0 / n.publish_rate_hz, self._on_timer)
         self._jump_handle = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=Duration(seconds=n.jump_horizon_s),
                           min_backward=Duration(nanoseconds=-1)),
             post_callback=self._on_clock_jump)
 
-    @property
-    def parameters(self) -> VotingRuleParams:
-        """The voting rule's current, validated parameters."""
-        return self._rule.value
-
-    @property
-    def node_parameters(self) -> TpmsVoterNodeParams:
-        """The node's own current, validated parameters."""
-        return self._node_params.value
-
-    @property
-    def voter(self) -> TpmsVoter:
-        """The core voter (read access for tests and tools)."""
-        return self.processor.voter
-
-    def _validate_votes(self, parameters: list[Parameter]) -> SetParametersResult:
-        rule, votes = flatten(self._rule.value), flatten(self._votes.value)
-        for prm in parameters:
-            for values in (rule, votes):
-                if prm.name in values:
-                    values[prm.name] = prm.value
-        thresholds = {name[:-len('.threshold')]: float(value) for name, value in votes.items()
-                      if name.endswith('.threshold')}
-        try:
-            VoterParams(**rule, method_thresholds=thresholds)
-        except (TypeError, ValueError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
-
-    def _sync(self, _: Any = None) -> None:
-        self.processor.set_params(self._rule.value, self._votes.value)
+    def create_processor(self, values: Mapping[str, Any]) -> TpmsVoterProcessor:
+        """The processor with the node clock, which the offline engine's factory has not:
+        live, the warning is also repeated between indications, in extrapolated data time."""
+        return TpmsVoterProcessor(
+            build(VotingRuleParams, values), build(_votes_params(values), values),
+            build(TpmsVoterNodeParams, values), clock=lambda: self.get_clock().now().nanoseconds)
 
     def _on_timer(self) -> None:
         for output in self.processor.tick(self.get_clock().now().nanoseconds):
@@ -101,10 +79,7 @@ class TpmsVoterNode(ProcessorNode):
         self.processor.clock_jumped(self.get_clock().now().nanoseconds)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Entry point of the ``tpms_voter`` executable."""
-    raise SystemExit(run_node(TpmsVoterNode, args))
-
+main = TpmsVoterNode.main
 
 if __name__ == '__main__':
     main()

@@ -4,8 +4,10 @@ docs/methods/vibration_analyzer.md) on ROS.
 A transport adapter around
 :class:`tpms_ros.processing.vibration_analyzer.VibrationAnalyzerProcessor`, which holds the
 node's logic (stamp checks and time jumps, blocks, output timing in data time, calibration,
-sensor faults, status) and is run by the offline engine too; the shared part of the two
-calibrating TPMS nodes is :class:`tpms_ros.nodes.calibrating_tpms_node.CalibratingTpmsNode`.
+sensor faults, status) and is run by the offline engine too. Here: the parameter groups (the
+core's :class:`VibrationParams`, the node's :class:`VibrationAnalyzerNodeParams`) and the
+processor's factory; the calibration file, its events in the log and ``~/calibrate`` are
+:class:`~vehicle_monitor_common.processor_node.ProcessorNode`'s, as for every calibrating node.
 
 Topics (relative, so a namespace moves them): in ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz,
 raw); out ``tpms/tire_resonance`` (TireResonance) and ``tpms/indication/vibration``
@@ -19,32 +21,29 @@ Service ``~/calibrate`` (std_srvs/Trigger) learns each tire's nominal resonance 
 
 from __future__ import annotations
 
-from typing import Any
-
 from tpms_ros.core.vibration_analysis import VibrationParams
-from tpms_ros.nodes.calibrating_tpms_node import CalibratingTpmsNode
 from tpms_ros.processing.vibration_analyzer import (
     VibrationAnalyzerNodeParams,
     VibrationAnalyzerProcessor,
+    make_processor,
 )
-from vehicle_monitor_common.node_helpers import run_node
+from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
 __all__ = ['VibrationAnalyzerNode', 'VibrationAnalyzerNodeParams', 'main']
 
 
-class VibrationAnalyzerNode(CalibratingTpmsNode[VibrationParams, VibrationAnalyzerNodeParams,
-                                                VibrationAnalyzerProcessor]):
+class VibrationAnalyzerNode(ProcessorNode):
     """The ``vibration_analyzer`` node (see the module docstring)."""
 
-    def __init__(self, node_name: str = 'vibration_analyzer', **kwargs: Any) -> None:
-        super().__init__(node_name, 'tpms/vibration', VibrationParams,
-                         VibrationAnalyzerNodeParams, VibrationAnalyzerProcessor, **kwargs)
+    processor: VibrationAnalyzerProcessor
+    default_name = 'vibration_analyzer'
+    parameter_groups = (ParameterGroup(VibrationParams, 'set_params'),
+                        ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params'))
+    make_processor = staticmethod(make_processor)
+    hardware_id = 'tpms/vibration'
 
 
-def main(args: list[str] | None = None) -> None:
-    """Entry point of the ``vibration_analyzer`` executable."""
-    raise SystemExit(run_node(VibrationAnalyzerNode, args))
-
+main = VibrationAnalyzerNode.main
 
 if __name__ == '__main__':
     main()

@@ -4,9 +4,11 @@ docs/methods/wheel_radius_analyzer.md) on ROS.
 A transport adapter around
 :class:`tpms_ros.processing.wheel_radius_analyzer.WheelRadiusAnalyzerProcessor`, which holds the
 node's logic (input alignment, stamp checks and time jumps, chunking, output timing in data
-time, calibration, sensor faults, status) and is run by the offline engine too; the shared part
-of the two calibrating TPMS nodes is
-:class:`tpms_ros.nodes.calibrating_tpms_node.CalibratingTpmsNode`.
+time, calibration, sensor faults, status) and is run by the offline engine too. Here: the
+parameter groups (the core's :class:`WheelRadiusParams`, the node's
+:class:`WheelRadiusAnalyzerNodeParams`) and the processor's factory; the calibration file, its
+events in the log and ``~/calibrate`` are
+:class:`~vehicle_monitor_common.processor_node.ProcessorNode`'s, as for every calibrating node.
 
 Topics (relative, so a namespace moves them): in ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz,
 raw), ``vehicle/imu`` (sensor_msgs/Imu, ``angular_velocity.z`` = yaw rate, REP 103),
@@ -21,33 +23,29 @@ reloaded at start.
 
 from __future__ import annotations
 
-from typing import Any
-
 from tpms_ros.core.wheel_radius_analysis import WheelRadiusParams
-from tpms_ros.nodes.calibrating_tpms_node import CalibratingTpmsNode
 from tpms_ros.processing.wheel_radius_analyzer import (
     WheelRadiusAnalyzerNodeParams,
     WheelRadiusAnalyzerProcessor,
+    make_processor,
 )
-from vehicle_monitor_common.node_helpers import run_node
+from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
 __all__ = ['WheelRadiusAnalyzerNode', 'WheelRadiusAnalyzerNodeParams', 'main']
 
 
-class WheelRadiusAnalyzerNode(CalibratingTpmsNode[WheelRadiusParams,
-                                                  WheelRadiusAnalyzerNodeParams,
-                                                  WheelRadiusAnalyzerProcessor]):
+class WheelRadiusAnalyzerNode(ProcessorNode):
     """The ``wheel_radius_analyzer`` node (see the module docstring)."""
 
-    def __init__(self, node_name: str = 'wheel_radius_analyzer', **kwargs: Any) -> None:
-        super().__init__(node_name, 'tpms/wheel_radius', WheelRadiusParams,
-                         WheelRadiusAnalyzerNodeParams, WheelRadiusAnalyzerProcessor, **kwargs)
+    processor: WheelRadiusAnalyzerProcessor
+    default_name = 'wheel_radius_analyzer'
+    parameter_groups = (ParameterGroup(WheelRadiusParams, 'set_params'),
+                        ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params'))
+    make_processor = staticmethod(make_processor)
+    hardware_id = 'tpms/wheel_radius'
 
 
-def main(args: list[str] | None = None) -> None:
-    """Entry point of the ``wheel_radius_analyzer`` executable."""
-    raise SystemExit(run_node(WheelRadiusAnalyzerNode, args))
-
+main = WheelRadiusAnalyzerNode.main
 
 if __name__ == '__main__':
     main()
