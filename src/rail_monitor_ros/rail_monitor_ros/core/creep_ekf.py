@@ -1029,12 +1029,11 @@ class CreepEkf:
 
 # -- measurement assembly (shared by the node and the offline tools) ----------------------------
 
-def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
-                   ) -> tuple[tuple[str, int | None], ...]:
-    """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).
+def _lateral_states_bogie(pattern: str, bogie: str, model: str) -> int:
+    """Index of the monitored bogie, after checking the arguments of a lateral-states pattern.
 
-    What :func:`lateral_states_measurement` reads and nothing else; a caller can tell which
-    required fields a message lacks (NaN) and report the pattern as not fed.
+    Raises:
+        ValueError: naming the argument that is not a lateral-states pattern, model or bogie.
     """
     if pattern not in ('A', 'B', 'C'):
         raise ValueError(f"pattern must be 'A', 'B' or 'C' for lateral states, got {pattern!r}")
@@ -1042,7 +1041,17 @@ def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
         raise ValueError(f'model must be one of {MODELS}, got {model!r}')
     if bogie not in BOGIES:
         raise ValueError(f'bogie must be one of {BOGIES}, got {bogie!r}')
-    j = BOGIES.index(bogie)
+    return BOGIES.index(bogie)
+
+
+def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
+                   ) -> tuple[tuple[str, int | None], ...]:
+    """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).
+
+    What :func:`lateral_states_measurement` reads and nothing else; a caller can tell which
+    required fields a message lacks (NaN) and report the pattern as not fed.
+    """
+    j = _lateral_states_bogie(pattern, bogie, model)
     out: list[tuple[str, int | None]] = []
     if pattern == 'A':
         for w in (2 * j, 2 * j + 1):
@@ -1075,13 +1084,7 @@ def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
     Returns:
         (N, p) in the order of :func:`measurement_channels`.
     """
-    if pattern not in ('A', 'B', 'C'):
-        raise ValueError(f"pattern must be 'A', 'B' or 'C' for lateral states, got {pattern!r}")
-    if model not in MODELS:
-        raise ValueError(f'model must be one of {MODELS}, got {model!r}')
-    if bogie not in BOGIES:
-        raise ValueError(f'bogie must be one of {BOGIES}, got {bogie!r}')
-    j = BOGIES.index(bogie)
+    j = _lateral_states_bogie(pattern, bogie, model)
     sign = 1.0 if j == 0 else -1.0
 
     def col(name: str, index: int | None = None) -> np.ndarray:

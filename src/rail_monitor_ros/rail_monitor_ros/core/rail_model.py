@@ -190,8 +190,7 @@ class StateSpace:
     def discretize(self, dt: float) -> DiscreteStateSpace:
         """Zero-order-hold discretisation (exact for inputs constant over each step)."""
         f, g = discretize_zoh(self.a, self.b, dt)
-        return DiscreteStateSpace(f, g, self.c.copy(), self.d.copy(), float(dt),
-                                  self.state_names, self.input_names, self.output_names)
+        return DiscreteStateSpace(self, f, g, float(dt))
 
     def state_index(self, name: str) -> int:
         """Index of a named state; ValueError naming it when absent."""
@@ -203,25 +202,31 @@ class StateSpace:
 
 @dataclass(frozen=True)
 class DiscreteStateSpace:
-    """x[k+1] = F x[k] + G u[k], y[k] = H x[k] + L u[k] (the papers' notation, eq. 9-10).
+    """x[k+1] = F x[k] + G u[k], y[k] = H x[k] + L u[k] (the papers' notation, eq. 9-10): the
+    zero-order-hold discretisation of a continuous model, whose output equation (H = C, L = D)
+    and signal names stay those of the continuous model.
 
     Attributes:
+        continuous: the model discretised.
         f: (n, n) transition matrix.
         g: (n, m) input matrix.
-        h: (p, n) output matrix.
-        l: (p, m) feedthrough matrix.
         dt: sample period, s.
-        state_names, input_names, output_names: as :class:`StateSpace`.
     """
 
+    continuous: StateSpace
     f: np.ndarray
     g: np.ndarray
-    h: np.ndarray
-    l: np.ndarray  # noqa: E741 - the papers' name for the feedthrough
     dt: float
-    state_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-    output_names: tuple[str, ...]
+
+    @property
+    def h(self) -> np.ndarray:
+        """(p, n) output matrix."""
+        return self.continuous.c
+
+    @property
+    def l(self) -> np.ndarray:  # noqa: E743 - the papers' name for the feedthrough
+        """(p, m) feedthrough matrix."""
+        return self.continuous.d
 
 
 def discretize_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

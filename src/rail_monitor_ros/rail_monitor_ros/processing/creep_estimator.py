@@ -61,18 +61,17 @@ from rail_monitor_ros.core.creep_ekf import (
     CreepEstimate,
     lateral_states_measurement,
 )
-from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
-from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
+from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
+from vehicle_monitor_common.imu_pairing import ImuPair
+from vehicle_monitor_common.input_health import FrozenDetector
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     OK,
     WARN,
     Input,
     Output,
-    ProcessorParams,
     Status,
     build_processor,
-    header_stamp_ns,
 )
 
 LATERAL_STATES = 'rail/lateral_states'
@@ -91,26 +90,22 @@ LATERAL_FIELDS = ('wheelset_lateral', 'wheelset_lateral_rate', 'wheelset_yaw',
 
 
 @dataclass(frozen=True)
-class CreepEstimatorNodeParams(ProcessorParams):
-    """The node's own parameters (the method's are ``CreepEkfParams``)."""
+class CreepEstimatorNodeParams(RailImuNodeParams):
+    """The node's own parameters (the method's are ``CreepEkfParams``; the IMU pairing and
+    limits, pattern D's, are :class:`RailImuNodeParams`)."""
 
+    # A sample's parts (the IMUs, or the lateral states, and the track) come from separate
+    # publishers: twice the suspension monitor's tolerance.
+    pair_tolerance_s: float = param(0.002, 'largest stamp difference of a bogie/body IMU pair '
+                                    '(and of the parts of one sample), s', low=0.0, high=1.0)
     use_track_input: bool = param(True, 'use rail/track_irregularity when it is published '
                                   '(known-input mode)', read_only=True)
-    pair_tolerance_s: float = param(0.002, 'largest stamp difference of parts of one sample, s',
-                                    low=0.0, high=1.0)
-    pair_timeout_s: float = param(0.1, 'pattern D: an IMU sample still unpaired when the newest '
-                                  'stamp is this much later is given up, s', low=1e-3,
-                                  high=10.0)
     track_max_age_s: float = param(0.1, 'the track stream is stale when its last stamp is this '
                                    'much older than the sample, s', low=0.001, high=60.0)
     frozen_s: float = param(0.02, 'a measurement channel bit-identical for this long is a dead '
                             'sensor and its sample rejected, s', low=0.001, high=60.0)
     max_pending: int = param(200, 'most samples waiting for their parts', low=2, high=100000,
                              read_only=True)
-    accel_limit_mps2: float = param(50.0, 'pattern D: an acceleration at or beyond this is '
-                                    'saturated, m/s^2', low=0.1, high=1e4)
-    gyro_limit_rad_s: float = param(5.0, 'pattern D: a yaw rate at or beyond this is saturated, '
-                                    'rad/s', low=0.01, high=1e3)
     recovery_s: float = param(1.0, 'after an input fault or a time jump the estimate is '
                               'reported unknown (std widened) this long while the filter '
                               'settles, s', low=0.0, high=600.0)
@@ -135,7 +130,7 @@ _REJECTIONS = ('frozen', 'wrong_size', 'non_finite', 'saturated', 'rate_burst',
 _WRONG_SIZE = np.empty(0)
 
 
-class CreepEstimatorProcessor:
+class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
     """What the creep estimator does with its inputs (see the module docstring).
 
     Args:
@@ -146,32 +141,28 @@ class CreepEstimatorProcessor:
     outputs = {CREEP: 'vehicle_monitor_msgs/msg/CreepFactor'}
 
     def __init__(self, params: CreepEkfParams, node_params: CreepEstimatorNodeParams) -> None:
-        self.node_params = n = node_params
+        inputs: dict[str, Input] = {}
+        if params.pattern == 'D':
+            inputs[BOGIE_IMU] = Input('sensor_msgs/msg/Imu')
+            inputs[BODY_IMU] = Input('sensor_msgs/msg/Imu')
+        else:
+            inputs[LATERAL_STATES] = Input('vehicle_monitor_msgs/msg/RailLateralStates')
+        if node_params.use_track_input:
+            inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
+        super().__init__(node_params, inputs)
         self.ekf = CreepEkf(params)
         self._bogie_index = BOGIES.index(params.bogie)
         self._driving = BOGIE_IMU if params.pattern == 'D' else LATERAL_STATES
-        self.inputs: dict[str, Input] = {}
-        if params.pattern == 'D':
-            self.inputs[BOGIE_IMU] = Input('sensor_msgs/msg/Imu')
-            self.inputs[BODY_IMU] = Input('sensor_msgs/msg/Imu')
-        else:
-            self.inputs[LATERAL_STATES] = Input('vehicle_monitor_msgs/msg/RailLateralStates')
-        if n.use_track_input:
-            self.inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity',
-                                       optional=True)
         self._handlers = {LATERAL_STATES: self._on_lateral_states, BOGIE_IMU: self._on_bogie,
                           BODY_IMU: self._on_body, TRACK: self._on_track}
-        self._pairer = ImuPairer(n.pair_tolerance_s, n.pair_timeout_s)
         self._pending: list[_Pending] = []
         self._latest = {'main': -1, 'track': -1}
-        self._stamp_checks = self._new_stamp_checks()
         self._stamp_rejected: dict[str, int] = {}
         self._last_processed_ns: int | None = None
         self._frozen = FrozenDetector(self.ekf.n_measurements)
         self._track_frozen: FrozenDetector | None = None
         self._track_frozen_size = 0
         self._period_ns = round(1e9 / params.sample_rate_hz)
-        self._rates = {topic: RateMeter() for topic in self.inputs}
         self._counts = dict.fromkeys(
             ('received', 'processed', 'published', 'frozen', 'wrong_size', 'overflow',
              'known_input', 'unknown_input', 'track_received', 'track_wrong_size', 'main_late',
@@ -191,12 +182,6 @@ class CreepEstimatorProcessor:
         self._burst_until_ns: int | None = None
         self._arrivals: dict[str, int] = {}     # last stamp of each measurement stream
         self._track_stale = True
-
-    def _new_stamp_checks(self) -> dict[str, StampCheck]:
-        # Gaps are the core's (max_gap_s infinite here); jumps are everybody's.
-        return {topic: StampCheck(max_gap_s=math.inf,
-                                  jump_horizon_s=self.node_params.jump_horizon_s)
-                for topic in self.inputs}
 
     @property
     def params(self) -> CreepEkfParams:
@@ -220,21 +205,14 @@ class CreepEstimatorProcessor:
                                   max_gap_s=params.max_gap_s)
         self.ekf.set_speed(params.vehicle.speed)
 
-    def update_node_params(self, node_params: CreepEstimatorNodeParams) -> None:
-        """The node's runtime-settable parameters changed."""
-        self.node_params = node_params
-        self._pairer.tolerance_s = node_params.pair_tolerance_s
-        self._pairer.timeout_s = node_params.pair_timeout_s
-
     # -- input ---------------------------------------------------------------------------------
 
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message; the outputs of the samples it completes."""
-        self._rates[topic].tick()
         if topic == self._driving:
             self._counts['received'] += 1
-        stamp = header_stamp_ns(message)
-        if not self._stamp_ok(topic, stamp) or self._burst(topic, stamp):
+        stamp = self._received(topic, message)
+        if stamp is None or self._burst(topic, stamp):
             return []
         return self._handlers[topic](stamp, message)
 
@@ -251,18 +229,9 @@ class CreepEstimatorProcessor:
             return True
         return False
 
-    def _stamp_ok(self, topic: str, stamp: int) -> bool:
-        """Whether a stamp is accepted; a confirmed time jump restarts the filter."""
-        check = self._stamp_checks[topic]
-        verdict = check.check(stamp)
-        if verdict == 'jump':
-            self._restart(stamp, f'time jump of {check.last_jump_s:+.3f} s on {topic}')
-            self._stamp_checks[topic].check(stamp)
-            return True
-        if verdict in ('repeated', 'out_of_order', 'future_stamp'):
-            self._stamp_rejected[verdict] = self._stamp_rejected.get(verdict, 0) + 1
-            return False
-        return True
+    def _reject_stamp(self, topic: str, verdict: str) -> None:
+        del topic       # counted by reason over all inputs
+        self._stamp_rejected[verdict] = self._stamp_rejected.get(verdict, 0) + 1
 
     def _restart(self, stamp: int, why: str) -> None:
         """Data time jumped: the filter and the assembly start again (as at start)."""
@@ -465,9 +434,7 @@ class CreepEstimatorProcessor:
             self._counts['non_finite'] += 1
             return None, 'non_finite'
         n = self.node_params
-        if self.params.pattern == 'D' and (
-                abs(main[0]) >= n.accel_limit_mps2 or abs(main[2]) >= n.accel_limit_mps2
-                or abs(main[1]) >= n.gyro_limit_rad_s):
+        if self.params.pattern == 'D' and n.imu_saturated(main):
             self._counts['saturated'] += 1
             return None, 'saturated'
         if self._frozen.update(main) * self._period_ns * 1e-9 >= n.frozen_s:
@@ -480,7 +447,7 @@ class CreepEstimatorProcessor:
     def status(self, now_ns: int) -> Status:
         """Input rates and health, assembly, the filter's state and the low-adhesion flag."""
         ekf, last = self.ekf, self.last
-        rates = {topic: meter.read(now_ns) for topic, meter in self._rates.items()}
+        rates = self._input_rates(now_ns)
         values: dict[str, Any] = {
             'pattern': self.params.pattern,
             'input_rate_hz': rates[self._driving],

@@ -58,8 +58,9 @@ from rail_monitor_ros.core.suspension_imm import (
     SuspensionImm,
     SuspensionImmParams,
 )
-from vehicle_monitor_common.imu_pairing import ImuPair, ImuPairer
-from vehicle_monitor_common.input_health import FrozenDetector, RateMeter, StampCheck
+from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
+from vehicle_monitor_common.imu_pairing import ImuPair
+from vehicle_monitor_common.input_health import FrozenDetector
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     ERROR,
@@ -67,10 +68,8 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
-    ProcessorParams,
     Status,
     build_processor,
-    header_stamp_ns,
 )
 
 BOGIE_IMU = 'rail/bogie/imu'
@@ -81,13 +80,10 @@ MODES = 'rail/suspension/modes'
 
 
 @dataclass(frozen=True)
-class SuspensionMonitorNodeParams(ProcessorParams):
-    """The node's own parameters (the method's are ``SuspensionImmParams``)."""
+class SuspensionMonitorNodeParams(RailImuNodeParams):
+    """The node's own parameters (the method's are ``SuspensionImmParams``; the IMU pairing and
+    limits are :class:`RailImuNodeParams`)."""
 
-    pair_tolerance_s: float = param(1e-3, 'largest stamp difference of a bogie/body IMU pair, s',
-                                    low=0.0, high=1.0)
-    pair_timeout_s: float = param(0.1, 'an unpaired IMU sample is dropped after this, s',
-                                  low=1e-3, high=10.0)
     use_creep_factor: bool = param(True, 'full car: follow rail/creep_factor (the creep '
                                    'estimator) in the model', read_only=True)
     creep_max_std: float = param(0.2, 'a creep factor estimate with a larger std is not used, 1',
@@ -96,10 +92,6 @@ class SuspensionMonitorNodeParams(ProcessorParams):
                                          'when fresh', read_only=True)
     track_max_age_s: float = param(0.02, 'older track irregularity is stale, s', low=0.0,
                                    high=10.0)
-    accel_limit_mps2: float = param(50.0, 'an acceleration at or beyond this is saturated, '
-                                    'm/s^2', low=0.1, high=1e4)
-    gyro_limit_rad_s: float = param(5.0, 'a yaw rate at or beyond this is saturated, rad/s',
-                                    low=0.01, high=1e3)
     frozen_samples: int = param(20, 'this many identical consecutive values = frozen sensor',
                                 low=2, high=100000)
     fault_recovery_s: float = param(2.0, 'after an input fault, a track or creep model switch '
@@ -167,7 +159,7 @@ BURST_PERIODS = 10
 _STREAMS = {BOGIE_IMU: 'bogie', BODY_IMU: 'body', TRACK: 'track', CREEP: 'creep'}
 
 
-class SuspensionMonitorProcessor:
+class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
     """What the suspension monitor does with its inputs (see the module docstring).
 
     Args:
@@ -181,23 +173,20 @@ class SuspensionMonitorProcessor:
 
     def __init__(self, params: SuspensionImmParams,
                  node_params: SuspensionMonitorNodeParams) -> None:
-        self.params = params
-        self.node_params = n = node_params
+        n = node_params
         inputs = {BOGIE_IMU: Input('sensor_msgs/msg/Imu'), BODY_IMU: Input('sensor_msgs/msg/Imu')}
         if n.use_track_irregularity:
             inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
         if n.use_creep_factor:
             inputs[CREEP] = Input('vehicle_monitor_msgs/msg/CreepFactor', optional=True)
-        self.inputs = inputs
+        super().__init__(node_params, inputs)
+        self.params = params
         self.imm = SuspensionImm(params)
         self._mode_names = [m.name for m in self.imm.modes]
         self._rejected: Counter[str] = Counter()
         self.processed = 0
         self.known_input_samples = 0
         self.time_jumps = 0
-        self._pairer = ImuPairer(n.pair_tolerance_s, n.pair_timeout_s)
-        self._stamp_checks = self._new_stamp_checks()
-        self._rates = {topic: RateMeter() for topic in self.inputs}
         self._track = _Held()
         self._creep = _Held()
         self._pending: deque[ImuPair] = deque()
@@ -222,12 +211,6 @@ class SuspensionMonitorProcessor:
         self._handlers = {BOGIE_IMU: self._on_bogie, BODY_IMU: self._on_body,
                           TRACK: self._on_track, CREEP: self._on_creep_factor}
 
-    def _new_stamp_checks(self) -> dict[str, StampCheck]:
-        # Gaps are the core's (max_gap_s infinite here); jumps are everybody's.
-        return {topic: StampCheck(max_gap_s=float('inf'),
-                                  jump_horizon_s=self.node_params.jump_horizon_s)
-                for topic in self.inputs}
-
     @property
     def rejected(self) -> Counter[str]:
         """Rejected inputs by reason (input checks, pairing, stamps)."""
@@ -240,33 +223,16 @@ class SuspensionMonitorProcessor:
         """The method's runtime-settable parameters changed."""
         self.imm.update_runtime_params(params)
 
-    def update_node_params(self, node_params: SuspensionMonitorNodeParams) -> None:
-        """The node's runtime-settable parameters changed."""
-        self.node_params = node_params
-        self._pairer.tolerance_s = node_params.pair_tolerance_s
-        self._pairer.timeout_s = node_params.pair_timeout_s
-
     # ------------------------------------------------------------------ inputs
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message; the outputs of the IMU pairs it completes."""
-        self._rates[topic].tick()
-        stamp = header_stamp_ns(message)
-        if not self._stamp_ok(topic, stamp):
+        stamp = self._received(topic, message)
+        if stamp is None:
             return []
         return self._handlers[topic](stamp, message)
 
-    def _stamp_ok(self, topic: str, stamp: int) -> bool:
-        """Whether a stamp is accepted; a confirmed time jump restarts everything."""
-        check = self._stamp_checks[topic]
-        verdict = check.check(stamp)
-        if verdict == 'jump':
-            self._restart(stamp, f'{_STREAMS[topic]} time jump of {check.last_jump_s:+.3f} s')
-            self._stamp_checks[topic].check(stamp)
-            return True
-        if verdict in ('repeated', 'out_of_order', 'future_stamp'):
-            self._rejected[f'{_STREAMS[topic]}_{verdict}'] += 1
-            return False
-        return True
+    def _reject_stamp(self, topic: str, verdict: str) -> None:
+        self._rejected[f'{_STREAMS[topic]}_{verdict}'] += 1
 
     def _restart(self, stamp: int, why: str) -> None:
         """Data time jumped: the IMM, the pairing and the held inputs start again (a jump is
@@ -373,9 +339,7 @@ class SuspensionMonitorProcessor:
         n = self.node_params
         if not np.all(np.isfinite(z)):
             return 'non_finite'
-        if abs(z[0]) >= n.accel_limit_mps2 or abs(z[2]) >= n.accel_limit_mps2:
-            return 'saturated'
-        if abs(z[1]) >= n.gyro_limit_rad_s:
+        if n.imu_saturated(z):
             return 'saturated'
         if self._frozen.update(z) >= n.frozen_samples - 1:
             return 'frozen_sensor'
@@ -471,7 +435,7 @@ class SuspensionMonitorProcessor:
     def status(self, now_ns: int) -> Status:
         """Input rates and health, pairing, the model's state and the decision."""
         values: dict[str, Any] = {
-            f'input_rate_hz.{topic}': meter.read(now_ns) for topic, meter in self._rates.items()}
+            f'input_rate_hz.{topic}': rate for topic, rate in self._input_rates(now_ns).items()}
         values.update({
             'processed_samples': self.processed,
             'known_input_samples': self.known_input_samples,

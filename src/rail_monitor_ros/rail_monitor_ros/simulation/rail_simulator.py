@@ -196,9 +196,9 @@ def simulate(scenario: RailScenario) -> RailSimulationResult:
     imu_bias = np.array([sensors.bogie_accel_bias, sensors.bogie_gyro_bias,
                          sensors.body_accel_bias])
     imu = sensor_truth[:, :3] + imu_bias + imu_noise
-    state_noise_std = np.array([_state_noise(name, sensors) for name in names])
+    state_noise_std = np.array([_state_sensor_value(name, sensors, 'noise') for name in names])
     measured_state = state + noise_rng.standard_normal(state.shape) * state_noise_std
-    state_bias = np.array([_state_bias(name, sensors) for name in names])
+    state_bias = np.array([_state_sensor_value(name, sensors, 'bias') for name in names])
     if np.any(state_bias != 0.0):    # opt-in: without offsets the arrays stay bit-identical
         measured_state = measured_state + state_bias
     published_u, published_rate = u_samples, u_rate
@@ -254,22 +254,14 @@ def _rows_by_key(key_index: np.ndarray, n_keys: int) -> list[np.ndarray]:
     return [order[bounds[i]:bounds[i + 1]] for i in range(n_keys)]
 
 
-def _state_noise(name: str, sensors: SensorConfig) -> float:
-    """Noise level of a state by its kind: rate or not, yaw or lateral."""
+def _state_sensor_value(name: str, sensors: SensorConfig, quantity: str) -> float:
+    """A sensor quantity (``'noise'`` or ``'bias'``) of a state by the state's kind: rate or
+    not, yaw or lateral (``SensorConfig.displacement_noise``, ``yaw_rate_bias`` ...)."""
     rate = name.startswith('d')
     yaw = 'psi' in name
-    key = {(False, False): 'displacement_noise', (True, False): 'velocity_noise',
-           (False, True): 'yaw_noise', (True, True): 'yaw_rate_noise'}[(rate, yaw)]
-    return float(getattr(sensors, key))
-
-
-def _state_bias(name: str, sensors: SensorConfig) -> float:
-    """Constant offset of a state by its kind, as :func:`_state_noise`."""
-    rate = name.startswith('d')
-    yaw = 'psi' in name
-    key = {(False, False): 'displacement_bias', (True, False): 'velocity_bias',
-           (False, True): 'yaw_bias', (True, True): 'yaw_rate_bias'}[(rate, yaw)]
-    return float(getattr(sensors, key))
+    kind = {(False, False): 'displacement', (True, False): 'velocity',
+            (False, True): 'yaw', (True, True): 'yaw_rate'}[(rate, yaw)]
+    return float(getattr(sensors, f'{kind}_{quantity}'))
 
 
 def lateral_states_fields(state: np.ndarray, names: tuple[str, ...]) -> dict[str, np.ndarray]:
