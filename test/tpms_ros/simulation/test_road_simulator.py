@@ -204,6 +204,20 @@ def test_same_seed_gives_identical_arrays(full_run: RoadSimulationResult) -> Non
     assert _digest(other) != _digest(full_run)
 
 
+def test_vehicle_seed_keeps_the_car_across_drives(full_run: RoadSimulationResult) -> None:
+    """Drives of one car (its ``vehicle_seed``) share its tires and rings, not the road; the
+    car's seed equal to the drive's reproduces a run without one."""
+    body = SHORT_RUN + 'tire: {stiffness_spread: 0.03}\n'
+    drives = [simulate_scenario(_scenario(f'vehicle_seed: 11\n{body}', 3.0, seed=seed))
+              for seed in (7, 8)]
+    np.testing.assert_array_equal(drives[0].radius_offset, drives[1].radius_offset)
+    np.testing.assert_array_equal(drives[0].tooth_error, drives[1].tooth_error)
+    np.testing.assert_array_equal(drives[0].stiffness[0], drives[1].stiffness[0])
+    assert not np.array_equal(drives[0].wheel_speed, drives[1].wheel_speed)
+    own = simulate_scenario(_scenario(f'vehicle_seed: 7\n{SHORT_RUN}', 3.0, seed=7))
+    assert _digest(own) == _digest(full_run)
+
+
 def _msg_fields(name: str) -> dict[str, str]:
     fields = {}
     for line in (MSG_DIR / f'{name}.msg').read_text().splitlines():

@@ -315,6 +315,9 @@ class Scenario:
     duration_s: float
     vehicle: VehicleParams
     description: str = ''
+    #: seeds what belongs to the car, not the drive (tire-to-tire radius, K0 and D0 spread, the
+    #: rings' tooth errors): drives of one car share it; None = drawn from ``seed``
+    vehicle_seed: int | None = None
     added_mass_kg: float = 0.0
     rates: Rates = field(default_factory=Rates)
     tire: TireSpec = field(default_factory=TireSpec)
@@ -644,6 +647,7 @@ def parse_scenario(text: str, source: str = '<scenario>') -> Scenario:
     name = root.text('name', Path(source).stem)
     description = root.text('description', '')
     seed = root.integer('seed', 0, low=0)
+    vehicle_seed = root.integer('vehicle_seed', 0, low=0) if root.has('vehicle_seed') else None
     duration = root.number('duration_s', low=0.0, low_open=True)
     rates = _parse_rates(root.child('rates'))
     vehicle = _parse_vehicle(root.child('vehicle'))
@@ -670,8 +674,9 @@ def parse_scenario(text: str, source: str = '<scenario>') -> Scenario:
     root.finish()
 
     scenario = Scenario(
-        name=name, description=description, seed=seed, duration_s=duration, vehicle=vehicle,
-        added_mass_kg=added_mass, rates=rates, tire=tire, torque_offset_nm=torque_offset,
+        name=name, description=description, seed=seed, vehicle_seed=vehicle_seed,
+        duration_s=duration, vehicle=vehicle, added_mass_kg=added_mass, rates=rates, tire=tire,
+        torque_offset_nm=torque_offset,
         driveline=driveline, initial_speed_kmh=initial_speed, speed_segments=speed_segments,
         initial_steer_deg=initial_steer, steer_segments=steer_segments,
         road_segments=road_segments, roughness_reference_kmh=reference_kmh,

@@ -65,6 +65,8 @@ HandlingModel = Callable[[VehicleParams, HandlingInputs, float], HandlingResult]
 # index, so the existing ones (and every shipped bag) stay bit-identical.
 _STREAMS = ('radius', 'teeth', 'phase', 'road', 'driveline', 'wander', 'imu', 'spread',
             'driveline_front')
+#: The streams that draw the car rather than the drive (``Scenario.vehicle_seed``).
+_VEHICLE_STREAMS = frozenset({'radius', 'teeth', 'spread'})
 
 
 @dataclass(frozen=True)
@@ -428,6 +430,12 @@ def simulate_scenario(scenario: Scenario,
     """
     model = simulate_handling if handling_model is None else handling_model
     streams = np.random.SeedSequence(scenario.seed).spawn(len(_STREAMS))
+    if scenario.vehicle_seed is not None:
+        # the car's own draws from its seed, at the same stream positions, so that drives of
+        # one car share its tires and rings while the road and the noise change
+        car_streams = np.random.SeedSequence(scenario.vehicle_seed).spawn(len(_STREAMS))
+        streams = [car_streams[i] if name in _VEHICLE_STREAMS else seq
+                   for i, (name, seq) in enumerate(zip(_STREAMS, streams, strict=True))]
     rngs = {name: np.random.default_rng(seq) for name, seq in zip(_STREAMS, streams, strict=True)}
     params = scenario.vehicle
     rates = scenario.rates
