@@ -5,8 +5,10 @@
 its own seed, each vehicle its own parameters drawn from the fleet seed:
 
 * cars: placard pressure (the tires' nominal pressure, given to the vehicle's stiffness
-  observer as ``nominal_pressure_kpa`` in the manifest), added mass, tire resonance at placard;
-  drives ``car_days`` apart. **Planted: a slow leak** on one tire of the leaking cars, from
+  observer as ``nominal_pressure_kpa`` in the manifest), added mass, tire resonance at placard,
+  and the car's own tires and rings (the road simulator's ``vehicle_seed``: tire-to-tire
+  radius and stiffness spread, tooth errors, the same in every drive); drives ``car_days``
+  apart. **Planted: a slow leak** on one tire of the leaking cars, from
   placard at the first drive (where the TPMS methods calibrate; the calibration is carried to
   the next drives by the fleet job) down by ``leak_fraction`` at the last drive.
 * trains: sensor noise; drives ``train_days`` apart. **Planted: a degrading damper** on the
@@ -77,8 +79,10 @@ def _scenario(package: str, name: str) -> dict[str, Any]:
 def _car_scenario(base: Mapping[str, Any], plan: FleetPlan, car: Mapping[str, Any],
                   pressures: list[float], seed: int) -> dict[str, Any]:
     scenario = {key: value for key, value in base.items() if key not in ('events', 'tire')}
+    # the car's tires and rings (vehicle_seed) are the same in every drive; the road is not
     scenario.update(name=f'{car["id"]}_drive', description='synthetic fleet drive', seed=seed,
-                    duration_s=plan.car_drive_s, added_mass_kg=car['added_mass_kg'])
+                    vehicle_seed=car['vehicle_seed'], duration_s=plan.car_drive_s,
+                    added_mass_kg=car['added_mass_kg'])
     scenario['steering'] = {'segments': [
         {'type': 'sine', 'amplitude_deg': 0.5, 'frequency_hz': 0.05,
          'duration_s': plan.car_drive_s}]}
@@ -128,7 +132,8 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
         car: dict[str, Any] = {'id': f'car{index + 1:02d}',
                'placard_kpa': float(rng.choice([200.0, 220.0, 230.0, 240.0, 250.0])),
                'added_mass_kg': float(np.round(rng.uniform(0.0, 150.0))),
-               'resonance_hz': float(np.round(rng.uniform(39.0, 41.0), 2))}
+               'resonance_hz': float(np.round(rng.uniform(39.0, 41.0), 2)),
+               'vehicle_seed': int(rng.integers(1_000_000))}
         tire = int(rng.integers(4)) if index in leaking else None
         vehicles[car['id']] = {'graph': 'road', 'parameters': {'tire_stiffness_observer': {
             'nominal_pressure_kpa': [car['placard_kpa']] * 4}}}
