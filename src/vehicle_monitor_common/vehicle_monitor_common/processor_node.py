@@ -1,9 +1,9 @@
 """The transport adapter every estimator node is: a :class:`~rclpy.node.Node` around a processor.
 
-A node is declared, not written: its class names its default name, its parameter groups (the
-processor's parameter dataclasses, each with the processor method its changes go to), the
-processor's factory (the ``make_processor(values, fqn)`` the offline engine runs, so node and
-engine build the processor the same way) and its ``/diagnostics`` hardware id. This class
+A node is declared, not written: its class statement names its default name, its parameter
+groups (the processor's parameter dataclasses, each with the processor method its changes go
+to), the processor's factory (the ``make_processor(values, fqn)`` the offline engine runs, so
+node and engine build the processor the same way) and its ``/diagnostics`` hardware id. This class
 declares the parameters (``TypedParameters``: one definition each), builds the processor from
 their values and attaches it (:meth:`ProcessorNode.attach`): it subscribes every input of the
 processor (sensor QoS, overridable), hands each message over, publishes the outputs it returns
@@ -86,43 +86,70 @@ class ParameterGroup:
     forward_to: str = ''
 
 
+ProcessorFactory = Callable[[Mapping[str, Any], str], Processor]
+CrossCheck = Callable[[Mapping[str, Any]], str]
+
+
+@dataclass(frozen=True)
+class NodeDeclaration:
+    """What a node class declares (the keywords of its class statement).
+
+    Attributes:
+        name: the node's default name.
+        groups: its parameter groups, in declaration order.
+        factory: the processor's ``make_processor(values, fqn)`` (entry point group
+            ``vehicle_monitor.processors``: the offline engine's way in too).
+        hardware_id: the ``/diagnostics`` hardware id, formatted with the parameter values
+            (``rail/creep/{bogie}``).
+        cross_check: why a combination of values across the groups is refused ('' when it is
+            not), run on every candidate set at runtime (each group checks its own fields).
+    """
+
+    name: str
+    groups: tuple[ParameterGroup, ...]
+    factory: ProcessorFactory | None = None
+    hardware_id: str = ''
+    cross_check: CrossCheck | None = None
+
+
 class ProcessorNode(Node):
     """A node whose logic is a processor (see the module docstring).
 
-    A subclass with ``parameter_groups`` is built whole by this constructor; one without
+    A subclass declares itself in its class statement (the keywords of
+    :class:`NodeDeclaration`) and is built whole by this constructor; one that declares nothing
     (a test's) calls :meth:`attach` itself.
     """
 
     processor: Processor
-    default_name: ClassVar[str] = ''
-    parameter_groups: ClassVar[tuple[ParameterGroup, ...]] = ()
-    # staticmethods: the factory and the check are plain functions of the values
-    make_processor: ClassVar[staticmethod[[Mapping[str, Any], str], Processor]]
-    hardware_id: ClassVar[str] = ''
-    """The ``/diagnostics`` hardware id, formatted with the parameter values (``{bogie}``)."""
-    cross_check: ClassVar[staticmethod[[Mapping[str, Any]], str] | None] = None
-    """Why a combination of values across the groups is refused ('' when it is not): run on
-    every candidate set at runtime (each group checks its own fields itself)."""
+    declaration: ClassVar[NodeDeclaration | None] = None
+
+    def __init_subclass__(cls, *, name: str = '', groups: tuple[ParameterGroup, ...] = (),
+                          factory: ProcessorFactory | None = None, hardware_id: str = '',
+                          cross_check: CrossCheck | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if groups:
+            cls.declaration = NodeDeclaration(name, groups, factory, hardware_id, cross_check)
 
     def __init__(self, node_name: str = '', **kwargs: Any) -> None:
-        super().__init__(node_name or self.default_name, **kwargs)
+        declared = self.declaration
+        super().__init__(node_name or (declared.name if declared else ''), **kwargs)
         self.typed_parameters: list[TypedParameters[Any]] = []
-        if not self.parameter_groups:
+        if declared is None:
             return
         values: dict[str, Any] = {}
-        for group in self.parameter_groups:
+        for group in declared.groups:
             definition = group.definition
             cls = definition if isinstance(definition, type) else definition(values)
             typed = TypedParameters(self, cls, on_change=self._forwarder(group.forward_to))
             self.typed_parameters.append(typed)
             values.update(flatten(typed.value))
-        if self.cross_check is not None:
+        if declared.cross_check is not None:
             self.add_on_set_parameters_callback(self._check_across_groups)
         if 'calibration_file' in values:
             # Live, the calibration is kept per node and namespace (the offline engine keeps
             # a vehicle's calibration itself): the factory gets the resolved file.
             values['calibration_file'] = calibration_path(self, values['calibration_file'])
-        self.attach(self.create_processor(values), self.hardware_id.format_map(values),
+        self.attach(self.create_processor(values), declared.hardware_id.format_map(values),
                     values['diagnostics_period_s'], values['silence_timeout_s'])
 
     @classmethod
@@ -131,8 +158,15 @@ class ProcessorNode(Node):
         raise SystemExit(run_node(cls, args))
 
     def create_processor(self, values: Mapping[str, Any]) -> Processor:
-        """The processor from the parameter values: the factory the offline engine runs too."""
-        return self.make_processor(values, self.get_fully_qualified_name())
+        """The processor from the parameter values: the factory the offline engine runs too.
+
+        Raises:
+            TypeError: the node declares no factory (and does not build its processor itself).
+        """
+        factory = self.declaration.factory if self.declaration else None
+        if factory is None:
+            raise TypeError(f'{type(self).__name__} declares no processor factory')
+        return factory(values, self.get_fully_qualified_name())
 
     @property
     def parameter_values(self) -> dict[str, Any]:
@@ -148,9 +182,9 @@ class ProcessorNode(Node):
         raise KeyError(f'{self.get_name()} declares no {cls.__name__} group')
 
     def _forwarder(self, method: str) -> Callable[[Any], None] | None:
-        if not method:
+        if not method or self.declaration is None:
             return None
-        sharing = [i for i, group in enumerate(self.parameter_groups)
+        sharing = [i for i, group in enumerate(self.declaration.groups)
                    if group.forward_to == method]
 
         def forward(_: Any) -> None:
@@ -162,8 +196,8 @@ class ProcessorNode(Node):
         candidate: dict[str, Any] = {}
         for typed in self.typed_parameters:
             candidate.update(typed.candidate_values(parameters))
-        assert self.cross_check is not None
-        problem = self.cross_check(candidate)
+        assert self.declaration is not None and self.declaration.cross_check is not None
+        problem = self.declaration.cross_check(candidate)
         return SetParametersResult(successful=not problem, reason=problem)
 
     def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float,

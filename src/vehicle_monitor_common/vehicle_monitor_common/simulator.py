@@ -16,11 +16,11 @@ from pathlib import Path
 import shutil
 import tempfile
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 from vehicle_monitor_common.bag_io import BagError, write_bag
 from vehicle_monitor_common.parameters import ConfigurationError, param
-from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer
+from vehicle_monitor_common.player import PlayerParameters, ScenarioPlayer, run_player
 from vehicle_monitor_common.resources import share_dir, shipped_file, workspace_bags
 from vehicle_monitor_common.series import TopicSeries
 
@@ -41,15 +41,29 @@ class SimulatorParameters(PlayerParameters):
 
 
 class SimulatorNode(ScenarioPlayer):
-    """A simulator: its package (where shipped scenarios live) and its synthesis."""
+    """A simulator, declared in its class statement: its default name, its package (where
+    shipped scenarios live) and its synthesis."""
 
     parameters_class = SimulatorParameters
-    package = ''
+    default_name: ClassVar[str] = ''
+    package: ClassVar[str] = ''
+    synthesize: ClassVar[staticmethod[[Path, int | None], Mapping[str, TopicSeries]]]
 
-    def __init__(self, node_name: str, synthesis: Synthesis, **kwargs: Any) -> None:
-        self._synthesis = synthesis
+    def __init_subclass__(cls, *, name: str = '', package: str = '',
+                          synthesis: Synthesis | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if synthesis is not None:
+            cls.default_name, cls.package = name, package
+            cls.synthesize = staticmethod(synthesis)
+
+    def __init__(self, node_name: str = '', **kwargs: Any) -> None:
         self._temporary: Path | None = None
-        super().__init__(node_name, **kwargs)
+        super().__init__(node_name or self.default_name, **kwargs)
+
+    @classmethod
+    def main(cls, args: list[str] | None = None) -> None:
+        """Entry point of the simulator's executable (``ros2 run``)."""
+        raise SystemExit(run_player(cls, args))
 
     def _prepare_bag(self, p: PlayerParameters) -> str:
         assert isinstance(p, SimulatorParameters)
@@ -67,7 +81,7 @@ class SimulatorNode(ScenarioPlayer):
             self.get_logger().info(f'synthesising scenario {path.stem} (seed '
                                    f'{"of the file" if p.seed < 0 else p.seed}) ...')
             started = time.monotonic()
-            series = self._synthesis(path, None if p.seed < 0 else p.seed)
+            series = self.synthesize(path, None if p.seed < 0 else p.seed)
         except (FileNotFoundError, ValueError) as exc:
             raise ConfigurationError(f'scenario {p.scenario}: {exc}') from None
         if p.output_bag:

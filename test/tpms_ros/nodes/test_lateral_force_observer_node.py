@@ -26,10 +26,8 @@ from tpms_ros.core.lateral_force_observer import (
     ObserverTuningParams,
     ObserverVehicleParams,
 )
-from tpms_ros.nodes.lateral_force_observer_node import (
-    LateralForceObserverNode,
-    LateralForceObserverNodeParams,
-)
+from tpms_ros.nodes.lateral_force_observer_node import LateralForceObserverNode
+from tpms_ros.processing.lateral_force_observer import LateralForceObserverNodeParams
 from tpms_ros.simulation.road_simulator import simulate_file, to_topic_series
 from vehicle_monitor_common.bag_io import write_bag
 from vehicle_monitor_common.node_helpers import ConfigurationError, stamp_ns

@@ -15,26 +15,16 @@ engine runs too; this node names the parameters' definitions (``CreepEkfParams``
 from __future__ import annotations
 
 from rail_monitor_ros.core.creep_ekf import CreepEkfParams
-from rail_monitor_ros.processing.creep_estimator import (
-    CreepEstimatorNodeParams,
-    CreepEstimatorProcessor,
-    make_processor,
-)
+from rail_monitor_ros.processing.creep_estimator import CreepEstimatorNodeParams, make_processor
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
 
-class CreepEstimatorNode(ProcessorNode):
-    """Creep-factor EKF node (see the processor for what it does)."""
-
-    processor: CreepEstimatorProcessor
-    default_name = 'creep_estimator'
-    parameter_groups = (ParameterGroup(CreepEkfParams, 'update_params'),
-                        ParameterGroup(CreepEstimatorNodeParams, 'update_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'rail/creep/{bogie}'
+class CreepEstimatorNode(
+        ProcessorNode, name='creep_estimator', factory=make_processor,
+        hardware_id='rail/creep/{bogie}',
+        groups=(ParameterGroup(CreepEkfParams, 'update_params'),
+                ParameterGroup(CreepEstimatorNodeParams, 'update_node_params'))):
+    """Creep-factor EKF node (see the module docstring)."""
 
 
 main = CreepEstimatorNode.main
-
-if __name__ == '__main__':
-    main()

@@ -15,24 +15,17 @@ from __future__ import annotations
 from rail_monitor_ros.core.suspension_imm import SuspensionImmParams
 from rail_monitor_ros.processing.suspension_monitor import (
     SuspensionMonitorNodeParams,
-    SuspensionMonitorProcessor,
     make_processor,
 )
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
 
-class SuspensionMonitorNode(ProcessorNode):
-    """IMM suspension monitor node (see the processor for what it does)."""
-
-    processor: SuspensionMonitorProcessor
-    default_name = 'suspension_monitor'
-    parameter_groups = (ParameterGroup(SuspensionImmParams, 'update_params'),
-                        ParameterGroup(SuspensionMonitorNodeParams, 'update_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'rail_suspension_imm'
+class SuspensionMonitorNode(
+        ProcessorNode, name='suspension_monitor', factory=make_processor,
+        hardware_id='rail_suspension_imm',
+        groups=(ParameterGroup(SuspensionImmParams, 'update_params'),
+                ParameterGroup(SuspensionMonitorNodeParams, 'update_node_params'))):
+    """IMM suspension monitor node (see the module docstring)."""
 
 
 main = SuspensionMonitorNode.main
-
-if __name__ == '__main__':
-    main()

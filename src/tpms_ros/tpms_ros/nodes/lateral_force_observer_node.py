@@ -19,27 +19,18 @@ from __future__ import annotations
 from tpms_ros.core.lateral_force_observer import ObserverTuningParams, ObserverVehicleParams
 from tpms_ros.processing.lateral_force_observer import (
     LateralForceObserverNodeParams,
-    LateralForceObserverProcessor,
     make_processor,
 )
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
-__all__ = ['LateralForceObserverNode', 'LateralForceObserverNodeParams', 'main']
 
-
-class LateralForceObserverNode(ProcessorNode):
+class LateralForceObserverNode(
+        ProcessorNode, name='lateral_force_observer', factory=make_processor,
+        hardware_id='vehicle_imu',
+        groups=(ParameterGroup(ObserverVehicleParams, 'set_model'),
+                ParameterGroup(ObserverTuningParams, 'set_model'),
+                ParameterGroup(LateralForceObserverNodeParams, 'set_node_params'))):
     """The ``lateral_force_observer`` node (see the module docstring)."""
-
-    processor: LateralForceObserverProcessor
-    default_name = 'lateral_force_observer'
-    parameter_groups = (ParameterGroup(ObserverVehicleParams, 'set_model'),
-                        ParameterGroup(ObserverTuningParams, 'set_model'),
-                        ParameterGroup(LateralForceObserverNodeParams, 'set_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'vehicle_imu'
 
 
 main = LateralForceObserverNode.main
-
-if __name__ == '__main__':
-    main()

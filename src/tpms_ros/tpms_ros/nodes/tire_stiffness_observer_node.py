@@ -26,32 +26,22 @@ from typing import Any
 from tpms_ros.core.stiffness_observer import StiffnessObserverParams
 from tpms_ros.processing.tire_stiffness_observer import (
     TireStiffnessObserverNodeParams,
-    TireStiffnessObserverProcessor,
     chunk_problem,
     make_processor,
 )
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
-
-__all__ = ['TireStiffnessObserverNode', 'TireStiffnessObserverNodeParams', 'main']
 
 
 def _chunk_problem(values: Mapping[str, Any]) -> str:
     return chunk_problem(float(values['process_period_s']), float(values['sample_rate_hz']))
 
 
-class TireStiffnessObserverNode(ProcessorNode):
+class TireStiffnessObserverNode(
+        ProcessorNode, name='tire_stiffness_observer', factory=make_processor,
+        hardware_id='wheel_speed_sensors', cross_check=_chunk_problem,
+        groups=(ParameterGroup(StiffnessObserverParams, 'set_params'),
+                ParameterGroup(TireStiffnessObserverNodeParams, 'set_node_params'))):
     """The ``tire_stiffness_observer`` node (see the module docstring)."""
-
-    processor: TireStiffnessObserverProcessor
-    default_name = 'tire_stiffness_observer'
-    parameter_groups = (ParameterGroup(StiffnessObserverParams, 'set_params'),
-                        ParameterGroup(TireStiffnessObserverNodeParams, 'set_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'wheel_speed_sensors'
-    cross_check = staticmethod(_chunk_problem)
 
 
 main = TireStiffnessObserverNode.main
-
-if __name__ == '__main__':
-    main()

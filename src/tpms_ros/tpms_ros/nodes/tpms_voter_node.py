@@ -29,8 +29,6 @@ from tpms_ros.processing.tpms_voter import TpmsVoterNodeParams, TpmsVoterProcess
 from vehicle_monitor_common.parameters import build
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
-__all__ = ['TpmsVoterNode', 'TpmsVoterNodeParams', 'main']
-
 
 def _votes_params(values: Mapping[str, Any]) -> type[Any]:
     return method_votes_params(values['methods'])
@@ -44,16 +42,15 @@ def _threshold_problem(values: Mapping[str, Any]) -> str:
     return ''
 
 
-class TpmsVoterNode(ProcessorNode):
+class TpmsVoterNode(
+        ProcessorNode, name='tpms_voter', hardware_id='tpms/voter',
+        cross_check=_threshold_problem,
+        groups=(ParameterGroup(TpmsVoterNodeParams),
+                ParameterGroup(VotingRuleParams, 'set_params'),
+                ParameterGroup(_votes_params, 'set_params'))):
     """Wraps :class:`TpmsVoterProcessor`: indication topics in, warnings and diagnostics out."""
 
     processor: TpmsVoterProcessor
-    default_name = 'tpms_voter'
-    parameter_groups = (ParameterGroup(TpmsVoterNodeParams),
-                        ParameterGroup(VotingRuleParams, 'set_params'),
-                        ParameterGroup(_votes_params, 'set_params'))
-    hardware_id = 'tpms/voter'
-    cross_check = staticmethod(_threshold_problem)
 
     def __init__(self, node_name: str = '', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -80,6 +77,3 @@ class TpmsVoterNode(ProcessorNode):
 
 
 main = TpmsVoterNode.main
-
-if __name__ == '__main__':
-    main()

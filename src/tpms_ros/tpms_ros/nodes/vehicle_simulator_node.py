@@ -9,27 +9,14 @@ recording. Timing, loop, rate and flow control are the player's parameters
 
 from __future__ import annotations
 
-import sys
-from typing import Any
-
 from tpms_ros.simulation.road_simulator import scenario_topics
-from vehicle_monitor_common.player import run_player
 from vehicle_monitor_common.simulator import SimulatorNode
 
 
-class VehicleSimulatorNode(SimulatorNode):
+class VehicleSimulatorNode(
+        SimulatorNode, name='vehicle_simulator', package='tpms_ros',
+        synthesis=scenario_topics):
     """The road vehicle simulator node."""
 
-    package = 'tpms_ros'
 
-    def __init__(self, node_name: str = 'vehicle_simulator', **kwargs: Any) -> None:
-        super().__init__(node_name, scenario_topics, **kwargs)
-
-
-def main(args: list[str] | None = None) -> None:
-    """Entry point of the ``vehicle_simulator`` executable."""
-    sys.exit(run_player(VehicleSimulatorNode, args))
-
-
-if __name__ == '__main__':
-    main()
+main = VehicleSimulatorNode.main

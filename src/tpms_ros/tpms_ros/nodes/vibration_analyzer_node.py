@@ -22,28 +22,16 @@ Service ``~/calibrate`` (std_srvs/Trigger) learns each tire's nominal resonance 
 from __future__ import annotations
 
 from tpms_ros.core.vibration_analysis import VibrationParams
-from tpms_ros.processing.vibration_analyzer import (
-    VibrationAnalyzerNodeParams,
-    VibrationAnalyzerProcessor,
-    make_processor,
-)
+from tpms_ros.processing.vibration_analyzer import VibrationAnalyzerNodeParams, make_processor
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
-__all__ = ['VibrationAnalyzerNode', 'VibrationAnalyzerNodeParams', 'main']
 
-
-class VibrationAnalyzerNode(ProcessorNode):
+class VibrationAnalyzerNode(
+        ProcessorNode, name='vibration_analyzer', factory=make_processor,
+        hardware_id='tpms/vibration',
+        groups=(ParameterGroup(VibrationParams, 'set_params'),
+                ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params'))):
     """The ``vibration_analyzer`` node (see the module docstring)."""
-
-    processor: VibrationAnalyzerProcessor
-    default_name = 'vibration_analyzer'
-    parameter_groups = (ParameterGroup(VibrationParams, 'set_params'),
-                        ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'tpms/vibration'
 
 
 main = VibrationAnalyzerNode.main
-
-if __name__ == '__main__':
-    main()

@@ -24,28 +24,16 @@ reloaded at start.
 from __future__ import annotations
 
 from tpms_ros.core.wheel_radius_analysis import WheelRadiusParams
-from tpms_ros.processing.wheel_radius_analyzer import (
-    WheelRadiusAnalyzerNodeParams,
-    WheelRadiusAnalyzerProcessor,
-    make_processor,
-)
+from tpms_ros.processing.wheel_radius_analyzer import WheelRadiusAnalyzerNodeParams, make_processor
 from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
 
-__all__ = ['WheelRadiusAnalyzerNode', 'WheelRadiusAnalyzerNodeParams', 'main']
 
-
-class WheelRadiusAnalyzerNode(ProcessorNode):
+class WheelRadiusAnalyzerNode(
+        ProcessorNode, name='wheel_radius_analyzer', factory=make_processor,
+        hardware_id='tpms/wheel_radius',
+        groups=(ParameterGroup(WheelRadiusParams, 'set_params'),
+                ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params'))):
     """The ``wheel_radius_analyzer`` node (see the module docstring)."""
-
-    processor: WheelRadiusAnalyzerProcessor
-    default_name = 'wheel_radius_analyzer'
-    parameter_groups = (ParameterGroup(WheelRadiusParams, 'set_params'),
-                        ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params'))
-    make_processor = staticmethod(make_processor)
-    hardware_id = 'tpms/wheel_radius'
 
 
 main = WheelRadiusAnalyzerNode.main
-
-if __name__ == '__main__':
-    main()
