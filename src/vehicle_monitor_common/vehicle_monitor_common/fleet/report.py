@@ -12,6 +12,7 @@ the columns say why.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 import math
 import os
 from pathlib import Path
@@ -98,40 +99,33 @@ def markdown_table(table: pd.DataFrame) -> list[str]:
     return lines
 
 
-def _trend_figure(summary: pd.DataFrame, path: Path) -> bool:
-    suspension = summary[(summary['method'] == 'suspension') & summary['time'].notna()]
-    if suspension.empty:
+# One panel of a trend figure: the summary column, its axis label, and the value a recording
+# without one is drawn at (None: left as a gap).
+Panel = tuple[str, str, float | None]
+SUSPENSION_PANELS: tuple[Panel, ...] = (
+    ('spring_ratio_mean', 'spring ratio (mean of drive)', None),
+    ('damper_ratio_mean', 'damper ratio (mean of drive)', None))
+WARNING_PANELS: tuple[Panel, ...] = (('max_confidence', 'peak warning confidence', 0.0),)
+
+
+def _trend_figure(summary: pd.DataFrame, path: Path, method: str, panels: Sequence[Panel],
+                  height: float) -> bool:
+    """One line per vehicle over recording time in each panel, for the summaries of ``method``;
+    False (nothing drawn) when it has none with a time."""
+    rows = summary[(summary['method'] == method) & summary['time'].notna()]
+    if rows.empty:
         return False
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for vehicle, own in suspension.groupby('vehicle', sort=True):
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, height), sharex=True, squeeze=False)
+    for vehicle, own in rows.groupby('vehicle', sort=True):
         own = own.sort_values('time')
-        axes[0].plot(own['time'], own['spring_ratio_mean'], marker='o', label=vehicle)
-        axes[1].plot(own['time'], own['damper_ratio_mean'], marker='o', label=vehicle)
-    axes[0].set_ylabel('spring ratio (mean of drive)')
-    axes[1].set_ylabel('damper ratio (mean of drive)')
-    axes[1].set_xlabel('recording time')
-    axes[0].legend(fontsize='small', ncol=4)
-    for ax in axes:
+        for ax, (column, _, missing) in zip(axes[:, 0], panels, strict=True):
+            values = own[column] if missing is None else own[column].fillna(missing)
+            ax.plot(own['time'], values, marker='o', label=vehicle)
+    for ax, (_, label, _) in zip(axes[:, 0], panels, strict=True):
+        ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-    fig.autofmt_xdate()
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return True
-
-
-def _warning_trend_figure(summary: pd.DataFrame, path: Path) -> bool:
-    warnings = summary[(summary['method'] == 'tpms_warning') & summary['time'].notna()]
-    if warnings.empty:
-        return False
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    for vehicle, own in warnings.groupby('vehicle', sort=True):
-        own = own.sort_values('time')
-        ax.plot(own['time'], own['max_confidence'].fillna(0), marker='o', label=vehicle)
-    ax.set_ylabel('peak warning confidence')
-    ax.set_xlabel('recording time')
-    ax.legend(fontsize='small', ncol=4)
-    ax.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel('recording time')
+    axes[0, 0].legend(fontsize='small', ncol=4)
     fig.autofmt_xdate()
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -191,9 +185,10 @@ def write_report(out: str | os.PathLike[str]) -> Path:
         lines += [f'- `{r.recording}` ({r.path}): {r.error}' for r in errors.itertuples()]
         lines.append('')
     lines += ['## Trends', '']
-    if _trend_figure(summary, figures / 'suspension_trend.png'):
+    if _trend_figure(summary, figures / 'suspension_trend.png', 'suspension', SUSPENSION_PANELS,
+                     6.0):
         lines += ['![suspension trend](figures/suspension_trend.png)', '']
-    if _warning_trend_figure(summary, figures / 'tpms_trend.png'):
+    if _trend_figure(summary, figures / 'tpms_trend.png', 'tpms_warning', WARNING_PANELS, 3.5):
         lines += ['![TPMS trend](figures/tpms_trend.png)', '']
     lines += ['## Fleet-wide, per method', '']
     if _histograms(summary, figures / 'histograms.png'):
