@@ -177,8 +177,6 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         self._held_low_adhesion = False
         self._track_used = False      # a sample had its track part (known-input mode in use)
         self._resets_seen = 0
-        self._progress: tuple[int, int | None] = (0, None)
-        self._reported: dict[str, int] = {}     # rejections already in a status
         self._burst_until_ns: int | None = None
         self._arrivals: dict[str, int] = {}     # last stamp of each measurement stream
         self._track_stale = True
@@ -469,12 +467,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             'model_speed': ekf.speed,
         }
         # Silence (the adapter reports it per input at ERROR): no claim on old data.
-        count, since = self._progress
-        if self._counts['received'] != count or since is None:
-            self._progress = (self._counts['received'], now_ns)
-            silent_s = 0.0
-        else:
-            silent_s = (now_ns - since) * 1e-9
+        silent_s = self._silent_s(self._counts['received'], now_ns)
         recovering = (self._last_processed_ns is not None
                       and self._recovering(self._last_processed_ns))
         if self._counts['received'] == 0:
@@ -485,7 +478,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         elif self._fault:
             level, message = WARN, (f'input fault ({self._fault}): creep factor held, '
                                     'unknown (std widened)')
-        elif new := self._new_rejections():
+        elif new := self._new_rejections(self._rejections(), self.params.sample_rate_hz):
             level, message = WARN, f'inputs rejected since last report: {new}'
         elif recovering:
             assert self._recover_until_ns is not None and self._last_processed_ns is not None
@@ -501,17 +494,11 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         return Status(level, message, values)
 
 
-    def _new_rejections(self) -> str:
-        """The rejections since the previous status, by reason (a warning that clears)."""
-        counts = {**{k: self._counts[k] for k in _REJECTIONS},
-                  'unpaired': self._pairer.unpaired['bogie'], **self._stamp_rejected,
-                  **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
-        new = {k: v - self._reported.get(k, 0) for k, v in counts.items()
-               if v > self._reported.get(k, 0)}
-        self._reported = counts
-        rate = f' (faster than {self.params.sample_rate_hz:g} Hz)'
-        return ', '.join(f'{k}{rate if k == "rate_burst" else ""} {v}'
-                         for k, v in sorted(new.items()))
+    def _rejections(self) -> dict[str, int]:
+        """Rejected inputs so far, by reason."""
+        return {**{k: self._counts[k] for k in _REJECTIONS},
+                'unpaired': self._pairer.unpaired['bogie'], **self._stamp_rejected,
+                **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> CreepEstimatorProcessor:

@@ -1,7 +1,9 @@
 """What both rail processors do with their inputs before their method sees a sample: the
 bogie/body IMU pairing and saturation limits (node parameters of the same meaning in both), the
-input-rate meters, and the stamp check of every input, whose confirmed time jump restarts the
-processor (``_restart``) and whose corrupt stamps it counts (``_reject_stamp``).
+input-rate meters, the stamp check of every input, whose confirmed time jump restarts the
+processor (``_restart``) and whose corrupt stamps it counts (``_reject_stamp``), and what their
+statuses report alike: how long the input has been silent and the rejections since the previous
+status.
 
 An IMU pair's measurement is (bogie lateral acceleration, bogie yaw rate, body lateral
 acceleration), as :class:`vehicle_monitor_common.imu_pairing.ImuPairer` pairs them in both.
@@ -59,6 +61,9 @@ class RailImuInputs(Generic[P]):
         self._pairer = ImuPairer(node_params.pair_tolerance_s, node_params.pair_timeout_s)
         self._stamp_checks = self._new_stamp_checks()
         self._rates = {topic: RateMeter() for topic in inputs}
+        # Silence: the count of handled samples and the status time it last changed.
+        self._progress: tuple[int, int | None] = (0, None)
+        self._reported: dict[str, int] = {}     # rejections already in a status
 
     def _new_stamp_checks(self) -> dict[str, StampCheck]:
         # Gaps are the core's (max_gap_s infinite here); jumps are everybody's.
@@ -90,6 +95,24 @@ class RailImuInputs(Generic[P]):
     def _input_rates(self, now_ns: int) -> dict[str, float]:
         """Each input's rate, Hz, by topic."""
         return {topic: meter.read(now_ns) for topic, meter in self._rates.items()}
+
+    def _silent_s(self, handled: int, now_ns: int) -> float:
+        """How long (status time, s) the count of handled samples has not changed."""
+        count, since = self._progress
+        if handled != count or since is None:
+            self._progress = (handled, now_ns)
+            return 0.0
+        return (now_ns - since) * 1e-9
+
+    def _new_rejections(self, counts: Mapping[str, int], sample_rate_hz: float) -> str:
+        """The rejections since the previous status, by reason (a warning that clears), from
+        the counts so far."""
+        new = {k: v - self._reported.get(k, 0) for k, v in counts.items()
+               if v > self._reported.get(k, 0)}
+        self._reported = dict(counts)
+        rate = f' (faster than {sample_rate_hz:g} Hz)'
+        return ', '.join(f'{k}{rate if k == "rate_burst" else ""} {v}'
+                         for k, v in sorted(new.items()))
 
     def _restart(self, stamp: int, why: str) -> None:
         """Data time jumped: the processor starts again (calling ``_new_stamp_checks``)."""

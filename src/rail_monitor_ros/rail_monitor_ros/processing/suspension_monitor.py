@@ -204,9 +204,6 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self._suppress_reason = ''
         self._last_stamp_ns: int | None = None
         self._burst_until_ns: int | None = None
-        # Silence: the processed count and the status time it last changed.
-        self._progress: tuple[int, int | None] = (0, None)
-        self._reported: Counter[str] = Counter()    # rejections already in a status
         self.last_output: Output | None = None
         self._handlers = {BOGIE_IMU: self._on_bogie, BODY_IMU: self._on_body,
                           TRACK: self._on_track, CREEP: self._on_creep_factor}
@@ -452,7 +449,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         })
         values.update({f'rejected_{k}': v for k, v in sorted(self.rejected.items())})
         if self.last_output is None:
-            new = self._new_rejections()
+            new = self._new_rejections(self.rejected, self.params.sample_rate_hz)
             return Status(WARN if new else OK, f'inputs rejected: {new}' if new
                           else 'waiting for paired IMU samples', values)
         out = self.last_output.fields
@@ -463,17 +460,14 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             'spring_ratio': spring, 'damper_ratio': damper,
             'fault_component': component or 'none'})
         # Silence (the adapter reports it per input at ERROR): never claim 'normal' on old data.
-        count, since = self._progress
-        total = self.processed + self._rejected_samples()
-        if total != count or since is None:
-            self._progress = (total, now_ns)
-        elif (now_ns - since) * 1e-9 > self.node_params.silence_timeout_s:
-            return Status(WARN, f'no IMU pair for {(now_ns - since) * 1e-9:.1f} s: '
-                          'suspension state unknown', values)
+        silent_s = self._silent_s(self.processed + self._rejected_samples(), now_ns)
+        if silent_s > self.node_params.silence_timeout_s:
+            return Status(WARN, f'no IMU pair for {silent_s:.1f} s: suspension state unknown',
+                          values)
         if self._input_fault:
             return Status(WARN, f'input fault ({self._input_fault}): estimates held, '
                           'suspension state unknown', values)
-        new = self._new_rejections()
+        new = self._new_rejections(self.rejected, self.params.sample_rate_hz)
         if new:
             return Status(WARN, f'inputs rejected since last report: {new}', values)
         if self._last_stamp_ns is not None and self._suppressed(self._last_stamp_ns):
@@ -492,15 +486,6 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             return Status(ERROR if severe else WARN, f'suspension fault: {size} x nominal',
                           values)
         return Status(OK, 'suspension normal', values)
-
-    def _new_rejections(self) -> str:
-        """The rejections since the previous status, by reason (a warning that clears)."""
-        counts = self.rejected
-        new = counts - self._reported
-        self._reported = counts
-        rate = f' (faster than {self.params.sample_rate_hz:g} Hz)'
-        return ', '.join(f'{k}{rate if k == "rate_burst" else ""} {v}'
-                         for k, v in sorted(new.items()))
 
     def _rejected_samples(self) -> int:
         return sum(v for k, v in self._rejected.items()

@@ -63,11 +63,17 @@ from tpms_ros.core.lateral_force_observer import (
     ObserverTuningParams,
     ObserverVehicleParams,
 )
-from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
+from tpms_ros.processing.vehicle_inputs import (
+    DRIVER_INPUTS,
+    IMU,
+    VEHICLE_INPUTS,
+    WHEEL_SPEEDS,
+    wheel_torques,
+)
+from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
 from vehicle_monitor_common.processing import (
-    Input,
     Output,
     ProcessorParams,
     Status,
@@ -75,9 +81,6 @@ from vehicle_monitor_common.processing import (
 )
 from vehicle_monitor_common.status_report import StatusProblems
 
-IMU = 'vehicle/imu'
-WHEEL_SPEEDS = 'vehicle/wheel_speeds'
-DRIVER_INPUTS = 'vehicle/driver_inputs'
 TIRE_FORCES = 'vehicle/tire_forces'
 _TOPICS = {'imu': IMU, 'wheel_speeds': WHEEL_SPEEDS, 'driver_inputs': DRIVER_INPUTS}
 # Input buffers: bounded so a topic without its IMU partner cannot grow memory.
@@ -118,9 +121,7 @@ class LateralForceObserverProcessor:
         node_params: alignment, input checks, diagnostics.
     """
 
-    inputs = {IMU: Input('sensor_msgs/msg/Imu'),
-              WHEEL_SPEEDS: Input(WHEEL_SPEEDS_TYPE, raw=True),
-              DRIVER_INPUTS: Input('vehicle_monitor_msgs/msg/DriverInputs')}
+    inputs = VEHICLE_INPUTS
     outputs = {TIRE_FORCES: 'vehicle_monitor_msgs/msg/TireForces'}
 
     def __init__(self, vehicle: ObserverVehicleParams, tuning: ObserverTuningParams,
@@ -133,6 +134,8 @@ class LateralForceObserverProcessor:
                                           jump_horizon_s=node_params.jump_horizon_s)
                         for topic in _TOPICS}
         self.received = dict.fromkeys(_TOPICS, 0)
+        self._handlers = {IMU: self._on_imu, WHEEL_SPEEDS: self._on_wheel_speeds,
+                          DRIVER_INPUTS: self._on_driver_inputs}
         self._rates = {topic: RateMeter() for topic in _TOPICS}
         # Rejections here (the core's own are in observer.health.rejected).
         self.rejected: dict[str, int] = {}
@@ -175,13 +178,7 @@ class LateralForceObserverProcessor:
 
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message (the wheel speeds as CDR bytes); the outputs it makes due."""
-        if topic == IMU:
-            return self._on_imu(message)
-        if topic == WHEEL_SPEEDS:
-            return self._on_wheel_speeds(message)
-        if topic == DRIVER_INPUTS:
-            return self._on_driver_inputs(message)
-        return []
+        return self._handlers[topic](message)
 
     def _reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -260,11 +257,8 @@ class LateralForceObserverProcessor:
         stamp = header_stamp_ns(msg)
         if not self._accept_stamp('driver_inputs', stamp):
             return []
-        try:
-            torque = np.asarray(msg.wheel_torque, dtype=float)
-        except (TypeError, ValueError):
-            torque = np.zeros(0)
-        if torque.shape != (4,):
+        torque = wheel_torques(msg)
+        if torque is None:
             self._reject('driver_inputs_invalid')
             return []
         self._driver.append((stamp, float(msg.steering_angle), torque))

@@ -67,15 +67,19 @@ from tpms_ros.processing.calibrating_tpms import (
     CalibratingTpmsProcessor,
     offline_calibration_file,
 )
-from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
+from tpms_ros.processing.vehicle_inputs import (
+    DRIVER_INPUTS,
+    IMU,
+    VEHICLE_INPUTS,
+    WHEEL_SPEEDS,
+    wheel_torques,
+)
+from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import Input, Output, Status, header_stamp_ns
+from vehicle_monitor_common.processing import Output, Status, header_stamp_ns
 from vehicle_monitor_common.status_report import StatusProblems
 
-WHEEL_SPEEDS = 'vehicle/wheel_speeds'
-IMU = 'vehicle/imu'
-DRIVER_INPUTS = 'vehicle/driver_inputs'
 RADIUS = 'tpms/wheel_radius'
 _TOPICS = {'wheel_speeds': WHEEL_SPEEDS, 'imu': IMU, 'driver_inputs': DRIVER_INPUTS}
 # core order delta_13, delta_24, delta_34, delta_12 -> message order delta_13, delta_24,
@@ -124,9 +128,7 @@ class WheelRadiusAnalyzerProcessor(
         calibration_file: where the calibration is kept (resolved; '' = not persisted).
     """
 
-    inputs = {WHEEL_SPEEDS: Input(WHEEL_SPEEDS_TYPE, raw=True),
-              IMU: Input('sensor_msgs/msg/Imu'),
-              DRIVER_INPUTS: Input('vehicle_monitor_msgs/msg/DriverInputs')}
+    inputs = VEHICLE_INPUTS
     outputs = {RADIUS: 'vehicle_monitor_msgs/msg/WheelRadiusOffsets',
                'tpms/indication/wheel_radius': INDICATION_TYPE}
 
@@ -153,6 +155,8 @@ class WheelRadiusAnalyzerProcessor(
         self._samples_per_bin = 0.0
         self._bins_seen = 0
         self.received = dict.fromkeys(_TOPICS, 0)
+        self._handlers = {WHEEL_SPEEDS: self._on_wheel_speeds, IMU: self._on_imu,
+                          DRIVER_INPUTS: self._on_driver_inputs}
         self._rates = {topic: RateMeter() for topic in _TOPICS}
         self._last_trace: np.ndarray | None = None
         self._last_long_update = -math.inf
@@ -169,13 +173,7 @@ class WheelRadiusAnalyzerProcessor(
 
     def process(self, topic: str, message: Any) -> list[Output]:
         """One input message (the wheel speeds as CDR bytes); the outputs it makes due."""
-        if topic == WHEEL_SPEEDS:
-            return self._on_wheel_speeds(message)
-        if topic == IMU:
-            return self._on_imu(message)
-        if topic == DRIVER_INPUTS:
-            return self._on_driver_inputs(message)
-        return []
+        return self._handlers[topic](message)
 
     def _accept(self, topic: str, ns: int) -> tuple[int | None, list[Output]]:
         """The stamp if it is accepted (after a confirmed time jump everything restarts)."""
@@ -241,11 +239,8 @@ class WheelRadiusAnalyzerProcessor(
         return outputs + self._drain()
 
     def _on_driver_inputs(self, msg: Any) -> list[Output]:
-        try:
-            torque = np.asarray(msg.wheel_torque, dtype=float)
-        except (TypeError, ValueError):
-            torque = np.zeros(0)
-        if torque.shape != (N_TIRES,):
+        torque = wheel_torques(msg)
+        if torque is None:
             self.received['driver_inputs'] += 1
             self.counts['wrong_size'] += 1
             return []
