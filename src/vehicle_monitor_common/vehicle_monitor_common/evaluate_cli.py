@@ -48,6 +48,7 @@ from typing import Any
 
 from vehicle_monitor_common.bag_io import BagError, write_bag
 from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
+from vehicle_monitor_common.cli import run_cli
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,
@@ -351,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error('--seeds must be at least 1')
     if (args.manifest is None) != (args.vehicle is None):
         parser.error('--manifest and --vehicle go together')
-    try:
+    def run() -> int:
         registered = domains()
         vehicle = read_vehicle(args.params, args.calibration, args.manifest, args.vehicle)
         if vehicle != Vehicle() and args.as_recorded:
@@ -394,11 +395,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f'\n{time.monotonic() - started:.0f} s wall; results.json, report.md and figures '
               f'in {args.out}/')
         return 0
-    except (ConfigurationError, BagError, RuntimeError, FileNotFoundError, ValueError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+
+    return run_cli(run, (ConfigurationError, BagError, RuntimeError, FileNotFoundError,
+                                ValueError))
 
 
 if __name__ == '__main__':

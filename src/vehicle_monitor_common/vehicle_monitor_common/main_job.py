@@ -26,7 +26,6 @@ from dataclasses import replace
 import os
 from pathlib import Path
 import shutil
-import sys
 import threading
 import time
 from typing import Any
@@ -36,6 +35,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.task import Future
 
 from vehicle_monitor_common.bag_io import open_reader
+from vehicle_monitor_common.cli import run_cli
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,
@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     readme = args.readme or _find_readme()
     if not args.shared_domain:
         use_private_domain()
-    try:
+    def run() -> int:
         if args.from_results is not None:
             if not args.update_readme:
                 parser.error('--from-results only makes sense with --update-readme')
@@ -329,8 +329,6 @@ def main(argv: list[str] | None = None) -> int:
         # Missed targets are the product's state, not an error: exit 0. A run that dropped
         # messages is one (the scores would not be the graph's).
         return 1 if any(r.dropped for r in runs) else 0
-    except (ConfigurationError, RuntimeError, FileNotFoundError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 130
+
+    return run_cli(run, (ConfigurationError, RuntimeError, FileNotFoundError),
+                   (KeyboardInterrupt, ExternalShutdownException))

@@ -20,6 +20,7 @@ from pathlib import Path
 import sys
 
 from vehicle_monitor_common.bag_io import BagError
+from vehicle_monitor_common.cli import run_cli
 from vehicle_monitor_common.parameters import ConfigurationError
 
 DEFAULT_OUT = Path('out/fleet')
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     from vehicle_monitor_common.fleet.manifest import load_inputs
     from vehicle_monitor_common.fleet.report import write_report
 
-    try:
+    def run() -> int:
         manifest = load_inputs(args.inputs)
         defaults = manifest.defaults
         if args.graph is not None:
@@ -90,11 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             report = write_report(args.out)
             print(f'report: {report}')
         return 0
-    except (ConfigurationError, BagError, FileNotFoundError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+
+    return run_cli(run, (ConfigurationError, BagError, FileNotFoundError))
 
 
 if __name__ == '__main__':
