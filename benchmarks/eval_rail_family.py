@@ -100,6 +100,8 @@ CREEP_TARGETS = {'C-spec/exact': (0.05, 1.0, 1.0), 'C-spec/map0.3': (0.05, 1.0, 
                  'D/none': (0.10, 2.0, 0.9), 'D/exact': (0.10, 2.0, 0.9)}
 SPRING_TARGET_S, DAMPER_TARGET_S, IMM_PASS_SHARE = 0.5, 1.0, 0.95
 HALF_STEP = 0.05 + 1e-9
+# Speed bands of the per-speed summary, m/s.
+SPEED_BANDS = ((30.0, 35.0), (35.0, 40.0), (40.0, 50.0), (50.0, 60.01))
 FAULT_ONSET_S, FAULT_DURATION_S = 3.0, 8.0
 
 
@@ -264,6 +266,7 @@ class ImmCase:
     delay: float = math.inf           # correct hypothesis > 0.5, s after onset
     declared_delay: float = math.inf  # first declaration of the right component
     held_share: float = 0.0           # of the time after the first detection
+    declared_held_share: float = 0.0  # right component declared, of the time after its first
     wrong_declared_s: float = 0.0     # a wrong component declared after onset
     end_component: str = ''
     false_declarations: int = 0       # declared faults (healthy run, or before onset)
@@ -340,6 +343,7 @@ def imm_fault_case(car: FamilyCar, speed: float, kind: str, key: int) -> ImmCase
     declared = np.flatnonzero(after & (run.fault_component == kind))
     if declared.size:
         case.declared_delay = float(t[declared[0]] - FAULT_ONSET_S)
+        case.declared_held_share = float(np.mean(run.fault_component[declared[0]:] == kind))
     wrong = after & run.fault_detected & (run.fault_component != kind)
     case.wrong_declared_s = float(np.count_nonzero(wrong) * dt)
     case.end_component = str(run.fault_component[-1] or 'none')
@@ -380,6 +384,7 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
                 _say(f'car {car.seed} {speed:5.1f} m/s {kind:6s} {100 * case.ratio:3.0f} %: '
                      f'p>0.5 after {case.delay:.3f} s, declared after '
                      f'{case.declared_delay:.3f} s, held {100 * case.held_share:.0f} %, '
+                     f'declaration held {100 * case.declared_held_share:.0f} %, '
                      f'wrong declared {case.wrong_declared_s:.2f} s, end '
                      f'{case.end_component}, false before {case.false_declarations} '
                      f'({case.seconds:.1f} s cpu){"" if case.passes() else "  FAIL"}')
@@ -391,7 +396,7 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
                      f'normal < 0.5 {100 * case.normal_below_half:.1f} % of the time '
                      f'({case.seconds:.1f} s cpu){"" if case.passes() else "  FAIL"}')
     _say('\nIMM row                      pass      delay median/worst   declared median/worst  '
-         'held min   wrong declared max   end right')
+         'held min   declaration held min   wrong declared max   end right')
     for kind, target in (('spring', SPRING_TARGET_S), ('damper', DAMPER_TARGET_S)):
         chosen = [c for c in cases if c.kind == kind]
         if not chosen:
@@ -402,8 +407,24 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
              f'{_stat([c.delay for c in chosen])}      '
              f'{_stat([c.declared_delay for c in chosen])}      '
              f'{100 * min(c.held_share for c in chosen):.0f} %      '
+             f'{100 * min(c.declared_held_share for c in chosen):.0f} %                  '
              f'{max(c.wrong_declared_s for c in chosen):.2f} s             '
              f'{end_right}/{len(chosen)}')
+    for low, high in SPEED_BANDS:
+        band = [c for c in cases if low <= c.speed < high]
+        if not band:
+            continue
+        parts = []
+        for kind, target in (('spring', SPRING_TARGET_S), ('damper', DAMPER_TARGET_S)):
+            chosen = [c for c in band if c.kind == kind]
+            if chosen:
+                parts.append(f'{kind} {sum(c.delay <= target for c in chosen)}/{len(chosen)} in '
+                             f'time, end right {sum(c.end_component == kind for c in chosen)}')
+        chosen = [c for c in band if c.kind == 'healthy']
+        if chosen:
+            parts.append(f'healthy {sum(c.false_declarations for c in chosen)} declared in '
+                         f'{len(chosen)} runs')
+        _say(f'{low:g}-{high:g} m/s: ' + '; '.join(parts))
     healthy = [c for c in cases if c.kind == 'healthy']
     if healthy:
         clean = sum(c.false_declarations == 0 for c in healthy)

@@ -1,20 +1,89 @@
-"""The suspension IMM's fault decision: threshold, hold time, symmetric clearing."""
+"""The suspension IMM's fault decision: confirmation, hysteresis on the declaration, near-nominal
+ratios, compound only after a declared spring fault."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rail_monitor_ros.core.fault_decision import FaultDecision
 
+NORMAL, SPRING_150, SPRING_110 = (1.0, 1.0), (1.5, 1.0), (1.1, 1.0)
+DAMPER_50, COMPOUND_120_50, COMPOUND_150_50 = (1.0, 0.5), (1.2, 0.5), (1.5, 0.5)
 
-def test_fault_decision_holds_and_clears_symmetrically() -> None:
-    """Declared after the hold time above threshold; cleared the same way by normal."""
+
+def _run(decision: FaultDecision, keys: list[tuple[float, float]], probabilities: list[float],
+         samples: int) -> list[str]:
+    row = np.array(probabilities)
+    return [decision.update(keys, row).component for _ in range(samples)]
+
+
+def test_declared_after_the_hold_time_and_cleared_after_the_clear_time() -> None:
+    """Declared once held above threshold for hold_time_s; cleared once normal held it for
+    clear_time_s (longer: the declaration has hysteresis)."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, clear_time_s=0.1)
+    keys = [NORMAL, SPRING_150]
+    assert _run(decision, keys, [0.2, 0.8], 7) == [''] * 5 + ['spring'] * 2
+    assert _run(decision, keys, [0.8, 0.2], 12) == ['spring'] * 10 + [''] * 2
+
+
+def test_a_declared_fault_holds_through_a_probability_dip() -> None:
+    """The declared hypothesis drops below the threshold (probability spread over modes, or a
+    neighbouring mode ahead) for longer than the hold time: still declared; only confirmed
+    normal clears it."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, clear_time_s=0.5)
+    keys = [NORMAL, SPRING_150, (1.4, 1.0)]
+    assert _run(decision, keys, [0.1, 0.9, 0.0], 10)[-1] == 'spring'
+    # Nobody above threshold for 1 s, normal briefly ahead for 0.3 s (< clear time).
+    assert set(_run(decision, keys, [0.35, 0.35, 0.3], 100)) == {'spring'}
+    assert set(_run(decision, keys, [0.7, 0.3, 0.0], 30)) == {'spring'}
+    assert set(_run(decision, keys, [0.2, 0.4, 0.4], 100)) == {'spring'}
+    status = decision.update(keys, np.array([0.2, 0.4, 0.4]))
+    assert (status.spring_ratio, status.probability) == (1.5, pytest.approx(0.4))
+    # A resize needs the hold time like a declaration.
+    assert _run(decision, keys, [0.1, 0.2, 0.7], 7)[-1] == 'spring'
+    assert decision.update(keys, np.array([0.1, 0.2, 0.7])).spring_ratio == 1.4
+
+
+def test_near_nominal_ratios_count_as_normal() -> None:
+    """With min_deviation 0.15 spring 110 % is normal for the decision, 150 % is not."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, min_deviation=0.15)
+    keys = [NORMAL, SPRING_110, SPRING_150]
+    assert set(_run(decision, keys, [0.1, 0.9, 0.0], 50)) == {''}
+    assert _run(decision, keys, [0.1, 0.2, 0.7], 7)[-1] == 'spring'
+    plain = FaultDecision(0.6, 0.05, 0.01)
+    assert _run(plain, keys, [0.1, 0.9, 0.0], 7)[-1] == 'spring'
+
+
+def test_a_compound_hypothesis_without_a_declared_spring_fault_is_a_damper_fault() -> None:
+    """Damper modes that drifted to spring 120 % (the adaptive step after a damper fault) are
+    declared 'damper' at their damper ratio, not 'spring+damper'."""
     decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
-    keys = [(1.0, 1.0), (1.5, 1.0)]
-    fault = np.array([0.2, 0.8])
-    normal = np.array([0.8, 0.2])
-    states = [decision.update(keys, fault).detected for _ in range(7)]
-    assert states == [False] * 5 + [True] * 2
-    assert decision.update(keys, fault).component == 'spring'
-    states = [decision.update(keys, normal).detected for _ in range(7)]
-    assert states == [True] * 5 + [False] * 2
+    keys = [NORMAL, DAMPER_50, COMPOUND_120_50]
+    components = _run(decision, keys, [0.1, 0.3, 0.6], 50)
+    assert set(components[5:]) == {'damper'}
+    status = decision.update(keys, np.array([0.1, 0.3, 0.6]))
+    assert (status.spring_ratio, status.damper_ratio) == (1.0, 0.5)
+    assert status.probability == pytest.approx(0.9)
+
+
+def test_compound_after_a_declared_spring_fault() -> None:
+    """Spring 150 % declared first, then damper 50 % on top: 'spring+damper' (the shipped
+    rail_imm_spring_damper_fault sequence)."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
+    keys = [NORMAL, SPRING_150, COMPOUND_150_50]
+    assert _run(decision, keys, [0.1, 0.9, 0.0], 7)[-1] == 'spring'
+    assert _run(decision, keys, [0.1, 0.1, 0.8], 7)[-1] == 'spring+damper'
+
+
+def test_state_round_trip_and_bad_arguments() -> None:
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
+    keys = [NORMAL, SPRING_150]
+    _run(decision, keys, [0.1, 0.9], 3)
+    saved = decision.state
+    _run(decision, keys, [0.1, 0.9], 5)
+    decision.load_state(saved)
+    assert _run(decision, keys, [0.1, 0.9], 3) == ['', '', 'spring']
+    for kwargs in ({'threshold': 1.0}, {'clear_time_s': -1.0}, {'min_deviation': float('nan')}):
+        with pytest.raises(ValueError, match=next(iter(kwargs))):
+            FaultDecision(**{'threshold': 0.6, 'hold_time_s': 0.05, 'dt': 0.01, **kwargs})

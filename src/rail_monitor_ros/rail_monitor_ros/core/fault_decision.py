@@ -1,6 +1,28 @@
-"""The suspension IMM's fault decision: hypotheses (spring, damper ratio snapped to the mode
-grid) declared when their smoothed probability holds above a threshold for a time; a fault
-clears by the same rule. No ROS import."""
+"""The suspension IMM's fault decision: what turns smoothed hypothesis probabilities into a
+declared fault. No ROS import.
+
+The rule (docs/methods/suspension_monitor.md, "The decision"):
+
+* Hypotheses are the modes' (spring, damper) ratios snapped to the mode grid. For the decision
+  a ratio within ``min_deviation`` of nominal counts as nominal: the neighbours of the normal
+  mode (spring 110 %, damper 90 % on the default grid) still size a fault, but are not one by
+  themselves (on healthy development runs they won most of the samples where normal lost).
+* A **compound** hypothesis (spring and damper both off) is only one when a spring fault was
+  declared before it (the declared fault is 'spring' or 'spring+damper'). Otherwise its
+  evidence counts for the damper-only hypothesis of the same damper ratio. Why: with the
+  adaptive step the damper modes carry the spring ratio the bank estimates, and the spring
+  modes measure the spring only while the damper is healthy; after a damper fault their
+  residual weight, all on spring ratios above 1, pulls the estimate upwards (measured on
+  development cars: 1.0 -> 1.19 within 5 s of a damper-49 % fault, declared 'spring+damper').
+  So a spring part that appears after the damper failed is not evidence of a spring fault.
+* **Declare**: a fault hypothesis whose grouped smoothed probability stays above
+  ``threshold`` for ``hold_time_s``. Another fault hypothesis replaces a declared one by the
+  same rule (a resize, or spring -> spring+damper).
+* **Hysteresis on the decision**: a declared fault is cleared only when the *normal*
+  hypothesis stays above ``threshold`` for ``clear_time_s``; a dip of the declared
+  hypothesis's probability (to a neighbouring mode, or no hypothesis above threshold) does not
+  clear it.
+"""
 
 from __future__ import annotations
 
@@ -24,7 +46,7 @@ class FaultStatus:
         component: one of :data:`FAULT_COMPONENTS` ('' when none).
         spring_ratio: the declared hypothesis's spring ratio (snapped to the mode grid), 1.
         damper_ratio: the declared hypothesis's damper ratio, 1.
-        probability: the declared hypothesis's smoothed probability.
+        probability: the declared hypothesis's grouped smoothed probability.
     """
 
     detected: bool
@@ -37,6 +59,9 @@ class FaultStatus:
 NO_FAULT = FaultStatus(False, '', 1.0, 1.0, 0.0)
 # The (spring, damper) ratios of the healthy suspension.
 NORMAL_HYPOTHESIS = (1.0, 1.0)
+Hypothesis = tuple[float, float]
+# What FaultDecision.state returns: (declared, pending, samples pending held).
+DecisionState = tuple[Hypothesis, Hypothesis | None, int]
 
 
 def fault_component(spring_ratio: float, damper_ratio: float) -> str:
@@ -48,55 +73,85 @@ def fault_component(spring_ratio: float, damper_ratio: float) -> str:
 
 
 class FaultDecision:
-    """Declares the hypothesis whose smoothed probability held above a threshold for a time.
+    """Declares a fault hypothesis with confirmation, clears it only on confirmed normal.
 
-    Symmetric: the normal hypothesis is declared (the fault cleared) by the same rule, and a
-    change from one fault hypothesis to another (spring -> spring+damper) too.
+    Args:
+        threshold: grouped smoothed probability a hypothesis must exceed, in (0, 1).
+        hold_time_s: how long a fault hypothesis must stay above it to be declared, s.
+        dt: sample period, s.
+        clear_time_s: how long normal must stay above it to clear a declared fault, s
+            (default: ``hold_time_s``, the symmetric rule).
+        min_deviation: ratios within this of 1 count as nominal for the decision, >= 0.
     """
 
-    def __init__(self, threshold: float, hold_time_s: float, dt: float) -> None:
+    def __init__(self, threshold: float, hold_time_s: float, dt: float,
+                 clear_time_s: float | None = None, min_deviation: float = 0.0) -> None:
         if not 0.0 < threshold < 1.0:
             raise ValueError(f'threshold must be in (0, 1), got {threshold}')
-        if not (math.isfinite(hold_time_s) and hold_time_s >= 0.0):
-            raise ValueError(f'hold_time_s must be finite and >= 0, got {hold_time_s}')
+        clear = hold_time_s if clear_time_s is None else clear_time_s
+        for name, value in (('hold_time_s', hold_time_s), ('clear_time_s', clear),
+                            ('min_deviation', min_deviation)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
         self.threshold = threshold
         self.hold_samples = int(round(hold_time_s / dt))
+        self.clear_samples = int(round(clear / dt))
+        self.min_deviation = min_deviation
         self.reset()
 
     def reset(self) -> None:
         """Back to normal with nothing pending."""
-        self._declared: tuple[float, float] = NORMAL_HYPOTHESIS
-        self._pending: tuple[float, float] | None = None
+        self._declared: Hypothesis = NORMAL_HYPOTHESIS
+        self._pending: Hypothesis | None = None
         self._held = 0
 
     @property
-    def state(self) -> tuple[tuple[float, float], tuple[float, float] | None, int]:
+    def state(self) -> DecisionState:
         """(declared, pending, samples held): to go back to with :meth:`load_state`."""
         return self._declared, self._pending, self._held
 
-    def load_state(self, state: tuple[tuple[float, float], tuple[float, float] | None,
-                                      int]) -> None:
+    def load_state(self, state: DecisionState) -> None:
         """Back to a :attr:`state`."""
         self._declared, self._pending, self._held = state
 
-    def update(self, keys: Sequence[tuple[float, float]],
-               probabilities: np.ndarray) -> FaultStatus:
+    def _decision_key(self, key: Hypothesis) -> Hypothesis:
+        """The hypothesis as the decision sees it (module docstring): near-nominal ratios
+        nominal; a compound without a declared spring fault before it: damper only."""
+        spring, damper = key
+        if abs(spring - 1.0) < self.min_deviation + 10.0 ** -RATIO_DECIMALS:
+            spring = 1.0
+        if abs(damper - 1.0) < self.min_deviation + 10.0 ** -RATIO_DECIMALS:
+            damper = 1.0
+        if spring != 1.0 and damper != 1.0 and fault_component(*self._declared) not in (
+                'spring', 'spring+damper'):
+            spring = 1.0
+        return spring, damper
+
+    def grouped(self, keys: Sequence[Hypothesis], probabilities: np.ndarray,
+                ) -> dict[Hypothesis, float]:
+        """The probabilities summed per decision hypothesis (in the order first seen)."""
+        totals: dict[Hypothesis, float] = {}
+        for key, probability in zip(keys, probabilities.tolist(), strict=True):
+            decision_key = self._decision_key(key)
+            totals[decision_key] = totals.get(decision_key, 0.0) + probability
+        return totals
+
+    def update(self, keys: Sequence[Hypothesis], probabilities: np.ndarray) -> FaultStatus:
         """One sample: hypothesis keys (spring, damper) and their smoothed probabilities."""
-        best = int(np.argmax(probabilities))
-        if probabilities[best] > self.threshold:
-            key = keys[best]
-            if key == self._pending:
+        totals = self.grouped(keys, probabilities)
+        best = max(totals, key=totals.__getitem__)
+        if totals[best] > self.threshold and best != self._declared:
+            if best == self._pending:
                 self._held += 1
             else:
-                self._pending, self._held = key, 1
-            if self._held > self.hold_samples:
-                self._declared = key
+                self._pending, self._held = best, 1
+            needed = self.clear_samples if best == NORMAL_HYPOTHESIS else self.hold_samples
+            if self._held > needed:
+                self._declared, self._pending, self._held = best, None, 0
         else:
+            # Nothing above the threshold, or the declared hypothesis is: no change pending.
             self._pending, self._held = None, 0
         if self._declared == NORMAL_HYPOTHESIS:
             return NO_FAULT
-        # The adaptive step may have moved the bank off the declared hypothesis: probability 0.
-        probability = (float(probabilities[keys.index(self._declared)])
-                       if self._declared in keys else 0.0)
         return FaultStatus(True, fault_component(*self._declared), self._declared[0],
-                           self._declared[1], probability)
+                           self._declared[1], totals.get(self._declared, 0.0))

@@ -55,7 +55,12 @@ import math
 import numpy as np
 import scipy.linalg
 
-from rail_monitor_ros.core.fault_decision import NO_FAULT, FaultDecision, FaultStatus
+from rail_monitor_ros.core.fault_decision import (
+    NO_FAULT,
+    DecisionState,
+    FaultDecision,
+    FaultStatus,
+)
 from rail_monitor_ros.core.imm_kernel import (
     CBAR_FLOOR,
     LOG_2PI,
@@ -151,7 +156,7 @@ class ProbabilitySnapshot:
     smoothing: np.ndarray
     smoothing_sum: np.ndarray
     smoothing_count: int
-    decision: tuple[tuple[float, float], tuple[float, float] | None, int]
+    decision: DecisionState
     fault: FaultStatus
     spring_ratio: float
     damper_ratio: float
@@ -163,6 +168,10 @@ class ProbabilitySnapshot:
 # Bounded: the oldest entry goes first.
 _SHARED_DISCRETIZATIONS: dict[tuple[object, ...], ModeModel] = {}
 _SHARED_DISCRETIZATIONS_MAX = 512
+# The decision's defaults (core/fault_decision.py; chosen on the development family, see
+# docs/methods/rail_family_evaluation.md, 2026-11-25).
+CLEAR_TIME_S = 1.0
+MIN_FAULT_DEVIATION = 0.15
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
 _SPD_TOLERANCE = 1e-9
 
@@ -235,8 +244,15 @@ class SuspensionImmParams:
         estimate_min_probability: modes below this fraction of the largest smoothed
             probability do not vote in the spring and damper estimates (nor in the adaptive
             step): the Markov prior's background mass is not evidence.
-        fault_threshold: smoothed hypothesis probability to declare (or clear) a fault.
-        hold_time_s: how long it must stay above the threshold, s.
+        fault_threshold: grouped smoothed hypothesis probability to declare (or clear) a
+            fault (:class:`rail_monitor_ros.core.fault_decision.FaultDecision`).
+        hold_time_s: how long a fault hypothesis must stay above the threshold to be
+            declared (or to replace the declared one), s.
+        clear_time_s: how long the normal hypothesis must stay above the threshold to clear a
+            declared fault, s (hysteresis on the decision: a dip of the declared hypothesis
+            does not clear it).
+        min_fault_deviation: spring and damper ratios within this of 1 count as nominal for
+            the decision (the modes still size the fault), 1.
         spd_check_interval: full eigenvalue check of the bank covariances every so many
             steps (the innovation covariances are checked every step).
         steady_state_gains: after ``warmup_time_s`` of exact IMM cycles, every mode-matched
@@ -354,8 +370,14 @@ class SuspensionImmParams:
                                             read_only=True)
     fault_threshold: float = param(0.6, 'smoothed hypothesis probability to declare or clear '
                                    'a fault, 1', low=0.01, high=0.99)
-    hold_time_s: float = param(0.25, 'time above the threshold before the decision changes, s',
-                               low=0.0, high=600.0)
+    hold_time_s: float = param(0.25, 'time a fault hypothesis stays above the threshold before '
+                               'it is declared, s', low=0.0, high=600.0)
+    clear_time_s: float = param(CLEAR_TIME_S, 'time the normal hypothesis stays above the '
+                                'threshold before a declared fault clears, s', low=0.0,
+                                high=600.0)
+    min_fault_deviation: float = param(MIN_FAULT_DEVIATION, 'spring and damper ratios within '
+                                       'this of 1 count as nominal for the decision, 1',
+                                       low=0.0, high=0.9)
     spd_check_interval: int = param(200, 'full eigenvalue check of the bank covariances every '
                                     'so many exact steps', low=1, high=1000000, read_only=True)
     steady_state_gains: bool = param(True, 'after the warm-up, each mode runs on its '
@@ -370,7 +392,7 @@ class SuspensionImmParams:
                                        'the estimation model\'s vehicle (Table 1)')
 
     _NON_NEGATIVE = frozenset({'probability_floor', 'model_lateral_accel_noise_mps2',
-                               'model_yaw_accel_noise_rad_s2'})
+                               'model_yaw_accel_noise_rad_s2', 'min_fault_deviation'})
 
     def __post_init__(self) -> None:
         for spec in fields(self):
@@ -499,6 +521,9 @@ class SuspensionImm:
         self._is_damper = np.array([m.kind == 'damper' for m in self.modes])
         self._base_spring = np.array([m.spring_ratio for m in self.modes])
         self.mode_damper_ratio = np.array([m.damper_ratio for m in self.modes])
+        # The modes of a damper fault (the damper-100 % mode is the spring-only hypothesis).
+        self._damper_fault_mode = self._is_damper & (
+            np.round(self.mode_damper_ratio, RATIO_DECIMALS) != 1.0)
         self._spring_grid = np.unique(np.round(
             [1.0, *[m.spring_ratio for m in self.modes if m.kind == 'spring']], RATIO_DECIMALS))
         self._damper_grid = np.unique(np.round(
@@ -547,7 +572,7 @@ class SuspensionImm:
         self._discretized: dict[tuple[float, float], ModeModel] = {}
         self._solved: set[tuple[tuple[object, ...], int]] = set()
         self._p0 = self._prior()
-        self.decision = FaultDecision(params.fault_threshold, params.hold_time_s, dt)
+        self.decision = _fault_decision(params, dt)
         self.covariance_repairs = 0
         self.rediscretizations = 0
         self.steady_state_failures = 0
@@ -628,10 +653,13 @@ class SuspensionImm:
 
     def update_runtime_params(self, params: SuspensionImmParams) -> None:
         """The parameters settable at run time changed (``fault_threshold``, ``hold_time_s``,
-        ``max_gap_s``, ``vehicle.speed``; the others are read-only): a new decision rule
-        (nothing pending), the new gap limit, the new speed (:meth:`set_speed`)."""
-        self.decision = FaultDecision(params.fault_threshold, params.hold_time_s,
-                                      self.params.dt)
+        ``clear_time_s``, ``min_fault_deviation``, ``max_gap_s``, ``vehicle.speed``; the others
+        are read-only): a new decision rule (the declared fault kept, nothing pending), the new
+        gap limit, the new speed (:meth:`set_speed`)."""
+        declared = self.decision.state[0]
+        self.decision = _fault_decision(params, self.params.dt)
+        # A declared fault stays declared (hysteresis on the decision): only what was pending.
+        self.decision.load_state((declared, None, 0))
         self._max_gap_s = params.max_gap_s
         self.set_speed(params.vehicle.speed)
 
@@ -895,7 +923,15 @@ class SuspensionImm:
 
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (the voting modes' weighted ratio,
-        :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`)."""
+        :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`), while the damper is
+        healthy: once the damper-fault modes hold more than half the smoothed probability the
+        spring ratio they carry is frozen. The spring modes (damper 100 %) measure the spring
+        only while the damper is healthy; after a damper fault they all fit badly and their
+        residual weight, every one at a spring ratio above 1, pulled the estimate upwards
+        (development cars: 1.0 -> 1.19 within 5 s of a damper-49 % fault, which then read as
+        spring+damper)."""
+        if self.smoothed[self._damper_fault_mode].sum() > 0.5:
+            return
         quantum = self.params.adaptation_resolution
         snapped = round(round(self.spring_ratio / quantum) * quantum, RATIO_DECIMALS)
         if snapped != self._damper_spring:
@@ -1044,6 +1080,12 @@ class SuspensionImm:
         d = xs - x
         cov = np.tensordot(self.mu, self.P[:, :n, :n], axes=1) + (self.mu[:, None] * d).T @ d
         return x, 0.5 * (cov + cov.T)
+
+
+def _fault_decision(params: SuspensionImmParams, dt: float) -> FaultDecision:
+    """The decision rule of the parameters (core/fault_decision.py), at sample period dt."""
+    return FaultDecision(params.fault_threshold, params.hold_time_s, dt, params.clear_time_s,
+                         params.min_fault_deviation)
 
 
 def _initial_std(name: str, params: SuspensionImmParams) -> float:
