@@ -28,7 +28,7 @@ planted vehicles found, those missed and the vehicles flagged without a fault::
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 import datetime as dt
 import math
@@ -110,6 +110,17 @@ def _shifted(topics: Mapping[str, TopicSeries], start: dt.datetime) -> dict[str,
             for topic, series in topics.items() if not topic.startswith('/truth/')}
 
 
+def _drives(plan: FleetPlan, rng: np.random.Generator, index: int,
+            days_apart: int) -> Iterator[tuple[str, float, int, dt.datetime]]:
+    """Each drive of the vehicle ``index``: its name, how far into the planted fault it is (0 at
+    the first drive, 1 at the last), the seed of its scenario (drawn here, one per drive), and
+    its start (``days_apart`` between drives, an hour of day per vehicle)."""
+    for drive in range(plan.drives):
+        seed = int(rng.integers(1_000_000))
+        start = plan.start + dt.timedelta(days=drive * days_apart, hours=index % 12)
+        yield f'drive{drive + 1:02d}', drive / max(1, plan.drives - 1), seed, start
+
+
 def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
              log: Callable[[str], None] = print) -> Path:
     """Write the fleet (see the module docstring); the manifest's path."""
@@ -140,17 +151,13 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
         truth[car['id']] = {'domain': 'road', 'fault': 'leak' if tire is not None else None,
                             'tire': TIRES[tire] if tire is not None else None,
                             'pressures_kpa': []}
-        for drive in range(plan.drives):
+        for drive, share, seed, start in _drives(plan, rng, index, plan.car_days):
             pressures: list[float] = [car['placard_kpa']] * 4
             if tire is not None:
-                share = drive / max(1, plan.drives - 1)
                 pressures[tire] = round(car['placard_kpa'] * (1 - plan.leak_fraction * share), 1)
             truth[car['id']]['pressures_kpa'].append(pressures)
-            seed = int(rng.integers(1_000_000))
-            start = plan.start + dt.timedelta(days=drive * plan.car_days, hours=index % 12)
-            jobs.append((car['id'], f'drive{drive + 1:02d}',
-                         _car_scenario(road_base, plan, car, pressures, seed), start,
-                         road_topics))
+            jobs.append((car['id'], drive, _car_scenario(road_base, plan, car, pressures, seed),
+                         start, road_topics))
     for index in range(plan.trains):
         train: dict[str, Any] = {'id': f'train{index + 1:02d}',
                  'noise_scale': float(np.round(rng.uniform(0.8, 1.2), 2))}
@@ -158,15 +165,11 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
         planted = index in degrading
         truth[train['id']] = {'domain': 'rail', 'fault': 'damper' if planted else None,
                               'damper_ratios': []}
-        for drive in range(plan.drives):
-            share = drive / max(1, plan.drives - 1)
+        for drive, share, seed, start in _drives(plan, rng, index, plan.train_days):
             damper = round(1.0 - (1.0 - plan.damper_last) * share, 3) if planted else 1.0
             truth[train['id']]['damper_ratios'].append(damper)
-            seed = int(rng.integers(1_000_000))
-            start = plan.start + dt.timedelta(days=drive * plan.train_days, hours=index % 12)
-            jobs.append((train['id'], f'drive{drive + 1:02d}',
-                         _train_scenario(rail_base, plan, train, damper, seed), start,
-                         rail_topics))
+            jobs.append((train['id'], drive, _train_scenario(rail_base, plan, train, damper, seed),
+                         start, rail_topics))
     with tempfile.TemporaryDirectory(prefix='fleet-scenarios-') as scratch:
         for number, (vehicle, drive_name, scenario, start, synthesize) in enumerate(jobs, 1):
             if synthesize is None:
