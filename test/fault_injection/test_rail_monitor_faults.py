@@ -36,7 +36,7 @@ import numpy as np
 import pytest
 
 from rail_monitor_ros.processing import creep_estimator, suspension_monitor
-from vehicle_monitor_common.processing import WARN
+from vehicle_monitor_common.processing import ERROR, WARN
 
 BAG = BAGS / 'rail_healthy'
 TOPICS = {'/rail/bogie/imu': 'rail/bogie/imu', '/rail/body/imu': 'rail/body/imu',
@@ -117,7 +117,7 @@ def _cases(node: str) -> dict[str, tuple[str, Any, str]]:
     """fault class -> (topic it hits, fault, text the status names it by)."""
     if node == 'creep_estimator':
         main, path, typical = LATERAL, 'bogie_lateral', 0.005
-        value_text = {'nan': 'non_finite', 'inf': 'non_finite', 'negative': 'frozen',
+        value_text = {'nan': 'not fed', 'inf': 'non_finite', 'negative': 'frozen',
                       'absurd': 'rejected', 'dead': 'frozen', 'stuck': 'frozen'}
         wrong_size: tuple[str, Any, str] = (LATERAL, _one_element('bogie_lateral'),
                                             'wrong_size')
@@ -126,6 +126,9 @@ def _cases(node: str) -> dict[str, tuple[str, Any, str]]:
         value_text = {'nan': 'non_finite', 'inf': 'non_finite', 'negative': 'frozen',
                       'absurd': 'saturated', 'dead': 'frozen', 'stuck': 'frozen'}
         wrong_size = (TRACK, _one_element('lateral_alignment'), 'track')
+    if node == 'creep_estimator_imu':
+        # NaN in a channel is the channel not measured: the pattern is not fed (issue 19).
+        value_text['nan'] = 'not fed'
     values = value_faults(path, typical)
     cases = {name: (main, fault, value_text[name]) for name, fault in values.items()}
     cases.update({
@@ -238,6 +241,9 @@ def test_fault_is_named_never_a_vehicle_fault_and_recovers(
     settle = max((stamps[min(first_settled, len(stamps) - 1)] - end_ns) * 1e-9, 0.0)
     level = max((st.level for st in named if text in st.message), default=-1)
     message = next(st.message for st in named if text in st.message)
+    if text == 'not fed':
+        # A pattern whose fields are missing is an error (issue 19), never a mere warning.
+        assert level == ERROR, (node, name, message)
     print(f'RESULT {node} {name}: level {level} {message!r}; estimate within {TOL[node]} '
           f'{settle:.2f} s, published as measured again {recovery:.2f} s after the fault')
     # (+ SLACK_S: a time jump is confirmed by StampCheck.confirm_samples samples, 5 periods; a

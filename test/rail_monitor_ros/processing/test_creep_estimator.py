@@ -3,6 +3,8 @@ messages as the offline engine feeds them."""
 
 from __future__ import annotations
 
+import copy
+import math
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,7 @@ from rail_monitor_ros.processing.creep_estimator import (
 )
 from vehicle_monitor_common.bag_io import read_messages
 from vehicle_monitor_common.parameters import ConfigurationError
+from vehicle_monitor_common.processing import ERROR, OK, WARN
 
 BAG = Path(__file__).resolve().parents[3] / 'bags' / 'rail_creep_steps'
 N = 600        # 3 s of the recording
@@ -102,3 +105,56 @@ def test_bad_values_are_refused() -> None:
         make_processor({'min_creep_factor': 1.5, 'max_creep_factor': 1.0}, '/creep_estimator')
     with pytest.raises(ConfigurationError, match='/creep_estimator.*wheelset_mass must be > 0'):
         make_processor({'vehicle.wheelset_mass': -1.0}, '/creep_estimator')
+
+
+def _with_nan(msg: Any, **fields: Any) -> Any:
+    out = copy.deepcopy(msg)
+    for name, index in fields.items():
+        if index is None:
+            setattr(out, name, math.nan)
+        else:
+            values = np.array(getattr(out, name), dtype=float)
+            values[index] = math.nan
+            setattr(out, name, values)
+    return out
+
+
+def test_pattern_without_its_fields_is_an_error_until_they_return() -> None:
+    """Pattern C (SPEC section 6: bogie and body lateral displacement and velocity): NaN in a
+    field it does not read (bogie and body yaw) changes nothing; NaN in one it reads rejects the
+    sample and the status is ERROR naming the pattern and the missing fields; once they arrive
+    again the status recovers (WARN while the std stays widened, then OK)."""
+    messages = _recording(['/rail/lateral_states', '/rail/track_irregularity'])
+    clean = make_processor({}, '/creep_estimator')
+    unread = make_processor({}, '/creep_estimator')
+    missing = make_processor({}, '/creep_estimator')
+    levels: list[tuple[int, str]] = []
+    index = 0
+    for topic, msg in messages:
+        clean_out = clean.process(topic, msg)
+        if topic != LATERAL_STATES:
+            unread.process(topic, msg)
+            missing.process(topic, msg)
+            continue
+        index += 1
+        other = _with_nan(msg, bogie_yaw=[0, 1], bogie_yaw_rate=[0, 1], body_yaw=None,
+                          body_yaw_rate=None, wheelset_lateral=[0, 1, 2, 3])
+        assert [o.fields for o in unread.process(topic, other)] == \
+            [o.fields for o in clean_out]
+        fed = msg if not 200 <= index < 300 else _with_nan(msg, bogie_lateral=[0],
+                                                           body_lateral_rate=None)
+        missing.process(topic, fed)
+        if index % 50 == 0:
+            status = missing.status(_stamp(msg))
+            levels.append((status.level, status.message))
+    assert unread.status(0).level == OK
+    # Statuses after every 50th sample; the last one in is processed once the next arrives.
+    assert all(level == OK for level, _ in levels[:4])         # samples 50-200
+    for level, message in levels[4:6]:                         # samples 250, 300
+        assert level == ERROR
+        assert 'pattern C' in message and 'bogie_lateral[0]' in message
+        assert 'body_lateral_rate' in message and 'body_yaw' not in message
+    assert all(level == WARN for level, _ in levels[6:9])      # rejections, recovering
+    assert 'recovering' in levels[7][1]
+    assert all(level == OK for level, _ in levels[9:])         # samples 500 on
+    assert missing.counts['missing_fields'] == 100

@@ -24,9 +24,13 @@ prediction and resets after a gap longer than its ``max_gap_s``. Here, every inp
 stamps are checked on arrival (``input_health.StampCheck``): out-of-order and repeated stamps
 are rejected, a lone stamp more than ``jump_horizon_s`` ahead is dropped and counted, and a
 confirmed jump of data time (a looped or repeated replay, a clock reset) restarts the filter
-and the assembly (the status says so for ``recovery_s``). Non-finite or wrongly sized values
-are rejected (the sample becomes a prediction step); a measurement channel frozen
-(bit-identical) for ``frozen_s`` is a dead sensor and its sample is rejected
+and the assembly (the status says so for ``recovery_s``). NaN in a field the pattern reads
+(:func:`~rail_monitor_ros.core.creep_ekf.pattern_fields`; pattern D: its three IMU channels) is
+that field not measured: the pattern is not fed, the sample is rejected and the status is ERROR
+naming the pattern and the fields until they arrive again (NaN elsewhere is ignored). Other
+non-finite or wrongly sized values are rejected (the sample becomes a prediction step); a
+measurement channel frozen (bit-identical) for ``frozen_s`` is a dead sensor and its sample is
+rejected
 (``input_health.FrozenDetector``); pattern D: an acceleration or yaw rate at its limit is
 saturated and rejected. All counted in the status.
 
@@ -60,12 +64,14 @@ from rail_monitor_ros.core.creep_ekf import (
     CreepEkfParams,
     CreepEstimate,
     lateral_states_measurement,
+    pattern_fields,
 )
 from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
 from vehicle_monitor_common.imu_pairing import ImuPair
 from vehicle_monitor_common.input_health import FrozenDetector
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
+    ERROR,
     OK,
     WARN,
     Input,
@@ -118,6 +124,7 @@ class _Pending:
     stamp: int
     main: np.ndarray | None = None
     track: np.ndarray | None = None
+    unfed: tuple[str, ...] = ()     # the pattern's fields the driving message lacks (NaN)
 
 
 _MISSING = np.empty(0)
@@ -125,9 +132,12 @@ _MISSING = np.empty(0)
 # predicts until the samples have come at their rate for this many periods.
 BURST_PERIODS = 10
 # Counters of rejected inputs (the status names the new ones).
-_REJECTIONS = ('frozen', 'wrong_size', 'non_finite', 'saturated', 'rate_burst',
+_REJECTIONS = ('missing_fields', 'frozen', 'wrong_size', 'non_finite', 'saturated', 'rate_burst',
                'track_wrong_size', 'track_frozen', 'main_late', 'track_late', 'overflow')
 _WRONG_SIZE = np.empty(0)
+# Pattern D's measurement channels, in the order of its vector.
+_IMU_CHANNELS = (f'{BOGIE_IMU} linear_acceleration.y', f'{BOGIE_IMU} angular_velocity.z',
+                 f'{BODY_IMU} linear_acceleration.y')
 
 
 class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
@@ -167,11 +177,12 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             ('received', 'processed', 'published', 'frozen', 'wrong_size', 'overflow',
              'known_input', 'unknown_input', 'track_received', 'track_wrong_size', 'main_late',
              'track_late', 'non_finite', 'saturated', 'track_frozen', 'track_lost', 'held',
-             'time_jumps', 'rate_burst'), 0)
+             'time_jumps', 'rate_burst', 'missing_fields'), 0)
         self.last: CreepEstimate | None = None
         # Input faults: the current one, and the data time until which the estimate is still
         # reported unknown (and why); the low-adhesion flag held meanwhile.
         self._fault = ''
+        self._unfed: tuple[str, ...] = ()   # of the last processed sample
         self._recover_until_ns: int | None = None
         self._recover_reason = ''
         self._held_low_adhesion = False
@@ -275,8 +286,12 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             # Unreachable over DDS for fixed-size arrays, but an in-process caller can: the
             # sample is missing (prediction only), not a gap.
             self._counts['wrong_size'] += 1
-            vector = _WRONG_SIZE
-        return self._add_part('main', stamp, vector)
+            return self._add_part('main', stamp, _WRONG_SIZE)
+        # NaN is the message's "not measured": the pattern is not fed (other fields may be NaN).
+        unfed = tuple(name if index is None else f'{name}[{index}]'
+                      for name, index in pattern_fields(p.pattern, p.bogie, p.model)
+                      if np.isnan(fields[name][0] if index is None else fields[name][0, index]))
+        return self._add_part('main', stamp, vector, unfed)
 
     def _on_bogie(self, stamp: int, msg: Any) -> list[Output]:
         return self._add_pairs(self._pairer.add('bogie', stamp, (
@@ -288,11 +303,15 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
     def _add_pairs(self, pairs: list[ImuPair]) -> list[Output]:
         outputs: list[Output] = []
         for pair in pairs:
-            # A bogie sample without its body partner is a missing sample (prediction only):
-            # an empty measurement marks it.
-            vector = (_MISSING if pair.body is None
-                      else np.array([*pair.bogie, pair.body]))
-            outputs += self._add_part('main', pair.stamp_ns, vector)
+            if pair.body is None:
+                # A bogie sample without its body partner is a missing sample (prediction
+                # only): an empty measurement marks it.
+                outputs += self._add_part('main', pair.stamp_ns, _MISSING)
+                continue
+            vector = np.array([*pair.bogie, pair.body])
+            unfed = tuple(name for name, value in zip(_IMU_CHANNELS, vector, strict=True)
+                          if np.isnan(value))
+            outputs += self._add_part('main', pair.stamp_ns, vector, unfed)
         return outputs
 
     def _on_track(self, stamp: int, msg: Any) -> list[Output]:
@@ -316,7 +335,8 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             return []
         return self._add_part('track', stamp, part)
 
-    def _add_part(self, kind: str, stamp: int, value: np.ndarray) -> list[Output]:
+    def _add_part(self, kind: str, stamp: int, value: np.ndarray,
+                  unfed: tuple[str, ...] = ()) -> list[Output]:
         if stamp <= self._latest[kind]:
             return []                            # out of order (refused on arrival already)
         self._latest[kind] = stamp
@@ -329,7 +349,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             entry = _Pending(stamp)
             bisect.insort(self._pending, entry, key=lambda e: e.stamp)
         if kind == 'main':
-            entry.main = value
+            entry.main, entry.unfed = value, unfed
         else:
             entry.track = value
         return self._drain()
@@ -384,7 +404,8 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             return None
         self.ekf.advance_to(stamp)
         self._last_processed_ns = stamp
-        vector, fault = self._check_measurement(entry.main)
+        self._unfed = entry.unfed
+        vector, fault = self._check_measurement(entry)
         if not fault and self._burst_until_ns is not None and stamp < self._burst_until_ns:
             fault = 'rate_burst'
         track = entry.track
@@ -422,12 +443,17 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             'f22': estimate.f22,
             'low_adhesion': low_adhesion})
 
-    def _check_measurement(self, main: np.ndarray) -> tuple[np.ndarray | None, str]:
+    def _check_measurement(self, entry: _Pending) -> tuple[np.ndarray | None, str]:
         """The driving measurement, or None with the input fault ('' for a missing sample)."""
+        main = entry.main
+        assert main is not None
         if main is _WRONG_SIZE:
             return None, 'wrong_size'
         if not main.size:
             return None, ''                      # unpaired IMU sample: missing
+        if entry.unfed:
+            self._counts['missing_fields'] += 1
+            return None, 'missing_fields'
         if not np.all(np.isfinite(main)):
             self._counts['non_finite'] += 1
             return None, 'non_finite'
@@ -475,6 +501,10 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         elif silent_s > self.node_params.silence_timeout_s:
             level, message = WARN, (f'no {self._driving} for {silent_s:.1f} s: creep factor '
                                     'unknown')
+        elif self._unfed:
+            level, message = ERROR, (f'pattern {self.params.pattern} not fed: '
+                                     f'{", ".join(self._unfed)} missing (NaN): creep factor '
+                                     'unknown')
         elif self._fault:
             level, message = WARN, (f'input fault ({self._fault}): creep factor held, '
                                     'unknown (std widened)')
