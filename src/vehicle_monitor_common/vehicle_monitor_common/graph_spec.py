@@ -73,16 +73,25 @@ def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
                      use_sim_time=bool(data.get('use_sim_time', False)))
 
 
+def read_yaml_file(path: str | os.PathLike[str], what: str) -> Any:
+    """The content of a YAML file the user gave (``what`` it is: ``graph file``, ...).
+
+    Raises:
+        ConfigurationError: in one line, when it cannot be read or is not valid YAML.
+    """
+    try:
+        with open(path, encoding='utf-8') as stream:
+            return yaml.safe_load(stream)
+    except OSError as exc:
+        raise ConfigurationError(f'cannot read {what} {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise ConfigurationError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+
+
 def load_graph(path: str | os.PathLike[str],
                launch_args: Mapping[str, str] | None = None) -> GraphSpec:
     """Read and validate a graph YAML file or a YAML launch file (with its arguments)."""
-    try:
-        with open(path, encoding='utf-8') as stream:
-            data = yaml.safe_load(stream)
-    except OSError as exc:
-        raise ConfigurationError(f'cannot read graph file {path}: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        raise ConfigurationError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    data = read_yaml_file(path, 'graph file')
     if is_launch_file(data):
         nodes = parse_launch(data, launch_args or {}, str(path))
         return GraphSpec(nodes=tuple(
@@ -94,10 +103,12 @@ def load_graph(path: str | os.PathLike[str],
     return parse_graph(data, str(path))
 
 
-def _flatten(mapping: Mapping[str, Any], prefix: str = '') -> Iterator[tuple[str, Any]]:
+def dotted_items(mapping: Mapping[str, Any], prefix: str = '') -> Iterator[tuple[str, Any]]:
+    """(dotted name, value) of every leaf of a nested mapping (``{'a': {'b': 1}}``: ``a.b``):
+    how ROS names the parameters of a params file, and how a message's fields are addressed."""
     for key, value in mapping.items():
         if isinstance(value, Mapping):
-            yield from _flatten(value, f'{prefix}{key}.')
+            yield from dotted_items(value, f'{prefix}{key}.')
         else:
             yield f'{prefix}{key}', value
 
@@ -121,14 +132,7 @@ def node_parameter_values(fqn: str, param_files: tuple[str, ...],
     """
     values: dict[str, Any] = {}
     for path in param_files:
-        try:
-            with open(path, encoding='utf-8') as stream:
-                data = yaml.safe_load(stream)
-        except OSError as exc:
-            raise ConfigurationError(f'cannot read params file {path}: {exc.strerror}') from None
-        except yaml.YAMLError as exc:
-            raise ConfigurationError(
-                f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+        data = read_yaml_file(path, 'params file')
         if not isinstance(data, dict):
             raise ConfigurationError(f'{path}: not a params file (expected node keys)')
         # wildcards first, so the node's own key wins
@@ -138,7 +142,7 @@ def node_parameter_values(fqn: str, param_files: tuple[str, ...],
                 continue
             if not isinstance(body, dict) or 'ros__parameters' not in body:
                 raise ConfigurationError(f'{path}: {key} holds no ros__parameters')
-            values.update(_flatten(body['ros__parameters'] or {}))
+            values.update(dotted_items(body['ros__parameters'] or {}))
     values.update(inline)
     return values
 

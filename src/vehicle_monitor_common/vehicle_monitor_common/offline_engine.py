@@ -40,6 +40,7 @@ from vehicle_monitor_common.bag_io import (
 )
 from vehicle_monitor_common.graph_spec import (
     GraphSpec,
+    dotted_items,
     fully_qualified_name,
     node_parameter_values,
 )
@@ -215,7 +216,7 @@ class OfflineGraph:
     def _publish(self, node: EngineNode, output: Output, sink: Sink | None,
                  stats: EngineStats) -> None:
         topic, msgtype = self._outputs[(id(node), output.topic)]
-        values = dict(_dotted(output.fields))
+        values = dict(dotted_items(output.fields))
         sec, nanosec = divmod(output.stamp_ns, 1_000_000_000)
         values['header.stamp.sec'], values['header.stamp.nanosec'] = sec, nanosec
         message = build_message(self._store, msgtype, values)
@@ -224,14 +225,6 @@ class OfflineGraph:
         if sink is not None:
             sink(topic, msgtype, output.stamp_ns, message)
         self._deliver(topic, msgtype, None, message, sink, stats)
-
-
-def _dotted(fields: Mapping[str, Any], prefix: str = '') -> Iterable[tuple[str, Any]]:
-    for name, value in fields.items():
-        if isinstance(value, Mapping):
-            yield from _dotted(value, f'{prefix}{name}.')
-        else:
-            yield f'{prefix}{name}', value
 
 
 def write_outputs(graph: OfflineGraph, bag: str | os.PathLike[str],

@@ -36,6 +36,7 @@ from typing import Any
 
 import yaml
 
+from vehicle_monitor_common.graph_spec import read_yaml_file
 from vehicle_monitor_common.parameters import ConfigurationError
 
 _URI = re.compile(r'^[a-zA-Z][a-zA-Z0-9+.-]*://')
@@ -168,14 +169,7 @@ def read_manifest(path: str | os.PathLike[str]) -> Manifest:
         ConfigurationError: unreadable, malformed, or naming a vehicle twice.
     """
     base = Path(path).resolve().parent
-    try:
-        with open(path, encoding='utf-8') as stream:
-            data = yaml.safe_load(stream)
-    except OSError as exc:
-        raise ConfigurationError(f'cannot read manifest {path}: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        raise ConfigurationError(
-            f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    data = read_yaml_file(path, 'manifest')
     if not isinstance(data, dict) or 'recordings' not in data:
         raise ConfigurationError(f'{path}: not a fleet manifest (no recordings list)')
     unknown = set(data) - {'defaults', 'vehicles', 'recordings'}
