@@ -61,6 +61,33 @@ def test_score_counts_found_missed_and_false_positives(tmp_path: Path) -> None:
     assert 'recording' in RECORDING_FIELDS
 
 
+def test_score_judges_a_tpms_method_by_what_would_make_the_voter_warn(tmp_path: Path) -> None:
+    """A method's indication counts when its confidence passes the voter's single-method
+    threshold: a weak flag on a healthy tire is evidence, not a false positive."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from vehicle_monitor_common.fleet.job import EVENTS_SCHEMA, SUMMARY_SCHEMA
+
+    for vehicle, tire, peak in (('a', 'fl', 0.95), ('b', 'rr', 0.6)):
+        summary = {name: None for name in SUMMARY_SCHEMA.names}
+        summary.update(recording=f'{vehicle}/d1', error='', method='indication_vibration')
+        event = {name: None for name in EVENTS_SCHEMA.names}
+        event.update(recording=f'{vehicle}/d1', method='indication_vibration',
+                     kind='tire_indication', subject=tire, peak=peak)
+        for name, values, schema in (('summary', summary, SUMMARY_SCHEMA),
+                                     ('events', event, EVENTS_SCHEMA)):
+            folder = tmp_path / name / f'vehicle={vehicle}' / 'date=2026-11-02'
+            folder.mkdir(parents=True)
+            pq.write_table(pa.Table.from_pylist([values], schema=schema), folder / 'd1.parquet')
+    truth = {'a': {'domain': 'road', 'fault': 'leak', 'tire': 'FL'},
+             'b': {'domain': 'road', 'fault': None}}
+    row = score(tmp_path, truth).set_index('method').loc['indication_vibration']
+    assert (row['found'], row['false_positives']) == (1, '')
+    strict = score(tmp_path, truth, indication_threshold=0.5).set_index('method')
+    assert strict.loc['indication_vibration', 'false_positives'] == 'b'
+
+
 @pytest.mark.timeout(300)
 def test_fleet_job_finds_the_degrading_damper_and_nothing_else(tmp_path: Path) -> None:
     """Two trains x two weekly drives, the front damper of one down to half by its second

@@ -188,11 +188,25 @@ def generate(out: str | Path, plan: FleetPlan = FleetPlan(),
     return manifest
 
 
-def _flagged(summary: pd.DataFrame, method: str) -> dict[str, set[str]]:
-    """Per vehicle what the method flagged over its recordings: tires (TPMS), fault
-    components (suspension), ``low_adhesion`` (creep)."""
-    rows = summary[(summary['method'] == method) & (summary['error'].fillna('') == '')]
+#: A TPMS method alone makes the voter warn when its flag comes with a confidence above h_i,
+#: the voter's single-method threshold (its default, docs/methods/tpms_voter.md); below it a
+#: method's flag is evidence the voter weighs, not a warning, so that is what a method is scored
+#: on. (This package depends on no domain, hence the value and not the voter's parameter.)
+INDICATION_THRESHOLD = 0.8
+
+
+def _flagged(summary: pd.DataFrame, events: pd.DataFrame, method: str,
+             indication_threshold: float) -> dict[str, set[str]]:
+    """Per vehicle what the method flagged over its recordings: tires (the voter's warnings; a
+    TPMS method's indications above ``indication_threshold``), fault components (suspension),
+    ``low_adhesion`` (creep)."""
     found: dict[str, set[str]] = {}
+    if method.startswith('indication_'):
+        strong = events[(events['method'] == method) & (events['peak'] >= indication_threshold)]
+        for vehicle, subject in zip(strong['vehicle'], strong['subject'], strict=True):
+            found.setdefault(str(vehicle), set()).add(str(subject).upper())
+        return found
+    rows = summary[(summary['method'] == method) & (summary['error'].fillna('') == '')]
     for row in rows.itertuples():
         flags = found.setdefault(str(row.vehicle), set())
         if method == 'suspension':
@@ -206,12 +220,14 @@ def _flagged(summary: pd.DataFrame, method: str) -> dict[str, set[str]]:
     return found
 
 
-def score(results: str | Path, truth: str | Path | Mapping[str, Any]) -> pd.DataFrame:
+def score(results: str | Path, truth: str | Path | Mapping[str, Any],
+          indication_threshold: float = INDICATION_THRESHOLD) -> pd.DataFrame:
     """Per method: vehicles with a planted fault, found, missed, flagged without a fault
     (false positives: a healthy vehicle flagged, or a faulty one flagged on another tire or
     component), recall. A leak is found by a warning on its tire (the voter's, or one TPMS
-    method's indication); a damper by a fault with a damper component; creep methods have
-    nothing planted."""
+    method's indication with a confidence above ``indication_threshold``: what would make the
+    voter warn on that method alone); a damper by a fault with a damper component; creep
+    methods have nothing planted."""
     from vehicle_monitor_common.fleet.job import read_table
 
     if not isinstance(truth, Mapping):
@@ -219,6 +235,7 @@ def score(results: str | Path, truth: str | Path | Mapping[str, Any]) -> pd.Data
             truth = yaml.safe_load(stream)
     assert isinstance(truth, Mapping)
     summary = read_table(results, 'summary').to_pandas()
+    events = read_table(results, 'events').to_pandas()
     rows = []
     indications = tuple(sorted(m for m in summary['method'].dropna().unique()
                                if str(m).startswith('indication_')))
@@ -227,7 +244,7 @@ def score(results: str | Path, truth: str | Path | Mapping[str, Any]) -> pd.Data
         if not vehicles:
             continue
         for method in methods:
-            flagged = _flagged(summary, method)
+            flagged = _flagged(summary, events, method, indication_threshold)
             planted = found = 0
             missed, false_positives = [], []
             for vehicle, fact in sorted(vehicles.items()):
