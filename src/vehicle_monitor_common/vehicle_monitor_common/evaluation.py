@@ -215,6 +215,72 @@ def start_ns(series: Mapping[str, TopicSeries]) -> int:
     return min(firsts) if firsts else 0
 
 
+@dataclass(frozen=True)
+class MethodScoring:
+    """How a domain scores one of its methods.
+
+    Attributes:
+        key: the method's key (what ``evaluate``'s ``methods`` select).
+        score: ``(series, t0 ns)`` -> its key figures: a list, one Metric, or None (nothing to
+            score in this recording).
+        plot: ``(series, PNG path, t0 ns)`` -> the path written.
+        figure: the PNG's file name (after the paper's figure it reproduces).
+        drawn: whether the figure is drawn, from the series and the key figures found (by
+            default: when there are any).
+    """
+
+    key: str
+    score: Callable[[Mapping[str, TopicSeries], int], Sequence[Metric] | Metric | None]
+    plot: Callable[[Mapping[str, TopicSeries], Path, int], Path]
+    figure: str
+    drawn: Callable[[Mapping[str, TopicSeries], Sequence[Metric]], bool] = (
+        lambda series, found: bool(found))
+
+
+def score_methods(series: Mapping[str, TopicSeries], scenario: str, figure_dir: Path,
+                  methods: Sequence[str], scorings: Sequence[MethodScoring],
+                  truth_topics: Iterable[str]) -> Evaluation:
+    """A domain's ``evaluate``: the key figures and figure of each method selected.
+
+    Args:
+        series: recorded topics by name (header stamps).
+        scenario: scenario name for the result.
+        figure_dir: where the PNGs go.
+        methods: keys of the methods to score (empty: all of ``scorings``).
+        scorings: the domain's methods, in scoreboard order.
+        truth_topics: the ground truth topics (the evaluation has truth when one was recorded).
+    """
+    wanted = selected_methods(methods, [scoring.key for scoring in scorings])
+    t0 = start_ns(series)
+    metrics: list[Metric] = []
+    figures: list[str] = []
+    for scoring in scorings:
+        if scoring.key not in wanted:
+            continue
+        scored = scoring.score(series, t0)
+        found = [] if scored is None else [scored] if isinstance(scored, Metric) else list(scored)
+        metrics += found
+        if scoring.drawn(series, found):
+            figures.append(scoring.plot(series, figure_dir / scoring.figure, t0).name)
+    has_truth = any(topic in series for topic in truth_topics)
+    return Evaluation(scenario, has_truth, tuple(metrics), tuple(figures))
+
+
+def loads_as_scenario(load: Callable[[Path], Any],
+                      refusals: tuple[type[Exception], ...]) -> Callable[[Path], bool]:
+    """A domain's ``is_scenario``: whether ``load`` reads the file without one of the
+    ``refusals`` it raises for a file that is not its domain's."""
+
+    def is_scenario(path: Path) -> bool:
+        try:
+            load(path)
+        except refusals:
+            return False
+        return True
+
+    return is_scenario
+
+
 def stack_column(values: np.ndarray) -> np.ndarray:
     """A variable-length array field (object array of lists) as a 2-D float array."""
     if values.dtype != object:

@@ -34,14 +34,15 @@ from rail_monitor_ros.simulation.rail_simulator import scenario_topics
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,
+    MethodScoring,
     Metric,
     Scenario,
     hold_at,
+    loads_as_scenario,
     rising_edges,
+    score_methods,
     seconds,
-    selected_methods,
     stack_column,
-    start_ns,
 )
 from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.resources import share_dir, workspace_bags
@@ -65,7 +66,6 @@ SETTLE_TARGET_S = 1.0
 # A truth change larger than this starts a fault or a creep step.
 CHANGE = 0.01
 
-METHOD_KEYS = ('imm', 'creep')
 
 
 # ---------------------------------------------------------------------------------------------
@@ -282,41 +282,19 @@ def plot_creep(series: Mapping[str, TopicSeries], path: Path, t0: int = 0) -> Pa
 # The domain
 
 
+# The methods in scoreboard order, each with the paper figure it reproduces.
+SCORINGS = (
+    MethodScoring('imm', imm_metrics, plot_mode_probabilities,
+                  'mori_fig5_mode_probabilities.png'),
+    MethodScoring('creep', creep_metrics, plot_creep, 'chonan_fig7_creep.png'))
+
+
 def evaluate(series: Mapping[str, TopicSeries], scenario: str, figure_dir: Path,
              methods: Sequence[str] = ()) -> Evaluation:
-    """Score a rail recording; figures into ``figure_dir``.
-
-    Args:
-        series: recorded topics by name (header stamps).
-        scenario: scenario name for the result.
-        figure_dir: where the PNGs go (named after the papers' figures).
-        methods: subset of ``imm``, ``creep`` (empty: all present).
-    """
-    wanted = selected_methods(methods, METHOD_KEYS)
-    t0 = start_ns(series)
-    metrics: list[Metric] = []
-    figures: list[str] = []
-    if 'imm' in wanted:
-        imm = imm_metrics(series, t0)
-        if imm:
-            metrics += imm
-            figures.append(plot_mode_probabilities(
-                series, figure_dir / 'mori_fig5_mode_probabilities.png', t0).name)
-    if 'creep' in wanted:
-        creep = creep_metrics(series, t0)
-        if creep:
-            metrics += creep
-            figures.append(plot_creep(series, figure_dir / 'chonan_fig7_creep.png', t0).name)
-    has_truth = TRUTH_SUSPENSION in series or TRUTH_CREEP in series
-    return Evaluation(scenario, has_truth, tuple(metrics), tuple(figures))
-
-
-def _is_rail_scenario(path: Path) -> bool:
-    try:
-        load_rail_scenario(path)
-    except (ValueError, OSError, TypeError, KeyError):
-        return False
-    return True
+    """Score a rail recording (``methods``: of ``imm``, ``creep``; empty: all present);
+    figures into ``figure_dir`` (see ``score_methods``)."""
+    return score_methods(series, scenario, figure_dir, methods, SCORINGS,
+                         (TRUTH_SUSPENSION, TRUTH_CREEP))
 
 
 def domain() -> Domain:
@@ -340,6 +318,7 @@ def domain() -> Domain:
         ),
         evaluate=evaluate,
         synthesize=scenario_topics,
-        is_scenario=_is_rail_scenario,
+        is_scenario=loads_as_scenario(load_rail_scenario,
+                                      (ValueError, OSError, TypeError, KeyError)),
         read_topics=READ_TOPICS,
     )

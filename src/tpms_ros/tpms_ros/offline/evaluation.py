@@ -39,13 +39,14 @@ from tpms_ros.simulation.road_simulator import scenario_topics
 from vehicle_monitor_common.evaluation import (
     Domain,
     Evaluation,
+    MethodScoring,
     Metric,
     Scenario,
     hold_at,
+    loads_as_scenario,
     rising_edges,
+    score_methods,
     seconds,
-    selected_methods,
-    start_ns,
 )
 from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.resources import share_dir, workspace_bags
@@ -73,9 +74,6 @@ FORCES = '/vehicle/tire_forces'
 READ_TOPICS = (TRUTH_PRESSURE, TRUTH_FORCES, WARNING, STIFFNESS, FORCES,
                *(f'/tpms/indication/{m}' for m in TPMS_METHODS))
 
-# Scoreboard method names -> what a scenario may select.
-METHOD_KEYS = {'tpms': ('tpms fused', *(f'tpms {m}' for m in TPMS_METHODS)),
-               'stiffness': ('stiffness observer',), 'lateral_force': ('lateral force',)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -346,45 +344,25 @@ def plot_lateral_forces(series: Mapping[str, TopicSeries], path: Path, t0: int =
 # The domain
 
 
+def _tpms_outputs_recorded(series: Mapping[str, TopicSeries], _: Sequence[Metric]) -> bool:
+    return any(f'/tpms/indication/{m}' in series for m in TPMS_METHODS) or WARNING in series
+
+
+# The methods in scoreboard order, each with the paper figure it reproduces.
+SCORINGS = (
+    MethodScoring('tpms', tpms_metrics, plot_warnings, 'persson_fig9_warnings.png',
+                  drawn=_tpms_outputs_recorded),
+    MethodScoring('stiffness', pressure_metric, plot_pressure, 'umeno_fig11_pressure.png'),
+    MethodScoring('lateral_force', lateral_force_metric, plot_lateral_forces,
+                  'kim_huh_fig5_6_lateral_forces.png'))
+
+
 def evaluate(series: Mapping[str, TopicSeries], scenario: str, figure_dir: Path,
              methods: Sequence[str] = ()) -> Evaluation:
-    """Score a road recording; figures into ``figure_dir``.
-
-    Args:
-        series: recorded topics by name (header stamps).
-        scenario: scenario name for the result.
-        figure_dir: where the PNGs go (named after the papers' figures).
-        methods: subset of ``tpms``, ``stiffness``, ``lateral_force`` (empty: all present).
-    """
-    wanted = selected_methods(methods, METHOD_KEYS)
-    t0 = start_ns(series)
-    metrics: list[Metric] = []
-    figures: list[str] = []
-    if 'tpms' in wanted:
-        tpms = tpms_metrics(series, t0)
-        metrics += tpms
-        if any(f'/tpms/indication/{m}' in series for m in TPMS_METHODS) or WARNING in series:
-            figures.append(plot_warnings(series, figure_dir / 'persson_fig9_warnings.png',
-                                         t0).name)
-    # One key figure and one figure each (named after the paper's figure it reproduces).
-    for key, score, plot, figure in (
-            ('stiffness', pressure_metric, plot_pressure, 'umeno_fig11_pressure.png'),
-            ('lateral_force', lateral_force_metric, plot_lateral_forces,
-             'kim_huh_fig5_6_lateral_forces.png')):
-        metric = score(series, t0) if key in wanted else None
-        if metric is not None:
-            metrics.append(metric)
-            figures.append(plot(series, figure_dir / figure, t0).name)
-    has_truth = TRUTH_PRESSURE in series or TRUTH_FORCES in series
-    return Evaluation(scenario, has_truth, tuple(metrics), tuple(figures))
-
-
-def _is_road_scenario(path: Path) -> bool:
-    try:
-        load_scenario(path)
-    except (ValueError, OSError):
-        return False
-    return True
+    """Score a road recording (``methods``: of ``tpms``, ``stiffness``, ``lateral_force``;
+    empty: all present); figures into ``figure_dir`` (see ``score_methods``)."""
+    return score_methods(series, scenario, figure_dir, methods, SCORINGS,
+                         (TRUTH_PRESSURE, TRUTH_FORCES))
 
 
 def _run_parameters(run_dir: Path) -> dict[str, dict[str, str]]:
@@ -417,7 +395,7 @@ def domain() -> Domain:
         ),
         evaluate=evaluate,
         synthesize=scenario_topics,
-        is_scenario=_is_road_scenario,
+        is_scenario=loads_as_scenario(load_scenario, (ValueError, OSError)),
         run_parameters=_run_parameters,
         read_topics=READ_TOPICS,
     )
