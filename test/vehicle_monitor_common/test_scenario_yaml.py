@@ -60,6 +60,30 @@ def test_errors_name_source_line_and_path(key: str, call: Callable[[Any], Any],
         call(root)
 
 
+@pytest.mark.parametrize('text, expected', [
+    ('ratio: 1.5', (1.5, 1.5)),
+    ('ratio: [0.5, 2]', (0.5, 2.0)),
+    ('other: 1', (1.0, 1.0)),
+])
+def test_numbers_one_for_all_or_one_each(text: str, expected: tuple[float, float]) -> None:
+    """One number stands for every name, a list gives one each; absent: the default."""
+    assert read_mapping(text).numbers('ratio', (1.0, 1.0), ('front', 'rear'), low=0.0,
+                                      low_open=True, high=5.0) == expected
+
+
+@pytest.mark.parametrize('text, match', [
+    ('ratio: [1, 2, 3]', r':1: ratio: must be one number or 2 \(front, rear\), got \[1, 2, 3\]$'),
+    ('ratio: [1, .nan]', r':1: ratio: must hold finite numbers'),
+    ('ratio: [1, true]', r':1: ratio: must hold finite numbers'),
+    ('ratio: [0, 1]', r':1: ratio: values must be > 0, got \[0, 1\]$'),
+    ('ratio: 6', r':1: ratio: values must be <= 5, got 6$'),
+])
+def test_numbers_refused_with_line_and_reason(text: str, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        read_mapping(text, 'r.yaml').numbers('ratio', (1.0, 1.0), ('front', 'rear'), low=0.0,
+                                             low_open=True, high=5.0)
+
+
 def test_unknown_and_duplicate_keys_refused() -> None:
     """finish() refuses keys nobody read, at their line; a duplicate key is refused at parse."""
     root = read_mapping(TEXT, 'demo.yaml')

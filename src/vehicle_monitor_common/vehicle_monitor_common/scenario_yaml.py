@@ -2,10 +2,11 @@
 
 A scenario file is a YAML mapping validated key by key. :func:`read_mapping` parses the text
 and records the line of every key and list item (:func:`key_lines`); the reader then walks it
-with :class:`MappingNode`, whose accessors (``number``, ``integer``, ``text``, ``child``,
-``items``) check each value and whose errors name ``source:line: key.path``, so a user finds
-the offending line. :func:`mapping_from_data` wraps an already parsed mapping (no lines: the
-errors then name the key path only). ROS-free; used by the road and rail scenario readers.
+with :class:`MappingNode`, whose accessors (``number``, ``numbers``, ``integer``, ``text``,
+``child``, ``items``) check each value and whose errors name ``source:line: key.path``, so a
+user finds the offending line. :func:`mapping_from_data` wraps an already parsed mapping (no
+lines: the errors then name the key path only). ROS-free; used by the road and rail scenario
+readers.
 """
 
 from __future__ import annotations
@@ -77,6 +78,30 @@ class MappingNode:
         if high is not None and number > high:
             raise self.error(key, f'must be <= {high:g}, got {number:g}')
         return number
+
+    def numbers(self, key: str, default: tuple[float, ...], names: Sequence[str], *,
+                low: float | None = None, high: float | None = None,
+                low_open: bool = False) -> tuple[float, ...]:
+        """One number for each of ``names`` (wheels, bogies): one for all, or a list of one
+        each in that order; every one finite and within [low, high] (``low_open``: strictly
+        above low)."""
+        if key not in self.values:
+            return default
+        raw = self.raw(key)
+        values = list(raw) if isinstance(raw, (list, tuple)) else [raw] * len(names)
+        if len(values) != len(names):
+            raise self.error(key, f'must be one number or {len(names)} ({", ".join(names)}), '
+                                  f'got {raw!r}')
+        for value in values:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value):
+                raise self.error(key, f'must hold finite numbers, got {raw!r}')
+            if low is not None and (value <= low if low_open else value < low):
+                raise self.error(key, f'values must be {">" if low_open else ">="} {low:g}, '
+                                      f'got {raw!r}')
+            if high is not None and value > high:
+                raise self.error(key, f'values must be <= {high:g}, got {raw!r}')
+        return tuple(float(value) for value in values)
 
     def integer(self, key: str, default: int, *, low: int) -> int:
         """An integer >= low (not a bool, not a float)."""

@@ -240,19 +240,9 @@ def _scenario(top: MappingNode) -> RailScenario:
 
 def _ratio_pair(node: MappingNode, key: str) -> tuple[float, float]:
     """A suspension ratio for both bogies, or [front, rear], each in (0, MAX_SUSPENSION_RATIO]."""
-    if not node.has(key):
-        return 1.0, 1.0
-    value = node.raw(key)
-    items = list(value) if isinstance(value, (list, tuple)) else [value, value]
-    if len(items) != 2:
-        raise node.error(key, f'must be a number or [front, rear], got {value!r}')
-    pair = []
-    for item in items:
-        if isinstance(item, bool) or not isinstance(item, (int, float)) \
-                or not 0.0 < item <= MAX_SUSPENSION_RATIO:
-            raise node.error(key, f'must be in (0, {MAX_SUSPENSION_RATIO:g}], got {value!r}')
-        pair.append(float(item))
-    return pair[0], pair[1]
+    front, rear = node.numbers(key, (1.0, 1.0), ('front', 'rear'), low=0.0, low_open=True,
+                               high=MAX_SUSPENSION_RATIO)
+    return front, rear
 
 
 def _initial(node: MappingNode) -> InitialConditions:

@@ -358,22 +358,8 @@ def _four(node: _Node, key: str, default: tuple[float, float, float, float], *,
           low: float | None = None, low_open: bool = False
           ) -> tuple[float, float, float, float]:
     """A number for all four wheels, or a list of four (FL, FR, RL, RR)."""
-    if not node.has(key):
-        return default
-    raw = node.raw(key)
-    values = raw if isinstance(raw, list) else [raw] * 4
-    if len(values) != 4:
-        raise node.error(key, f'must be one number or four (FL, FR, RL, RR), got {raw!r}')
-    checked = []
-    for value in values:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value):
-            raise node.error(key, f'must hold finite numbers, got {raw!r}')
-        if low is not None and (value <= low if low_open else value < low):
-            raise node.error(key, f'values must be {">" if low_open else ">="} {low:g}, '
-                                  f'got {raw!r}')
-        checked.append(float(value))
-    return (checked[0], checked[1], checked[2], checked[3])
+    fl, fr, rl, rr = node.numbers(key, default, WHEEL_NAMES, low=low, low_open=low_open)
+    return fl, fr, rl, rr
 
 
 def _parse_rates(node: _Node) -> Rates:
