@@ -102,6 +102,7 @@ class VibrationParams:
       road excites the two tires independently), so the regression sums of each driven wheel
       are taken less the symmetrised left-right cross products, the covariance form of Umeno's
       left-right difference. It needs both driven wheels: a bad sample on one leaves both out.
+      ``all`` (all-wheel drive: the driveline reaches all four rims) does so on each axle.
     """
 
     sample_rate_hz: float = param(1000.0, 'wheel-speed sample rate, Hz', low=50.0,
@@ -141,9 +142,10 @@ class VibrationParams:
                           low=0.1, high=100.0)
     rel_noise_floor: float = param(0.005, 'floor of the frequency noise relative to the '
                                    'nominal frequency', low=1e-5, high=0.5)
-    driveline_compensation: str = param('none', 'driven axle whose common driveline '
-                                        'vibration is removed by the left-right '
-                                        'cross-covariance', choices=('none', 'front', 'rear'),
+    driveline_compensation: str = param('none', "driven axle(s) whose common driveline "
+                                        "vibration is removed by the left-right "
+                                        "cross-covariance ('all': each axle, all-wheel drive)",
+                                        choices=('none', 'front', 'rear', 'all'),
                                         read_only=True)
 
     def __post_init__(self) -> None:
@@ -173,9 +175,9 @@ class VibrationParams:
                              f'{self.min_valid_fraction}')
         if not self.z_flag < self.z_full:
             raise ValueError('VibrationParams.z_flag must be < z_full')
-        if self.driveline_compensation not in ('none', 'front', 'rear'):
-            raise ValueError(f"VibrationParams.driveline_compensation must be 'none', 'front' "
-                             f"or 'rear', got {self.driveline_compensation!r}")
+        if self.driveline_compensation not in ('none', 'front', 'rear', 'all'):
+            raise ValueError(f"VibrationParams.driveline_compensation must be 'none', 'front', "
+                             f"'rear' or 'all', got {self.driveline_compensation!r}")
         if self.analysis_rate_hz > self.sample_rate_hz:
             raise ValueError(f'VibrationParams.analysis_rate_hz ({self.analysis_rate_hz}) must '
                              f'be <= sample_rate_hz ({self.sample_rate_hz})')
@@ -331,8 +333,9 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._lp_zi_unit = signal.sosfilt_zi(self._lp_sos)
         self._tooth_lambda = math.exp(-1.0 / (TOOTH_MEMORY_S * p.sample_rate_hz))
         self._lambda = p.forgetting
-        self._driven = np.array({'none': (-1, -1), 'front': (0, 1),
-                                 'rear': (2, 3)}[p.driveline_compensation], dtype=np.int64)
+        self._driven = np.array({'none': (-1, -1), 'front': (0, 1), 'rear': (2, 3),
+                                 'all': (0, 1, 2, 3)}[p.driveline_compensation],
+                                dtype=np.int64)
         self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
         self._counts = np.array([max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz))),
                                  self._guard_samples], dtype=np.int64)

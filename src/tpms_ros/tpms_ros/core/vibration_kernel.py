@@ -75,7 +75,8 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
         limits: [max_wheel_speed_rad_s, min_wheel_speed_rad_s, sample interval s, tooth forgetting,
             RLS forgetting, analysis rate Hz, min_valid_fraction].
         counts: [stuck samples, guard samples].
-        driven: the two driven wheels whose common driveline vibration is removed, or -1s.
+        driven: the driven axles' wheels whose common driveline vibration is removed, as
+            left-right pairs (a0, b0, a1, b1 ...; an axle of -1s is not compensated).
         sos, sos_zi_unit, sos_state: the band-pass, its unit steady state, its (S, 2, W) state.
         lp_sos, lp_zi_unit, lp_state: the same for the tooth-error smoothing low-pass.
         tooth: learn and divide out the tooth-error pattern.
@@ -181,10 +182,11 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
         # A kept row: the regressor products, the exponentially weighted sums, the AR(2).
         for w in range(wheels):
             products[5, w] = 1.0 if valid_row[w] and v_hist[1, w] and v_hist[0, w] else 0.0
-        if driven[0] >= 0:
-            a, b = driven[0], driven[1]
-            pair = products[5, a] * products[5, b]
-            products[5, a] = products[5, b] = pair
+        for axle in range(0, driven.size, 2):
+            a, b = driven[axle], driven[axle + 1]
+            if a >= 0:
+                pair = products[5, a] * products[5, b]
+                products[5, a] = products[5, b] = pair
         for w in range(wheels):
             weight, y0, y1, y2 = products[5, w], y_row[w], y_hist[1, w], y_hist[0, w]
             products[0, w] = weight * y1 * y1
@@ -192,8 +194,10 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
             products[2, w] = weight * y2 * y2
             products[3, w] = weight * y1 * y0
             products[4, w] = weight * y2 * y0
-        if driven[0] >= 0:
-            a, b = driven[0], driven[1]
+        for axle in range(0, driven.size, 2):
+            a, b = driven[axle], driven[axle + 1]
+            if a < 0:
+                continue
             pair = products[5, a]
             y0a, y1a, y2a = y_row[a], y_hist[1, a], y_hist[0, a]
             y0b, y1b, y2b = y_row[b], y_hist[1, b], y_hist[0, b]

@@ -13,6 +13,12 @@ mu = Fx / Fz = T_driven / (r_n Fz_static) the linear slip model is s = mu / k + 
 x = (1/k, delta) random walk, measurement s_t = (mu_t, 1) x_t + e_t. Here delta is
 1 - r_driven / r_nondriven; it is reported as the paper's delta_13 = 1 - r1 / r3 (left) and
 delta_24 = 1 - r2 / r4 (right) whichever axle is driven (exact conversion for rear drive).
+All-wheel drive (``driven_axle: all``): no wheel rolls free and each slips under its own
+traction, s_i = mu_i / k; with the two tires of a side alike the slip of the rear wheel against
+the front one is s = (mu_rear - mu_front) / k + delta, so the regressor is the difference of
+the two wheels' traction (each as above, the front's load transfer negative) and delta is the
+rear-drive one. Running an all-wheel-drive car as ``rear`` instead leaves the front wheel's
+traction out: exact only when the front carries no drive torque.
 Deviations, measured on the road simulator's nominal driving: mu counts the wheel's inertia
 torque and the longitudinal load transfer, mu = (T - I_w omega_dot) / (r_n (Fz + m h ax /
 (2 L))), and the model pauses while |ax| > ``accel_max_longitudinal_mps2`` (braking and hard
@@ -102,7 +108,7 @@ class WheelRadiusParams:
         track_front_m: front track width L_front, m.
         track_rear_m: rear track width L_rear, m.
         static_load_n: (FL, FR, RL, RR) static wheel loads Fz, N.
-        driven_axle: 'front' or 'rear'.
+        driven_axle: 'front', 'rear' or 'all' (all-wheel drive: rear against front slip).
         sample_rate_hz: nominal input rate; the first sample's Ts, Hz.
         max_gap_s: a larger gap between stamps restarts the yaw states, s.
         max_wheel_speed_rad_s: wheel speeds above this (rad/s) are rejected as non-physical.
@@ -194,8 +200,9 @@ class WheelRadiusParams:
     static_load_n: tuple[float, ...] = param((4200.0, 4200.0, 3300.0, 3300.0),
                                              'static wheel loads FL, FR, RL, RR, N',
                                              read_only=True)
-    driven_axle: str = param('front', 'driven axle', choices=('front', 'rear'),
-                             read_only=True)
+    driven_axle: str = param('front', "driven axle ('all': all-wheel drive, the rear wheel's "
+                             "slip against the front one's by their traction difference)",
+                             choices=('front', 'rear', 'all'), read_only=True)
     sample_rate_hz: float = param(100.0, 'analysis rate: wheel speeds are '
                                   'averaged into bins of 1 / this, Hz', low=10.0, high=1000.0,
                                   read_only=True)
@@ -297,9 +304,9 @@ class WheelRadiusParams:
         if loads.shape != (N_TIRES,) or not np.all(np.isfinite(loads)) or np.any(loads <= 0):
             raise ValueError(f'WheelRadiusParams.static_load_n must be 4 loads > 0 N, got '
                              f'{self.static_load_n}')
-        if self.driven_axle not in ('front', 'rear'):
-            raise ValueError(f"WheelRadiusParams.driven_axle must be 'front' or 'rear', got "
-                             f'{self.driven_axle!r}')
+        if self.driven_axle not in ('front', 'rear', 'all'):
+            raise ValueError(f"WheelRadiusParams.driven_axle must be 'front', 'rear' or 'all', "
+                             f'got {self.driven_axle!r}')
         if not self.min_speed_mps < self.max_speed_mps:
             raise ValueError('WheelRadiusParams.min_speed_mps must be < max_speed_mps')
         if not 0.0 <= self.z_keep < self.z_flag < self.z_full:
@@ -595,9 +602,13 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self.params = params if params is not None else WheelRadiusParams()
         p = self.params
         front = p.driven_axle == 'front'
-        # (driven, non-driven) wheel of the left and right side
+        # (driven, reference) wheel of the left and right side: the reference rolls free, or
+        # with all four driven (rear against front) carries traction of its own
         self._driven = np.array([0, 1]) if front else np.array([2, 3])
-        self._nondriven = np.array([2, 3]) if front else np.array([0, 1])
+        self._reference = np.array([2, 3]) if front else np.array([0, 1])
+        self._reference_driven = p.driven_axle == 'all'
+        # the filter's delta is 1 - r_rear / r_front (reported as the paper's delta_13, delta_24)
+        self._rear_over_front = not front
         self._loads = np.asarray(p.static_load_n, dtype=float)
         # longitudinal load transfer per driven wheel and m/s^2 of ax: + on the rear axle
         transfer = float(self._loads.sum()) / GRAVITY * p.cg_height_m / (2.0 * p.wheelbase_m)
@@ -688,7 +699,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         u_var = (d_sq - d_sum * d_sum + 2.0 * reference * (dz_sum - d_sum * z_sum)
                  + reference * reference * (z_sq - z_sum * z_sum))
         std = np.sqrt(np.maximum(u_var, 0.0))
-        if self.params.driven_axle == 'rear':
+        if self._rear_over_front:
             std[:2] = std[:2] / (1.0 - d_sum[:2]) ** 2
         std = np.maximum(std, 1e-9)
         self._calibration = WheelRadiusCalibration(mean, std, duration, reference, z_sum,
@@ -789,20 +800,21 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
 
         # longitudinal: slip of driven vs non-driven wheel per side, mu of the driven wheel
         wd = w[:, self._driven]
-        wn = w[:, self._nondriven]
-        side_ok = wheel_ok[:, self._driven] & wheel_ok[:, self._nondriven] & (wn > 0.0)
+        wn = w[:, self._reference]
+        side_ok = wheel_ok[:, self._driven] & wheel_ok[:, self._reference] & (wn > 0.0)
         with np.errstate(divide='ignore', invalid='ignore'):
             slip = np.where(side_ok, wd / wn - 1.0, 0.0)
             slip_var = np.where(side_ok, 2.0 * (p.wheel_speed_noise_mps / (r_n * wn)) ** 2,
                                 1.0)
         omega_dot = self._wheel_acceleration(omega, wheel_ok, dt)
-        ax = r_n * omega_dot[:, self._nondriven].mean(axis=1)
-        # mu = Fx / Fz at the contact: the drive torque less what spins the wheel up, over the
-        # static load plus the longitudinal load transfer
-        drive = np.where(torque_ok[:, None], torque[:, self._driven], 0.0)
-        force = (drive - p.wheel_inertia_kgm2 * omega_dot[:, self._driven]) / r_n
-        load = self._loads[self._driven] + self._load_transfer * ax[:, None]
-        mu = force / np.maximum(load, 0.1 * self._loads[self._driven])
+        ax = r_n * omega_dot[:, self._reference].mean(axis=1)
+        mu = self._traction(self._driven, self._load_transfer, torque, torque_ok, omega_dot, ax)
+        traction_ok = np.abs(mu) <= p.mu_max
+        if self._reference_driven:
+            mu_reference = self._traction(self._reference, -self._load_transfer, torque,
+                                          torque_ok, omega_dot, ax)
+            traction_ok &= np.abs(mu_reference) <= p.mu_max
+            mu = mu - mu_reference
         braking = np.any(np.where(torque_ok[:, None], torque, 0.0) < -p.brake_torque_nm, axis=1)
         # a wheel bad within wheel_recover_s leaves its filtered derivative unreliable
         recent_bad = (stamps[:, None] - self._last_bad_wheel < p.wheel_recover_s).any(axis=1)
@@ -811,7 +823,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self.counts['accel_gated'] += int((in_band & ~steady).sum())
         long_cond = (in_band & torque_ok & ~braking & steady
                      & (lateral_acc <= p.ay_max_longitudinal_mps2))[:, None]
-        long_valid = side_ok & long_cond & (np.abs(mu) <= p.mu_max) & (np.abs(slip) <= p.slip_max)
+        long_valid = side_ok & long_cond & traction_ok & (np.abs(slip) <= p.slip_max)
         self.counts['long_gated'] += int((side_ok & ~long_valid).sum())
 
         lat_cond = in_band & (lateral_acc <= p.ay_max_lateral_mps2) & ~gyro_stuck & lat_steady
@@ -829,6 +841,17 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
                                          c_front, long_valid, use_rear, use_front)
         trace[:, 4] = -trace[:, 4]                        # gyro offset back to REP 103
         return self._estimate(stamps, trace)
+
+    def _traction(self, wheels: np.ndarray, load_transfer: float, torque: np.ndarray,
+                  torque_ok: np.ndarray, omega_dot: np.ndarray, ax: np.ndarray) -> np.ndarray:
+        """(N, 2) mu = Fx / Fz at the contact of two wheels: the drive torque less what spins
+        the wheel up, over the static load plus the longitudinal load transfer (per wheel and
+        m/s^2 of ax)."""
+        p = self.params
+        drive = np.where(torque_ok[:, None], torque[:, wheels], 0.0)
+        force = (drive - p.wheel_inertia_kgm2 * omega_dot[:, wheels]) / p.nominal_radius_m
+        load = self._loads[wheels] + load_transfer * ax[:, None]
+        return force / np.maximum(load, 0.1 * self._loads[wheels])
 
     def _wheel_acceleration(self, omega: np.ndarray, wheel_ok: np.ndarray,
                             dt: np.ndarray) -> np.ndarray:
@@ -974,7 +997,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
             trace[i, 2] = x[3]
             trace[i, 3] = x[4]
             trace[i, 4] = x[2]
-        if p.driven_axle == 'rear':
+        if self._rear_over_front:
             # filter delta = 1 - r_rear / r_front; paper's delta_13 = 1 - r1 / r3 = -d / (1 - d)
             trace[:, :2] = -trace[:, :2] / (1.0 - trace[:, :2])
         return trace, long_trace, residual
@@ -1040,7 +1063,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         std = np.sqrt([lp[0][2], lp[1][2], self._lat_p[3, 3], self._lat_p[4, 4]])
         if self._calibration is not None:
             std *= self._calibration.noise_scale
-        if self.params.driven_axle == 'rear':
+        if self._rear_over_front:
             std[:2] /= (1.0 - np.array([self._long_x[0][1], self._long_x[1][1]])) ** 2
         return std
 
@@ -1061,7 +1084,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
     def offsets(self) -> np.ndarray:
         """(4,) current delta_13, delta_24, delta_34, delta_12 (raw)."""
         d_left, d_right = self._long_x[0][1], self._long_x[1][1]
-        if self.params.driven_axle == 'rear':
+        if self._rear_over_front:
             d_left, d_right = -d_left / (1.0 - d_left), -d_right / (1.0 - d_right)
         return np.array([d_left, d_right, self._lat_x[3], self._lat_x[4]])
 
@@ -1096,11 +1119,11 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         u_now = delta + ref * comp
         std = np.sqrt(np.maximum(var, 0.0)) * cal.noise_scale
         d_cal = cal.nominal_offsets.copy()
-        if self.params.driven_axle == 'rear':
+        if self._rear_over_front:
             # filter terms back from the paper's delta_13 = -d / (1 - d) (an involution)
             d_cal[:2] = -d_cal[:2] / (1.0 - d_cal[:2])
         u_cal = d_cal + ref * cal.companion
-        if self.params.driven_axle == 'rear':
+        if self._rear_over_front:
             std[:2] = std[:2] / (1.0 - u_now[:2]) ** 2
             u_now[:2] = -u_now[:2] / (1.0 - u_now[:2])
             u_cal[:2] = -u_cal[:2] / (1.0 - u_cal[:2])
