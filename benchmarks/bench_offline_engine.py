@@ -9,17 +9,24 @@ factors (recorded seconds per wall second), their ratio, the engine's CPU real-t
 same messages and stamps, values to 1e-9 of each field's scale), except the voter's
 ``/tpms/warning``, whose periodic messages between indications come from the node's timer
 (counts given). Bags whose domain's
-estimators are not all registered as processors are listed as skipped.
+estimators are not all registered as processors are listed as skipped. ``--breakdown`` adds,
+per bag, where the engine's time goes: each processor's own ``process`` calls (their outputs'
+downstream processing not included) and the rest (reading and decoding the bag, building,
+encoding and writing the outputs); the timers add ~1 us per call, so the shares are measured
+in a run of their own, after the timed one.
 
-Run under tools/env.sh: ``python benchmarks/bench_offline_engine.py [--no-live] [bag ...]``.
+Run under tools/env.sh:
+``python benchmarks/bench_offline_engine.py [--no-live] [--breakdown] [bag ...]``.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 import tempfile
 import time
+from typing import Any
 
 from vehicle_monitor_common.bag_io import BagError, bag_topics
 from vehicle_monitor_common.evaluation import Domain, domain_of_bag, domains
@@ -78,6 +85,32 @@ def bench(bag: Path, domain: Domain, scratch: Path, live: bool) -> dict[str, obj
     return row
 
 
+def breakdown(bag: Path, domain: Domain, scratch: Path) -> str:
+    """Where the engine's wall time goes on one bag: per processor, and the rest."""
+    graph = OfflineGraph.from_spec(load_graph(domain.graph),
+                                   domain.run_parameters(scratch / 'breakdown'))
+    spent: dict[str, float] = {}
+
+    def timed(name: str, process: Callable[[str, Any], list[Any]]
+              ) -> Callable[[str, Any], list[Any]]:
+        def call(topic: str, payload: Any) -> list[Any]:
+            started = time.perf_counter()
+            try:
+                return process(topic, payload)
+            finally:
+                spent[name] = spent.get(name, 0.0) + time.perf_counter() - started
+        return call
+
+    for node in graph.nodes:
+        # an instance attribute shadows the method for this graph's run only
+        node.processor.process = timed(node.fqn, node.processor.process)  # type: ignore
+    stats = write_outputs(graph, bag, scratch / 'breakdown' / 'outputs')
+    rest = stats.wall_s - sum(spent.values())
+    shares = sorted(spent.items(), key=lambda item: -item[1]) + [('read, encode, write', rest)]
+    return ', '.join(f'{name} {100 * s / stats.wall_s:.0f} % ({stats.data_s / s:.0f}x RT)'
+                     for name, s in shares)
+
+
 def _cell(row: dict[str, object], key: str, fmt: str = '{:.1f}') -> str:
     value = row.get(key)
     return '' if value is None else (fmt.format(value) if isinstance(value, float)
@@ -88,6 +121,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bags', nargs='*', type=Path)
     parser.add_argument('--no-live', action='store_true', help='the engine only')
+    parser.add_argument('--breakdown', action='store_true',
+                        help='also where the engine\'s time goes, per processor')
     args = parser.parse_args()
     bags = args.bags or sorted(p for p in workspace_bags().iterdir()
                                if (p / 'metadata.yaml').is_file())
@@ -108,10 +143,13 @@ def main() -> None:
             continue
         with tempfile.TemporaryDirectory(prefix='bench-engine-') as scratch:
             row = bench(bag, domain, Path(scratch), not args.no_live)
+            split = breakdown(bag, domain, Path(scratch)) if args.breakdown else ''
         print(f'| {bag.name} | {domain.name} | {_cell(row, "data_s", "{:.0f}")} | '
               f'{_cell(row, "live_rtf")} | {_cell(row, "engine_rtf")} | {_cell(row, "ratio")} | '
               f'{_cell(row, "engine_cpu_rtf")} | {row["messages_in"]} | {row["messages_out"]} | '
               f'{_cell(row, "dropped")} | {_cell(row, "identical")} |', flush=True)
+        if split:
+            print(f'|  | time: {split} |', flush=True)
 
 
 if __name__ == '__main__':
