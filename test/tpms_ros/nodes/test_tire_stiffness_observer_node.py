@@ -145,6 +145,12 @@ def test_invalid_parameters_refused_at_runtime(make_node: Callable[..., Any]) ->
     assert node.processor.observer.params.forgetting_factor == 0.95  # rebuilt with the new value
     (result,) = node.set_parameters([Parameter('drive_compensation', value='difference')])
     assert result.successful and node.processor.observer.params.drive_compensation == 'difference'
+    # The rule across the two groups, checked with the other group's value in force.
+    (result,) = node.set_parameters([Parameter('process_period_s', value=0.002)])
+    assert result.successful
+    (result,) = node.set_parameters([Parameter('sample_rate_hz', value=400.0)])
+    assert not result.successful and 'shorter than one sample' in result.reason
+    assert node.parameter_values['sample_rate_hz'] == 1000.0
 
 
 def test_tracks_truth_calibrates_and_persists(
