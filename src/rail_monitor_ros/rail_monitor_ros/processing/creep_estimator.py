@@ -51,7 +51,6 @@ c (see the creep_ekf tests): patterns B-D then drift.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import math
 from typing import Any
@@ -77,8 +76,8 @@ from vehicle_monitor_common.processing import (
     Input,
     Output,
     Status,
-    build_processor,
 )
+from vehicle_monitor_common.processor_factory import processor_factory
 
 LATERAL_STATES = 'rail/lateral_states'
 BOGIE_IMU = 'rail/bogie/imu'
@@ -531,12 +530,6 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
                 **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> CreepEstimatorProcessor:
-    """The processor from a node's parameter values (dotted names, as the node gets them);
-    the offline engine's way in (entry point group ``vehicle_monitor.processors``).
-
-    Raises:
-        ConfigurationError: a value its definition refuses.
-    """
-    return build_processor(fqn, CreepEstimatorProcessor, values, CreepEkfParams,
-                           CreepEstimatorNodeParams)
+# The offline engine's and the node's way in.
+make_processor = processor_factory(CreepEstimatorProcessor, CreepEkfParams,
+                                   CreepEstimatorNodeParams)

@@ -69,8 +69,8 @@ from vehicle_monitor_common.processing import (
     Input,
     Output,
     Status,
-    build_processor,
 )
+from vehicle_monitor_common.processor_factory import processor_factory
 
 BOGIE_IMU = 'rail/bogie/imu'
 BODY_IMU = 'rail/body/imu'
@@ -492,12 +492,6 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
                    if k in ('non_finite', 'saturated', 'frozen_sensor'))
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> SuspensionMonitorProcessor:
-    """The processor from a node's parameter values (dotted names, as the node gets them);
-    the offline engine's way in (entry point group ``vehicle_monitor.processors``).
-
-    Raises:
-        ConfigurationError: a value its definition refuses.
-    """
-    return build_processor(fqn, SuspensionMonitorProcessor, values, SuspensionImmParams,
-                           SuspensionMonitorNodeParams)
+# The offline engine's and the node's way in.
+make_processor = processor_factory(SuspensionMonitorProcessor, SuspensionImmParams,
+                                   SuspensionMonitorNodeParams)

@@ -49,7 +49,6 @@ the new time line, and the status says so until the filter publishes again.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 from typing import Any
@@ -72,13 +71,14 @@ from tpms_ros.processing.vehicle_inputs import (
 )
 from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
-from vehicle_monitor_common.parameters import build, param
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     Output,
     ProcessorParams,
     Status,
     header_stamp_ns,
 )
+from vehicle_monitor_common.processor_factory import processor_factory
 from vehicle_monitor_common.status_report import StatusProblems
 
 TIRE_FORCES = 'vehicle/tire_forces'
@@ -421,9 +421,6 @@ class LateralForceObserverProcessor:
         return problems.status(values, 'estimating tire forces')
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> LateralForceObserverProcessor:
-    """The processor from flat parameter values (the offline engine's way in)."""
-    del fqn
-    return LateralForceObserverProcessor(build(ObserverVehicleParams, values),
-                                         build(ObserverTuningParams, values),
-                                         build(LateralForceObserverNodeParams, values))
+# The offline engine's and the node's way in.
+make_processor = processor_factory(LateralForceObserverProcessor, ObserverVehicleParams,
+                                   ObserverTuningParams, LateralForceObserverNodeParams)
