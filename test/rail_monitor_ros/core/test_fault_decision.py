@@ -28,21 +28,29 @@ def test_declared_after_the_hold_time_and_cleared_after_the_clear_time() -> None
 
 
 def test_a_declared_fault_holds_through_a_probability_dip() -> None:
-    """The declared hypothesis drops below the threshold (probability spread over modes, or a
-    neighbouring mode ahead) for longer than the hold time: still declared; only confirmed
-    normal clears it."""
+    """The declared component drops below the threshold (probability spread over modes, or
+    normal ahead) for longer than the hold time: still declared; only confirmed normal clears
+    it. The size follows the component's most probable hypothesis."""
     decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, clear_time_s=0.5)
     keys = [NORMAL, SPRING_150, (1.4, 1.0)]
     assert _run(decision, keys, [0.1, 0.9, 0.0], 10)[-1] == 'spring'
     # Nobody above threshold for 1 s, normal briefly ahead for 0.3 s (< clear time).
-    assert set(_run(decision, keys, [0.35, 0.35, 0.3], 100)) == {'spring'}
+    assert set(_run(decision, keys, [0.45, 0.3, 0.25], 100)) == {'spring'}
     assert set(_run(decision, keys, [0.7, 0.3, 0.0], 30)) == {'spring'}
-    assert set(_run(decision, keys, [0.2, 0.4, 0.4], 100)) == {'spring'}
-    status = decision.update(keys, np.array([0.2, 0.4, 0.4]))
-    assert (status.spring_ratio, status.probability) == (1.5, pytest.approx(0.4))
-    # A resize needs the hold time like a declaration.
-    assert _run(decision, keys, [0.1, 0.2, 0.7], 7)[-1] == 'spring'
-    assert decision.update(keys, np.array([0.1, 0.2, 0.7])).spring_ratio == 1.4
+    status = decision.update(keys, np.array([0.45, 0.3, 0.25]))
+    assert (status.spring_ratio, status.probability) == (1.5, pytest.approx(0.55))
+    status = decision.update(keys, np.array([0.1, 0.2, 0.7]))
+    assert (status.component, status.spring_ratio) == ('spring', 1.4)
+
+
+def test_a_fault_between_grid_points_is_declared_by_its_component() -> None:
+    """Damper 66 %: its probability split over the 70 % and 80 % modes, neither above the
+    threshold, the damper component is: declared, sized at the larger."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
+    keys = [NORMAL, (1.0, 0.7), (1.0, 0.8)]
+    components = _run(decision, keys, [0.2, 0.45, 0.35], 7)
+    assert components == [''] * 5 + ['damper'] * 2
+    assert decision.update(keys, np.array([0.2, 0.45, 0.35])).damper_ratio == 0.7
 
 
 def test_near_nominal_ratios_count_as_normal() -> None:

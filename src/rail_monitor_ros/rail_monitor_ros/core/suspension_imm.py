@@ -39,11 +39,14 @@ Beyond the paper:
   (measured with the earlier reduced model without wheelsets): all spring-only modes then fit
   badly and their relative weights wander. With the full-car model the estimate holds 1.50
   after the damper fault.
-* Decision: modes are grouped into hypotheses by their current ratios snapped to the mode grid
-  (with the adaptive step the damper-100 % mode *is* the spring-only hypothesis at the
-  estimated spring ratio, and without it a duplicate of normal); a hypothesis is declared when
-  its smoothed probability stays above ``fault_threshold`` for ``hold_time_s``; normal is a
-  hypothesis like the others, so a fault clears the same way.
+* Decision (:class:`rail_monitor_ros.core.fault_decision.FaultDecision`): modes are grouped
+  into hypotheses by their current ratios snapped to the mode grid (with the adaptive step the
+  damper-100 % mode *is* the spring-only hypothesis at the estimated spring ratio), ratios
+  within ``min_fault_deviation`` of 1 counted nominal, a compound counted as a damper fault
+  unless a spring fault was declared first; a fault component is declared when its summed
+  smoothed probability stays above ``fault_threshold`` for ``hold_time_s``, and cleared only
+  when normal does so for ``clear_time_s`` (hysteresis on the decision). The adaptive step is
+  frozen while the damper-fault modes dominate.
 """
 
 from __future__ import annotations
@@ -165,11 +168,20 @@ class ProbabilitySnapshot:
 
 # Mode discretisations shared by all instances with the same configuration and vehicle (a
 # sweep or a test suite builds many; one full-car mode costs a 120 x 120 matrix exponential).
-# Bounded: the oldest entry goes first.
+# Bounded: the oldest entry goes first. Only memoised results of pure functions of the key (read-
+# only arrays); what an instance does with them (when its steady-state gains take over) is
+# decided by what it solved itself, so outputs do not depend on earlier runs in the process
+# (tested bit for bit).
 _SHARED_DISCRETIZATIONS: dict[tuple[object, ...], ModeModel] = {}
 _SHARED_DISCRETIZATIONS_MAX = 512
-# The decision's defaults (core/fault_decision.py; chosen on the development family, see
-# docs/methods/rail_family_evaluation.md, 2026-11-25).
+# The decision's defaults (core/fault_decision.py), chosen on the development family
+# (docs/methods/rail_family_evaluation.md, 2026-11-25): the longest excursion of a fault
+# component above 0.6 in 24 healthy development minutes was 0.315 s, so a fault must hold 0.5 s
+# (0.25 s: 6 false declarations there); clearing takes 1 s of confirmed normal (0.25-2 s gave
+# the same development figures: the margin is a choice); spring 110 % and damper 90 % are no
+# fault by themselves (min deviation 0, 0.1, 0.15 or 0.2: 49, 0, 0, 0 false declarations;
+# 0.15 sits between the grid's 0.1 steps).
+HOLD_TIME_S = 0.5
 CLEAR_TIME_S = 1.0
 MIN_FAULT_DEVIATION = 0.15
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
@@ -244,9 +256,9 @@ class SuspensionImmParams:
         estimate_min_probability: modes below this fraction of the largest smoothed
             probability do not vote in the spring and damper estimates (nor in the adaptive
             step): the Markov prior's background mass is not evidence.
-        fault_threshold: grouped smoothed hypothesis probability to declare (or clear) a
-            fault (:class:`rail_monitor_ros.core.fault_decision.FaultDecision`).
-        hold_time_s: how long a fault hypothesis must stay above the threshold to be
+        fault_threshold: summed smoothed probability of a fault component to declare it (of
+            normal to clear it; :class:`rail_monitor_ros.core.fault_decision.FaultDecision`).
+        hold_time_s: how long a fault component must stay above the threshold to be
             declared (or to replace the declared one), s.
         clear_time_s: how long the normal hypothesis must stay above the threshold to clear a
             declared fault, s (hysteresis on the decision: a dip of the declared hypothesis
@@ -368,10 +380,11 @@ class SuspensionImmParams:
                                             'smoothed probability do not vote in the ratio '
                                             'estimates, 1', low=1e-6, high=1.0,
                                             read_only=True)
-    fault_threshold: float = param(0.6, 'smoothed hypothesis probability to declare or clear '
-                                   'a fault, 1', low=0.01, high=0.99)
-    hold_time_s: float = param(0.25, 'time a fault hypothesis stays above the threshold before '
-                               'it is declared, s', low=0.0, high=600.0)
+    fault_threshold: float = param(0.6, 'summed smoothed probability of a fault component to '
+                                   'declare it (of normal to clear it), 1', low=0.01,
+                                   high=0.99)
+    hold_time_s: float = param(HOLD_TIME_S, 'time a fault component stays above the threshold '
+                               'before it is declared, s', low=0.0, high=600.0)
     clear_time_s: float = param(CLEAR_TIME_S, 'time the normal hypothesis stays above the '
                                 'threshold before a declared fault clears, s', low=0.0,
                                 high=600.0)
@@ -645,6 +658,11 @@ class SuspensionImm:
                 h_known = {k: np.vstack([h, eye[self.n_states + 2 * np.arange(k // 2)]])
                            for k in self._known_sizes}
             cached = ModeModel(f, q + self._q_model, h_known)
+            # Shared between instances: memoised results of pure functions of the key (the
+            # discretisation, and its Riccati solutions once solved), never written after;
+            # read-only so that no instance can change another's model.
+            for array in (cached.f, cached.q, *cached.h.values()):
+                array.flags.writeable = False
             if len(_SHARED_DISCRETIZATIONS) >= _SHARED_DISCRETIZATIONS_MAX:
                 del _SHARED_DISCRETIZATIONS[next(iter(_SHARED_DISCRETIZATIONS))]
             _SHARED_DISCRETIZATIONS[shared_key] = cached
