@@ -30,9 +30,8 @@ that field not measured: the pattern is not fed, the sample is rejected and the 
 naming the pattern and the fields until they arrive again (NaN elsewhere is ignored). Other
 non-finite or wrongly sized values are rejected (the sample becomes a prediction step); a
 measurement channel frozen (bit-identical) for ``frozen_s`` is a dead sensor and its sample is
-rejected
-(``input_health.FrozenDetector``); pattern D: an acceleration or yaw rate at its limit is
-saturated and rejected. All counted in the status.
+rejected (``input_health.FrozenDetector``); pattern D: an acceleration or yaw rate at its limit
+is saturated and rejected. All counted in the status.
 
 Input faults never become a low-adhesion alarm. While the driving measurement is rejected, and
 (patterns B-D, which cannot observe c without it) while a track input that was in use is
