@@ -206,7 +206,7 @@ def _lateral_msg(result: RailSimulationResult, k: int, stamp: int) -> RailLatera
 def test_bad_input_counted_and_estimate_protected(
         creep_drop: RailSimulationResult, make_node: Callable[..., Any],
         spin_until: Callable[..., bool]) -> None:
-    """NaN, repeated and out-of-order stamps, a frozen sensor, missing samples and a long gap:
+    """Inf, repeated and out-of-order stamps, a frozen sensor, missing samples and a long gap:
     each rejected or bridged and counted, the node stays up, the estimate stays sane and
     /diagnostics reports the stale track input and the counts."""
     got: list[CreepFactor] = []
@@ -229,7 +229,7 @@ def test_bad_input_counted_and_estimate_protected(
             stamp += 10**9                            # 1 s gap: filter reset
         msg = _lateral_msg(creep_drop, k, stamp)
         if k == 100:
-            msg.bogie_lateral = [math.nan, 0.0]       # non-finite
+            msg.bogie_lateral = [math.inf, 0.0]       # non-finite (NaN: missing_fields)
         if 200 <= k < 250:
             msg = _lateral_msg(creep_drop, 199, stamp)  # frozen sensor for 0.25 s
         pub.publish(msg)
