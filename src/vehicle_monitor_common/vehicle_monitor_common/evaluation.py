@@ -3,9 +3,11 @@
 ROS-free (numpy, rosbags through :mod:`bag_io`). A domain package describes itself with a
 :class:`Domain` (its graph file, its shipped scenarios, how to synthesise a scenario file and how
 to evaluate a recording) and registers a factory under the ``vehicle_monitor.evaluations``
-entry-point group of its setup.py::
+entry-point group of its setup.cfg::
 
-    'vehicle_monitor.evaluations': ['road = tpms_ros.offline.evaluation:domain'],
+    [options.entry_points]
+    vehicle_monitor.evaluations =
+        road = tpms_ros.offline.evaluation:domain
 
 The main job (``monitor_demo``) and the evaluation CLI (``evaluate``) discover the domains
 through that group, so this package never imports a domain package. An evaluation yields one

@@ -3,7 +3,7 @@
 The manual-composition counterpart of ``ros2 launch`` (not available from PyPI): the demo, the
 benchmarks and the integration tests bring graphs up with it. Nodes are named by plugin,
 ``<package>/<node>`` as registered under the ``vehicle_monitor.nodes`` entry-point group of the
-packages' setup.py (like rclcpp_components), or ``module:Class``. A graph file::
+packages' setup.cfg (like rclcpp_components), or ``module:Class``. A graph file::
 
     executor: events            # events (rclpy's EventsExecutor, default: ~5x less overhead
                                 # per callback), single, or multi (one thread per core)
