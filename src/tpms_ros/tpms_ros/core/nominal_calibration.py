@@ -10,7 +10,7 @@ is what ``calibration_store.CalibrationManager`` drives.
 
 from __future__ import annotations
 
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -24,12 +24,20 @@ Cal = TypeVar('Cal', bound=_Persistable)
 
 class CalibratedCore(Generic[Cal]):
     """The calibration bookkeeping of a core: the calibration in force (or None), whether a
-    run is on, and the calibration as plain data to persist. The core sets ``_calibration``
-    and ``_calibrating``; it implements ``start_calibration``, ``finish_calibration`` (calling
-    :meth:`_check_calibrating` first) and ``load_calibration_state``."""
+    run is on, the end of a run (the window's moments, :func:`calibration_moments`) and the
+    calibration as plain data to persist. The core keeps ``_cal_sum`` (count, sum, sum of
+    squares per channel) while ``_calibrating``; it implements ``start_calibration``,
+    ``_calibration_from`` (the calibration from the window's moments) and
+    ``load_calibration_state``, and names ``calibration_counts`` and
+    ``calibration_rate_hz``."""
 
+    #: what a calibration window counts per channel, for the error (e.g. ``known estimates
+    #: per tire``)
+    calibration_counts: ClassVar[str]
+    params: Any
     _calibration: Cal | None
     _calibrating: bool
+    _cal_sum: np.ndarray
 
     @property
     def calibration(self) -> Cal | None:
@@ -47,9 +55,31 @@ class CalibratedCore(Generic[Cal]):
             raise ValueError('not calibrated')
         return self._calibration.to_dict()
 
-    def _check_calibrating(self) -> None:
+    @property
+    def calibration_rate_hz(self) -> float:
+        """The rate the calibration window's counts are at, Hz."""
+        raise NotImplementedError
+
+    def finish_calibration(self) -> Cal:
+        """End calibration and put it in force.
+
+        Raises:
+            ValueError: not calibrating, or a channel has less than ``min_calibration_s`` of
+                valid data after settling (the previous calibration stays in force).
+        """
         if not self._calibrating:
             raise ValueError('finish_calibration called without start_calibration')
+        mean, std, duration = calibration_moments(
+            self._cal_sum, self.calibration_rate_hz, self.params.min_calibration_s,
+            self.calibration_counts)
+        self._calibration = self._calibration_from(mean, std, duration)
+        self._calibrating = False
+        return self._calibration
+
+    def _calibration_from(self, mean: np.ndarray, std: np.ndarray,
+                          duration_s: np.ndarray) -> Cal:
+        """The calibration from the window's per-channel mean, std and valid duration."""
+        raise NotImplementedError
 
 
 def calibration_moments(sums: np.ndarray, rate_hz: float, min_s: float,

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from tpms_ros.core.nominal_calibration import CalibratedCore, calibration_moments
+from tpms_ros.core.nominal_calibration import CalibratedCore
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
@@ -408,22 +408,17 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._cal_sum[:] = 0.0
         self._cal_seen = 0
 
-    def finish_calibration(self) -> VibrationCalibration:
-        """End calibration and put it in force.
+    calibration_counts = 'known estimates per tire'
 
-        Raises:
-            ValueError: not calibrating, or a tire has less than ``min_calibration_s`` of known
-                estimates after settling (the previous calibration stays in force).
-        """
-        self._check_calibrating()
-        mean, std, duration = calibration_moments(
-            self._cal_sum, self.params.effective_rate_hz, self.params.min_calibration_s,
-            'known estimates per tire')
+    @property
+    def calibration_rate_hz(self) -> float:
+        """Estimates are counted at the analysis rate."""
+        return self.params.effective_rate_hz
+
+    def _calibration_from(self, mean: np.ndarray, std: np.ndarray,
+                          duration_s: np.ndarray) -> VibrationCalibration:
         # a floor on the stored noise keeps a perfectly clean calibration from dividing by ~0
-        std = np.maximum(std, 1e-6 * mean)
-        self._calibration = VibrationCalibration(mean, std, duration)
-        self._calibrating = False
-        return self._calibration
+        return VibrationCalibration(mean, np.maximum(std, 1e-6 * mean), duration_s)
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a persisted calibration in force; raises ValueError if it is corrupt."""

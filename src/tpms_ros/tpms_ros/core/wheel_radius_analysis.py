@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from tpms_ros.core.nominal_calibration import CalibratedCore, calibration_moments
+from tpms_ros.core.nominal_calibration import CalibratedCore
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -679,17 +679,15 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self._cal_noise[:] = 0.0
         self._cal_start = None
 
-    def finish_calibration(self) -> WheelRadiusCalibration:
-        """End calibration and put it in force.
+    calibration_counts = f'valid updates for {PAIR_NAMES}'
 
-        Raises:
-            ValueError: not calibrating, or a pair has less than ``min_calibration_s`` of valid
-                updates after settling (the previous calibration stays in force).
-        """
-        self._check_calibrating()
-        mean, std, duration = calibration_moments(
-            self._cal_sum, self.params.sample_rate_hz, self.params.min_calibration_s,
-            f'valid updates for {PAIR_NAMES}')
+    @property
+    def calibration_rate_hz(self) -> float:
+        """Updates are counted at the analysis rate."""
+        return self.params.sample_rate_hz
+
+    def _calibration_from(self, mean: np.ndarray, std: np.ndarray,
+                          duration_s: np.ndarray) -> WheelRadiusCalibration:
         count = self._cal_sum[0]
         # the nominal is the observable combination u = delta + a z at the window's mean a;
         # its spread over the window is that of u, not of delta alone
@@ -702,10 +700,8 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         if self._rear_over_front:
             std[:2] = std[:2] / (1.0 - d_sum[:2]) ** 2
         std = np.maximum(std, 1e-9)
-        self._calibration = WheelRadiusCalibration(mean, std, duration, reference, z_sum,
-                                                   self._noise_scale())
-        self._calibrating = False
-        return self._calibration
+        return WheelRadiusCalibration(mean, std, duration_s, reference, z_sum,
+                                      self._noise_scale())
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a persisted calibration in force; raises ValueError if it is corrupt."""
