@@ -4,12 +4,17 @@ A processor is what a node does with its inputs, without the transport: it is gi
 message (decoded, or as the serialised bytes for a raw input) in arrival order and returns the
 messages to publish, each as an :class:`Output` (topic, stamp, fields); it reports its health as
 a :class:`Status`. All of a node's logic lives there: time checks, buffering and chunking,
-calibration, gating, output timing in data time. Then
+calibration, gating, output timing in data time.
 
-* the **node** (``processor_node.ProcessorNode``) is a transport adapter: it declares the
-  parameters, builds the processor with its ``make_processor``, subscribes the processor's
-  inputs, hands each message over, fills and publishes the outputs, publishes the status on
-  ``/diagnostics`` from its timer, and serves ``~/calibrate``;
+Each processing module declares its node once, in a :class:`ProcessorSpec` (``SPEC``): the
+node's default name, its ``/diagnostics`` hardware id, its parameter groups (each with the
+processor method its changes go to) and how the processor is built from their values
+(``SPEC.make_processor``, the module's ``make_processor`` entry point). Then
+
+* the **node** (``processor_node.ProcessorNode``, declared ``spec=<module>.SPEC``) is a
+  transport adapter: it declares the parameters, builds the processor with ``make_processor``,
+  subscribes the processor's inputs, hands each message over, fills and publishes the outputs,
+  publishes the status on ``/diagnostics`` from its timer, and serves ``~/calibrate``;
 * the **offline engine** (``offline_engine``) reads a recording, hands every message to the
   processors of a graph in recorded order (outputs that other processors subscribe go to them
   at once), and writes or summarises what they publish: the same outputs as the live graph,
@@ -24,7 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar, cast
 
 from vehicle_monitor_common.parameters import ConfigurationError, build, param
 
@@ -143,3 +148,82 @@ class CalibratingProcessor(Processor, Protocol):
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a stored calibration in force; ValueError when it does not fit this vehicle."""
+
+
+P = TypeVar('P', bound=Processor)
+ProcessorFactory = Callable[[Mapping[str, Any], str], P]
+"""``make_processor(values, fqn)``: a processor from a node's flat parameter values (dotted
+names) and the node's fully qualified name (for its messages)."""
+
+CrossCheck = Callable[[Mapping[str, Any]], str]
+"""Why a combination of parameter values across groups is refused ('' when it is not)."""
+
+
+@dataclass(frozen=True)
+class ParameterGroup:
+    """One parameter dataclass a node declares, and where its changes go.
+
+    Attributes:
+        definition: the dataclass; or, for a group whose fields depend on a parameter declared
+            before it (the voter's per-method votes), a function of the values declared so far
+            that returns it.
+        forward_to: the processor method a change of the group is handed to, called with the
+            current value of every group forwarded to that method, in declaration order (the
+            observer's vehicle and tuning groups go to one ``set_model(vehicle, tuning)``);
+            empty: changes are not forwarded.
+    """
+
+    definition: type[Any] | Callable[[Mapping[str, Any]], type[Any]]
+    forward_to: str = ''
+
+
+@dataclass(frozen=True)
+class ProcessorSpec(Generic[P]):
+    """A node, declared once, by its processing module (``SPEC``): what the live node
+    (``ProcessorNode``, ``spec=``) and the offline engine (``make_processor``) build it from.
+
+    Attributes:
+        name: the node's default name.
+        hardware_id: the ``/diagnostics`` hardware id, formatted with the parameter values
+            (``rail/creep/{bogie}``).
+        groups: the parameter groups, in declaration order.
+        make: the processor class (or any callable) given one instance of each group's
+            dataclass, in declaration order; unused when ``factory`` is given.
+        factory: a hand-written ``make_processor(values, fqn)``, for a processor that is more
+            than its parameters (a calibration file to resolve, groups defined by a function).
+        cross_check: why a combination of values across the groups is refused ('' when it is
+            not), run on every candidate set at runtime (each group checks its own fields).
+        make_processor: ``factory``, or by default ``make`` given each group's dataclass built
+            from the values (:func:`build_processor`: a refused value is a ConfigurationError
+            naming the node). The module's ``make_processor`` entry point
+            (``vehicle_monitor.processors``) is this.
+    """
+
+    name: str
+    hardware_id: str
+    groups: tuple[ParameterGroup, ...]
+    make: Callable[..., P] | None = None
+    factory: ProcessorFactory[P] | None = None
+    cross_check: CrossCheck | None = None
+    make_processor: ProcessorFactory[P] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        made = self.factory or self._built_from_groups()
+        object.__setattr__(self, 'make_processor', made)
+
+    def _built_from_groups(self) -> ProcessorFactory[P]:
+        make = self.make
+        classes = [group.definition for group in self.groups]
+        if make is None or not all(isinstance(cls, type) for cls in classes):
+            raise TypeError(f'{self.name}: without factory=, a spec needs make= and groups '
+                            'defined by dataclasses (not by a function of other values)')
+        parameter_classes = cast(list[type[Any]], classes)
+
+        def make_processor(values: Mapping[str, Any], fqn: str) -> P:
+            return build_processor(fqn, make, values, *parameter_classes)
+
+        make_processor.__doc__ = (
+            f'The {getattr(make, "__name__", "processor")} from a node\'s parameter values '
+            f'(dotted names): {", ".join(cls.__name__ for cls in parameter_classes)}. Raises '
+            'ConfigurationError naming the node for a value its definition refuses.')
+        return make_processor

@@ -1,15 +1,17 @@
 """The transport adapter every estimator node is: a :class:`~rclpy.node.Node` around a processor.
 
-A node is declared, not written: its class statement names its default name, its parameter
-groups (the processor's parameter dataclasses, each with the processor method its changes go
-to), the processor's factory (the ``make_processor(values, fqn)`` the offline engine runs, so
-node and engine build the processor the same way) and its ``/diagnostics`` hardware id. This class
-declares the parameters (``TypedParameters``: one definition each), builds the processor from
-their values and attaches it (:meth:`ProcessorNode.attach`): it subscribes every input of the
-processor (sensor QoS, overridable), hands each message over, publishes the outputs it returns
-(reliable, depth 10), publishes its status on ``/diagnostics`` from a timer, forwards parameter
-changes, and, for a calibrating processor, serves ``~/calibrate``, keeps the calibration in the
-node's own file (``node_helpers.calibration_path``) and logs the calibration's events.
+A node is declared, not written: its class statement names the
+:class:`~vehicle_monitor_common.processing.ProcessorSpec` its processing module declares
+(``spec=<module>.SPEC``: default name, ``/diagnostics`` hardware id, parameter groups each with
+the processor method its changes go to, a rule across groups, and ``make_processor(values,
+fqn)``, which the offline engine runs too, so node and engine build the processor the same
+way). This class declares the parameters (``TypedParameters``: one definition each), builds the
+processor from their values and attaches it (:meth:`ProcessorNode.attach`): it subscribes every
+input of the processor (sensor QoS, overridable), hands each message over, publishes the
+outputs it returns (reliable, depth 10), publishes its status on ``/diagnostics`` from a timer,
+forwards parameter changes, and, for a calibrating processor, serves ``~/calibrate``, keeps the
+calibration in the node's own file (``node_helpers.calibration_path``) and logs the
+calibration's events.
 
 Input silence is watched here, once for every node: each input's message count and the age of
 its last message (node clock) go on the diagnostics; an input silent for longer than
@@ -25,7 +27,6 @@ stamps, which the processors check for jumps of their own.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 import importlib
 from typing import Any, ClassVar, TypeVar
 
@@ -47,7 +48,16 @@ from vehicle_monitor_common.node_helpers import (
     time_msg,
 )
 from vehicle_monitor_common.parameters import flatten
-from vehicle_monitor_common.processing import ERROR, WARN, Output, Processor
+from vehicle_monitor_common.processing import (
+    ERROR,
+    WARN,
+    CrossCheck,
+    Output,
+    ParameterGroup,
+    Processor,
+    ProcessorFactory,
+    ProcessorSpec,
+)
 
 P = TypeVar('P')
 
@@ -68,70 +78,32 @@ def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
     return message
 
 
-@dataclass(frozen=True)
-class ParameterGroup:
-    """One parameter dataclass a node declares, and where its changes go.
-
-    Attributes:
-        definition: the dataclass; or, for a group whose fields depend on a parameter declared
-            before it (the voter's per-method votes), a function of the values declared so far
-            that returns it.
-        forward_to: the processor method a change of the group is handed to, called with the
-            current value of every group forwarded to that method, in declaration order (the
-            observer's vehicle and tuning groups go to one ``set_model(vehicle, tuning)``);
-            empty: changes are not forwarded.
-    """
-
-    definition: type[Any] | Callable[[Mapping[str, Any]], type[Any]]
-    forward_to: str = ''
-
-
-ProcessorFactory = Callable[[Mapping[str, Any], str], Processor]
-CrossCheck = Callable[[Mapping[str, Any]], str]
-
-
-@dataclass(frozen=True)
-class NodeDeclaration:
-    """What a node class declares (the keywords of its class statement).
-
-    Attributes:
-        name: the node's default name.
-        groups: its parameter groups, in declaration order.
-        factory: the processor's ``make_processor(values, fqn)`` (entry point group
-            ``vehicle_monitor.processors``: the offline engine's way in too).
-        hardware_id: the ``/diagnostics`` hardware id, formatted with the parameter values
-            (``rail/creep/{bogie}``).
-        cross_check: why a combination of values across the groups is refused ('' when it is
-            not), run on every candidate set at runtime (each group checks its own fields).
-    """
-
-    name: str
-    groups: tuple[ParameterGroup, ...]
-    factory: ProcessorFactory | None = None
-    hardware_id: str = ''
-    cross_check: CrossCheck | None = None
-
-
 class ProcessorNode(Node):
     """A node whose logic is a processor (see the module docstring).
 
-    A subclass declares itself in its class statement (the keywords of
-    :class:`NodeDeclaration`) and is built whole by this constructor; one that declares nothing
-    (a test's) calls :meth:`attach` itself.
+    A subclass declares itself in its class statement (``spec=``, its processing module's
+    :class:`~vehicle_monitor_common.processing.ProcessorSpec`) and is built whole by this
+    constructor; one that declares nothing (a test's) calls :meth:`attach` itself.
     """
 
     processor: Processor
-    declaration: ClassVar[NodeDeclaration | None] = None
+    processor_spec: ClassVar[ProcessorSpec[Any] | None] = None
 
-    def __init_subclass__(cls, *, name: str = '', groups: tuple[ParameterGroup, ...] = (),
-                          factory: ProcessorFactory | None = None, hardware_id: str = '',
+    def __init_subclass__(cls, *, spec: ProcessorSpec[Any] | None = None,
+                          name: str = '', groups: tuple[ParameterGroup, ...] = (),
+                          factory: ProcessorFactory[Any] | None = None, hardware_id: str = '',
                           cross_check: CrossCheck | None = None, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if groups:
-            cls.declaration = NodeDeclaration(name, groups, factory, hardware_id, cross_check)
+            # The keywords the stiffness node still declares itself with, until its
+            # processing module declares its SPEC (issue 18): the same spec, written here.
+            spec = ProcessorSpec(name, hardware_id, groups, factory=factory,
+                                 cross_check=cross_check)
+        if spec is not None:
+            cls.processor_spec = spec
 
     def __init__(self, node_name: str = '', **kwargs: Any) -> None:
-        declared = self.declaration
+        declared = self.processor_spec
         super().__init__(node_name or (declared.name if declared else ''), **kwargs)
         self.typed_parameters: list[TypedParameters[Any]] = []
         if declared is None:
@@ -158,15 +130,10 @@ class ProcessorNode(Node):
         raise SystemExit(run_node(cls, args))
 
     def create_processor(self, values: Mapping[str, Any]) -> Processor:
-        """The processor from the parameter values: the factory the offline engine runs too.
-
-        Raises:
-            TypeError: the node declares no factory (and does not build its processor itself).
-        """
-        factory = self.declaration.factory if self.declaration else None
-        if factory is None:
-            raise TypeError(f'{type(self).__name__} declares no processor factory')
-        return factory(values, self.get_fully_qualified_name())
+        """The processor from the parameter values: the spec's ``make_processor``, which the
+        offline engine runs too."""
+        assert self.processor_spec is not None  # only a declared node builds its processor
+        return self.processor_spec.make_processor(values, self.get_fully_qualified_name())
 
     @property
     def parameter_values(self) -> dict[str, Any]:
@@ -182,9 +149,9 @@ class ProcessorNode(Node):
         raise KeyError(f'{self.get_name()} declares no {cls.__name__} group')
 
     def _forwarder(self, method: str) -> Callable[[Any], None] | None:
-        if not method or self.declaration is None:
+        if not method or self.processor_spec is None:
             return None
-        sharing = [i for i, group in enumerate(self.declaration.groups)
+        sharing = [i for i, group in enumerate(self.processor_spec.groups)
                    if group.forward_to == method]
 
         def forward(_: Any) -> None:
@@ -196,8 +163,9 @@ class ProcessorNode(Node):
         candidate: dict[str, Any] = {}
         for typed in self.typed_parameters:
             candidate.update(typed.candidate_values(parameters))
-        assert self.declaration is not None and self.declaration.cross_check is not None
-        problem = self.declaration.cross_check(candidate)
+        declared = self.processor_spec
+        assert declared is not None and declared.cross_check is not None
+        problem = declared.cross_check(candidate)
         return SetParametersResult(successful=not problem, reason=problem)
 
     def attach(self, processor: Processor, hardware_id: str, diagnostics_period_s: float,

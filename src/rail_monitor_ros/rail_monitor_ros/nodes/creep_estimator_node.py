@@ -7,23 +7,18 @@ A-C) or ``rail/bogie/imu`` + ``rail/body/imu`` (sensor_msgs/Imu; pattern D), and
 for every processed sample, stamped with that sample's stamp, and ``/diagnostics``. Its logic
 (sample assembly, input checks, the EKF, outputs, status) is
 :class:`rail_monitor_ros.processing.creep_estimator.CreepEstimatorProcessor`, which the offline
-engine runs too; this node names the parameters' definitions (``CreepEkfParams``,
-``CreepEstimatorNodeParams``) and the processor's factory, and
-:class:`~vehicle_monitor_common.processor_node.ProcessorNode` does the rest.
+engine runs too; that module declares the node (``SPEC``: its parameter groups
+``CreepEkfParams`` and ``CreepEstimatorNodeParams``, hardware id, factory), this one names that
+declaration, and :class:`~vehicle_monitor_common.processor_node.ProcessorNode` does the rest.
 """
 
 from __future__ import annotations
 
-from rail_monitor_ros.core.creep_ekf import CreepEkfParams
-from rail_monitor_ros.processing.creep_estimator import CreepEstimatorNodeParams, make_processor
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from rail_monitor_ros.processing import creep_estimator
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-class CreepEstimatorNode(
-        ProcessorNode, name='creep_estimator', factory=make_processor,
-        hardware_id='rail/creep/{bogie}',
-        groups=(ParameterGroup(CreepEkfParams, 'update_params'),
-                ParameterGroup(CreepEstimatorNodeParams, 'update_node_params'))):
+class CreepEstimatorNode(ProcessorNode, spec=creep_estimator.SPEC):
     """Creep-factor EKF node (see the module docstring)."""
 
 

@@ -5,26 +5,19 @@ Subscribes ``rail/bogie/imu``, ``rail/body/imu`` and, when enabled, ``rail/track
 and ``rail/creep_factor``; publishes ``rail/suspension/modes`` (ModeProbabilities) and
 ``/diagnostics``. Its logic (IMU pairing, input checks, data time, outputs, status) is
 :class:`rail_monitor_ros.processing.suspension_monitor.SuspensionMonitorProcessor`, which the
-offline engine runs too; this node names the parameters' definitions (``SuspensionImmParams``,
-``SuspensionMonitorNodeParams``) and the processor's factory, and
-:class:`~vehicle_monitor_common.processor_node.ProcessorNode` does the rest.
+offline engine runs too; that module declares the node (``SPEC``: its parameter groups
+``SuspensionImmParams`` and ``SuspensionMonitorNodeParams``, hardware id, factory), this one names
+that declaration, and :class:`~vehicle_monitor_common.processor_node.ProcessorNode` does the
+rest.
 """
 
 from __future__ import annotations
 
-from rail_monitor_ros.core.suspension_imm import SuspensionImmParams
-from rail_monitor_ros.processing.suspension_monitor import (
-    SuspensionMonitorNodeParams,
-    make_processor,
-)
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from rail_monitor_ros.processing import suspension_monitor
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-class SuspensionMonitorNode(
-        ProcessorNode, name='suspension_monitor', factory=make_processor,
-        hardware_id='rail_suspension_imm',
-        groups=(ParameterGroup(SuspensionImmParams, 'update_params'),
-                ParameterGroup(SuspensionMonitorNodeParams, 'update_node_params'))):
+class SuspensionMonitorNode(ProcessorNode, spec=suspension_monitor.SPEC):
     """IMM suspension monitor node (see the module docstring)."""
 
 

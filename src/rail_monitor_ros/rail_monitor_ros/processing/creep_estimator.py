@@ -74,9 +74,10 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ParameterGroup,
+    ProcessorSpec,
     Status,
 )
-from vehicle_monitor_common.processor_factory import processor_factory
 
 LATERAL_STATES = 'rail/lateral_states'
 BOGIE_IMU = 'rail/bogie/imu'
@@ -529,6 +530,10 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
                 **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
 
 
-# The offline engine's and the node's way in.
-make_processor = processor_factory(CreepEstimatorProcessor, CreepEkfParams,
-                                   CreepEstimatorNodeParams)
+# The node, declared once: the live node (nodes/creep_estimator_node.py) and the offline engine
+# (make_processor, the registered entry point) build it from this.
+SPEC = ProcessorSpec(
+    'creep_estimator', 'rail/creep/{bogie}', make=CreepEstimatorProcessor,
+    groups=(ParameterGroup(CreepEkfParams, 'update_params'),
+            ParameterGroup(CreepEstimatorNodeParams, 'update_node_params')))
+make_processor = SPEC.make_processor

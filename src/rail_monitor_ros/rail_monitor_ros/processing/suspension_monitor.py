@@ -68,9 +68,10 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ParameterGroup,
+    ProcessorSpec,
     Status,
 )
-from vehicle_monitor_common.processor_factory import processor_factory
 
 BOGIE_IMU = 'rail/bogie/imu'
 BODY_IMU = 'rail/body/imu'
@@ -492,6 +493,10 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
                    if k in ('non_finite', 'saturated', 'frozen_sensor'))
 
 
-# The offline engine's and the node's way in.
-make_processor = processor_factory(SuspensionMonitorProcessor, SuspensionImmParams,
-                                   SuspensionMonitorNodeParams)
+# The node, declared once: the live node (nodes/suspension_monitor_node.py) and the offline
+# engine (make_processor, the registered entry point) build it from this.
+SPEC = ProcessorSpec(
+    'suspension_monitor', 'rail_suspension_imm', make=SuspensionMonitorProcessor,
+    groups=(ParameterGroup(SuspensionImmParams, 'update_params'),
+            ParameterGroup(SuspensionMonitorNodeParams, 'update_node_params')))
+make_processor = SPEC.make_processor

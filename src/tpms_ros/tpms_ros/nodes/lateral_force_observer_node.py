@@ -3,10 +3,10 @@
 A transport adapter (:class:`~vehicle_monitor_common.processor_node.ProcessorNode`) around
 :class:`tpms_ros.processing.lateral_force_observer.LateralForceObserverProcessor`, which holds
 the node's logic (input alignment, input checks, time jumps, status) and is run by the offline
-engine too. Here: the parameter groups (the method's :class:`ObserverVehicleParams` and
-:class:`ObserverTuningParams`, the node's :class:`LateralForceObserverNodeParams`, each
-declared once) and the processor methods their changes go to (a model change restarts the
-filter).
+engine too, and which declares the node (``SPEC``): the parameter groups (the method's
+``ObserverVehicleParams`` and ``ObserverTuningParams``, the node's
+``LateralForceObserverNodeParams``, each declared once) and the processor methods their changes
+go to (a model change restarts the filter).
 
 Topics (relative, so a namespace moves them): in ``vehicle/imu`` (sensor_msgs/Imu, 100 Hz, drives
 the filter), ``vehicle/wheel_speeds`` (WheelSpeeds, 1 kHz, raw), ``vehicle/driver_inputs``
@@ -16,20 +16,11 @@ silence after ``silence_timeout_s`` is an ERROR naming the input).
 
 from __future__ import annotations
 
-from tpms_ros.core.lateral_force_observer import ObserverTuningParams, ObserverVehicleParams
-from tpms_ros.processing.lateral_force_observer import (
-    LateralForceObserverNodeParams,
-    make_processor,
-)
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from tpms_ros.processing import lateral_force_observer
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-class LateralForceObserverNode(
-        ProcessorNode, name='lateral_force_observer', factory=make_processor,
-        hardware_id='vehicle_imu',
-        groups=(ParameterGroup(ObserverVehicleParams, 'set_model'),
-                ParameterGroup(ObserverTuningParams, 'set_model'),
-                ParameterGroup(LateralForceObserverNodeParams, 'set_node_params'))):
+class LateralForceObserverNode(ProcessorNode, spec=lateral_force_observer.SPEC):
     """The ``lateral_force_observer`` node (see the module docstring)."""
 
 

@@ -4,9 +4,10 @@ docs/methods/vibration_analyzer.md) on ROS.
 A transport adapter around
 :class:`tpms_ros.processing.vibration_analyzer.VibrationAnalyzerProcessor`, which holds the
 node's logic (stamp checks and time jumps, blocks, output timing in data time, calibration,
-sensor faults, status) and is run by the offline engine too. Here: the parameter groups (the
-core's :class:`VibrationParams`, the node's :class:`VibrationAnalyzerNodeParams`) and the
-processor's factory; the calibration file, its events in the log and ``~/calibrate`` are
+sensor faults, status) and is run by the offline engine too; its module declares the node
+(``SPEC``: the parameter groups, the core's ``VibrationParams`` and the node's
+``VibrationAnalyzerNodeParams``, and the processor's factory). The calibration file, its
+events in the log and ``~/calibrate`` are
 :class:`~vehicle_monitor_common.processor_node.ProcessorNode`'s, as for every calibrating node.
 
 Topics (relative, so a namespace moves them): in ``vehicle/wheel_speeds`` (WheelSpeeds, ~1 kHz,
@@ -21,16 +22,11 @@ Service ``~/calibrate`` (std_srvs/Trigger) learns each tire's nominal resonance 
 
 from __future__ import annotations
 
-from tpms_ros.core.vibration_analysis import VibrationParams
-from tpms_ros.processing.vibration_analyzer import VibrationAnalyzerNodeParams, make_processor
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from tpms_ros.processing import vibration_analyzer
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-class VibrationAnalyzerNode(
-        ProcessorNode, name='vibration_analyzer', factory=make_processor,
-        hardware_id='tpms/vibration',
-        groups=(ParameterGroup(VibrationParams, 'set_params'),
-                ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params'))):
+class VibrationAnalyzerNode(ProcessorNode, spec=vibration_analyzer.SPEC):
     """The ``vibration_analyzer`` node (see the module docstring)."""
 
 

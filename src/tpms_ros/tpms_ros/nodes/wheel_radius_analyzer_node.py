@@ -4,9 +4,9 @@ docs/methods/wheel_radius_analyzer.md) on ROS.
 A transport adapter around
 :class:`tpms_ros.processing.wheel_radius_analyzer.WheelRadiusAnalyzerProcessor`, which holds the
 node's logic (input alignment, stamp checks and time jumps, chunking, output timing in data
-time, calibration, sensor faults, status) and is run by the offline engine too. Here: the
-parameter groups (the core's :class:`WheelRadiusParams`, the node's
-:class:`WheelRadiusAnalyzerNodeParams`) and the processor's factory; the calibration file, its
+time, calibration, sensor faults, status) and is run by the offline engine too; its module
+declares the node (``SPEC``: the parameter groups, the core's ``WheelRadiusParams`` and the
+node's ``WheelRadiusAnalyzerNodeParams``, and the processor's factory). The calibration file, its
 events in the log and ``~/calibrate`` are
 :class:`~vehicle_monitor_common.processor_node.ProcessorNode`'s, as for every calibrating node.
 
@@ -23,16 +23,11 @@ reloaded at start.
 
 from __future__ import annotations
 
-from tpms_ros.core.wheel_radius_analysis import WheelRadiusParams
-from tpms_ros.processing.wheel_radius_analyzer import WheelRadiusAnalyzerNodeParams, make_processor
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from tpms_ros.processing import wheel_radius_analyzer
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-class WheelRadiusAnalyzerNode(
-        ProcessorNode, name='wheel_radius_analyzer', factory=make_processor,
-        hardware_id='tpms/wheel_radius',
-        groups=(ParameterGroup(WheelRadiusParams, 'set_params'),
-                ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params'))):
+class WheelRadiusAnalyzerNode(ProcessorNode, spec=wheel_radius_analyzer.SPEC):
     """The ``wheel_radius_analyzer`` node (see the module docstring)."""
 
 

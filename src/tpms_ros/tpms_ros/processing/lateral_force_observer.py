@@ -74,11 +74,12 @@ from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     Output,
+    ParameterGroup,
     ProcessorParams,
+    ProcessorSpec,
     Status,
     header_stamp_ns,
 )
-from vehicle_monitor_common.processor_factory import processor_factory
 from vehicle_monitor_common.status_report import StatusProblems
 
 TIRE_FORCES = 'vehicle/tire_forces'
@@ -421,6 +422,12 @@ class LateralForceObserverProcessor:
         return problems.status(values, 'estimating tire forces')
 
 
-# The offline engine's and the node's way in.
-make_processor = processor_factory(LateralForceObserverProcessor, ObserverVehicleParams,
-                                   ObserverTuningParams, LateralForceObserverNodeParams)
+# The node, declared once: the live node (nodes/lateral_force_observer_node.py) and the offline
+# engine (make_processor, the registered entry point) build it from this. A change of the
+# vehicle or the tuning goes to one set_model(vehicle, tuning), which restarts the filter.
+SPEC = ProcessorSpec(
+    'lateral_force_observer', 'vehicle_imu', make=LateralForceObserverProcessor,
+    groups=(ParameterGroup(ObserverVehicleParams, 'set_model'),
+            ParameterGroup(ObserverTuningParams, 'set_model'),
+            ParameterGroup(LateralForceObserverNodeParams, 'set_node_params')))
+make_processor = SPEC.make_processor

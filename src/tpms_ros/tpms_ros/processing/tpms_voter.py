@@ -50,7 +50,9 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ParameterGroup,
     ProcessorParams,
+    ProcessorSpec,
     Status,
     header_stamp_ns,
 )
@@ -284,11 +286,39 @@ class TpmsVoterProcessor:
         return Status(level, message, values)
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> TpmsVoterProcessor:
-    """The processor from flat parameter values (the offline engine's way in): no clock, so
-    one warning per accepted indication and no periodic one."""
+def votes_params(values: Mapping[str, Any]) -> type[Any]:
+    """The per-method group (``<method>.enabled``, ``<method>.threshold``) of the ``methods``
+    among the values."""
+    return method_votes_params(values['methods'])
+
+
+def threshold_problem(values: Mapping[str, Any]) -> str:
+    """Why the values are refused across the groups (every threshold above the rule's ``h0``:
+    the core's check); '' when they are not."""
+    try:
+        voter_params(build(VotingRuleParams, values), build(votes_params(values), values))
+    except (TypeError, ValueError) as exc:
+        return str(exc)
+    return ''
+
+
+def make_processor(values: Mapping[str, Any], fqn: str,
+                   clock: Callable[[], int] | None = None) -> TpmsVoterProcessor:
+    """The processor from flat parameter values. Offline (the engine's way in) there is no
+    clock, so one warning per accepted indication and no periodic one; the node passes its
+    clock, with which the warning is also repeated between indications."""
     del fqn
     node_params = build(TpmsVoterNodeParams, values)
     rule = build(VotingRuleParams, values)
     votes = build(method_votes_params(node_params.methods), values)
-    return TpmsVoterProcessor(rule, votes, node_params)
+    return TpmsVoterProcessor(rule, votes, node_params, clock=clock)
+
+
+# The node, declared once: the live node (nodes/tpms_voter_node.py, which adds the clock and the
+# periodic warning's timer) and the offline engine (make_processor) build it from this. The
+# per-method group's fields depend on ``methods``, declared before it.
+SPEC = ProcessorSpec(
+    'tpms_voter', 'tpms/voter', factory=make_processor, cross_check=threshold_problem,
+    groups=(ParameterGroup(TpmsVoterNodeParams),
+            ParameterGroup(VotingRuleParams, 'set_params'),
+            ParameterGroup(votes_params, 'set_params')))

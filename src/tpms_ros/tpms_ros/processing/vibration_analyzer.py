@@ -59,7 +59,13 @@ from tpms_ros.processing.calibrating_tpms import (
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import Input, Output, Status
+from vehicle_monitor_common.processing import (
+    Input,
+    Output,
+    ParameterGroup,
+    ProcessorSpec,
+    Status,
+)
 from vehicle_monitor_common.status_report import StatusProblems
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
@@ -350,8 +356,18 @@ class VibrationAnalyzerProcessor(
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> VibrationAnalyzerProcessor:
-    """The processor from flat parameter values (the offline engine's way in)."""
+    """The processor from flat parameter values (the node's and the offline engine's way in):
+    a calibration file is used where ``calibration_file`` names one (the node resolves an empty
+    one to its own file first)."""
     del fqn
     node_params = build(VibrationAnalyzerNodeParams, values)
     return VibrationAnalyzerProcessor(build(VibrationParams, values), node_params,
                                       offline_calibration_file(node_params.calibration_file))
+
+
+# The node, declared once: the live node (nodes/vibration_analyzer_node.py) and the offline engine
+# (make_processor, the registered entry point) build it from this.
+SPEC = ProcessorSpec(
+    'vibration_analyzer', 'tpms/vibration', factory=make_processor,
+    groups=(ParameterGroup(VibrationParams, 'set_params'),
+            ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params')))

@@ -77,7 +77,13 @@ from tpms_ros.processing.vehicle_inputs import (
 from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import build, param
-from vehicle_monitor_common.processing import Output, Status, header_stamp_ns
+from vehicle_monitor_common.processing import (
+    Output,
+    ParameterGroup,
+    ProcessorSpec,
+    Status,
+    header_stamp_ns,
+)
 from vehicle_monitor_common.status_report import StatusProblems
 
 RADIUS = 'tpms/wheel_radius'
@@ -468,8 +474,18 @@ class WheelRadiusAnalyzerProcessor(
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> WheelRadiusAnalyzerProcessor:
-    """The processor from flat parameter values (the offline engine's way in)."""
+    """The processor from flat parameter values (the node's and the offline engine's way in):
+    a calibration file is used where ``calibration_file`` names one (the node resolves an empty
+    one to its own file first)."""
     del fqn
     node_params = build(WheelRadiusAnalyzerNodeParams, values)
     return WheelRadiusAnalyzerProcessor(build(WheelRadiusParams, values), node_params,
                                         offline_calibration_file(node_params.calibration_file))
+
+
+# The node, declared once: the live node (nodes/wheel_radius_analyzer_node.py) and the offline
+# engine (make_processor, the registered entry point) build it from this.
+SPEC = ProcessorSpec(
+    'wheel_radius_analyzer', 'tpms/wheel_radius', factory=make_processor,
+    groups=(ParameterGroup(WheelRadiusParams, 'set_params'),
+            ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params')))
