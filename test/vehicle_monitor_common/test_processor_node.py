@@ -2,16 +2,27 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+import pytest
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 from vehicle_monitor_msgs.msg import CreepFactor
 
 from vehicle_monitor_common import processing
 from vehicle_monitor_common.node_helpers import ERROR, OK, WARN
-from vehicle_monitor_common.processing import Input, Output, Status
+from vehicle_monitor_common.parameters import ConfigurationError, param
+from vehicle_monitor_common.processing import (
+    Input,
+    Output,
+    ParameterGroup,
+    ProcessorParams,
+    ProcessorSpec,
+    Status,
+)
 from vehicle_monitor_common.processor_node import ProcessorNode
 
 
@@ -106,3 +117,86 @@ def _imu(ay: float) -> Any:
     msg = Imu()
     msg.linear_acceleration.y = ay
     return msg
+
+
+@dataclass(frozen=True)
+class GainParams:
+    gain: float = param(2.0, 'output gain', low=0.0, high=10.0)
+
+    def __post_init__(self) -> None:
+        # The range is the ROS descriptor's; a value built offline is checked here, as the
+        # cores check theirs.
+        if not 0.0 <= self.gain <= 10.0:
+            raise ValueError(f'gain must be in [0, 10], got {self.gain}')
+
+
+@dataclass(frozen=True)
+class ScaleNodeParams(ProcessorParams):
+    limit: float = param(5.0, 'largest gain the output range allows', low=0.0, high=100.0)
+    channel: str = param('a', 'channel name, in the hardware id')
+
+
+class Scale(Echo):
+    """Echo with parameters: a gain its changes go to, node parameters given once."""
+
+    def __init__(self, params: GainParams, node_params: ScaleNodeParams) -> None:
+        self.params, self.node_params = params, node_params
+
+    def set_params(self, params: GainParams) -> None:
+        self.params = params
+
+
+def _gain_within_limit(values: Mapping[str, Any]) -> str:
+    return 'gain above limit' if values['gain'] > values['limit'] else ''
+
+
+SCALE = ProcessorSpec(
+    'scale', 'test/scale/{channel}', make=Scale, cross_check=_gain_within_limit,
+    groups=(ParameterGroup(GainParams, 'set_params'), ParameterGroup(ScaleNodeParams)))
+
+
+class ScaleNode(ProcessorNode, spec=SCALE):
+    """A node declared by its processing module's spec only."""
+
+
+def test_spec_builds_the_processor_from_its_groups() -> None:
+    """The default make_processor gives make one instance of each group built from the flat
+    values (defaults for the missing ones); a refused value is a ConfigurationError naming the
+    node; a hand-written factory is used as it is."""
+    made = SCALE.make_processor({'gain': 4.0, 'channel': 'b'}, '/car/scale')
+    assert isinstance(made, Scale)
+    assert (made.params.gain, made.node_params.channel, made.node_params.limit) == (4.0, 'b', 5.0)
+    with pytest.raises(ConfigurationError, match='^/car/scale: invalid parameters: .*gain'):
+        SCALE.make_processor({'gain': -1.0}, '/car/scale')
+
+    def factory(values: Mapping[str, Any], fqn: str) -> Scale:
+        return Scale(GainParams(gain=float(len(fqn))), ScaleNodeParams())
+
+    spec = ProcessorSpec('scale', 'test', groups=SCALE.groups, factory=factory)
+    assert spec.make_processor is factory
+
+
+def test_spec_without_factory_needs_dataclass_groups() -> None:
+    """A group defined by a function of other values cannot be built without the values
+    declared before it: such a spec must bring its own factory."""
+    with pytest.raises(TypeError, match='factory='):
+        ProcessorSpec('votes', 'test', make=Scale,
+                      groups=(ParameterGroup(lambda values: GainParams),))
+    with pytest.raises(TypeError, match='make='):
+        ProcessorSpec('scale', 'test', groups=SCALE.groups)
+
+
+def test_node_declared_by_spec(make_node: Callable[..., Any]) -> None:
+    """A node declared ``spec=`` takes its default name and hardware id from the spec,
+    declares each group's parameters, forwards a change to the group's method and refuses a
+    combination the cross-group rule refuses (the processor keeps the value in force)."""
+    node = make_node(ScaleNode, parameter_overrides=[Parameter('channel', value='rear')])
+    assert node.get_name() == 'scale'
+    assert node._diagnostics._status.hardware_id == 'test/scale/rear'
+    assert node.processor.params == GainParams() and node.processor.node_params.channel == 'rear'
+    assert node.parameter_values['limit'] == 5.0
+    assert node.set_parameters([Parameter('gain', value=3.0)])[0].successful
+    assert node.processor.params.gain == 3.0
+    refused = node.set_parameters([Parameter('gain', value=7.0)])[0]
+    assert not refused.successful and refused.reason == 'gain above limit'
+    assert node.processor.params.gain == 3.0
