@@ -106,3 +106,16 @@ def calibration_moments(sums: np.ndarray, rate_hz: float, min_s: float,
     mean = total / count
     std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
     return mean, std, duration
+
+
+def check_calibration_window(params: Any) -> None:
+    """A calibration run must hold its settling time and the least valid data it needs.
+
+    Raises:
+        ValueError: ``calibration_duration_s < calibration_settle_s + min_calibration_s``.
+    """
+    least = params.calibration_settle_s + params.min_calibration_s
+    if params.calibration_duration_s < least:
+        raise ValueError(
+            f'calibration_duration_s ({params.calibration_duration_s:g}) must be at least '
+            f'calibration_settle_s + min_calibration_s ({least:g})')

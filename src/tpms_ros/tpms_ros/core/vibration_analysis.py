@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from tpms_ros.core.nominal_calibration import CalibratedCore
+from tpms_ros.core.nominal_calibration import CalibratedCore, check_calibration_window
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
@@ -185,11 +185,7 @@ class VibrationParams:
             raise ValueError(
                 f'VibrationParams.analysis_rate_hz: the decimated rate {self.effective_rate_hz} '
                 f'Hz must exceed the passband top {self.passband_hz[1]:.1f} Hz / 0.45')
-        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
-            raise ValueError(
-                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
-                f'calibration_settle_s + min_calibration_s '
-                f'({self.calibration_settle_s + self.min_calibration_s:g})')
+        check_calibration_window(self)
 
     @property
     def passband_hz(self) -> tuple[float, float]:

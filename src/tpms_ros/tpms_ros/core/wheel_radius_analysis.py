@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from tpms_ros.core.nominal_calibration import CalibratedCore
+from tpms_ros.core.nominal_calibration import CalibratedCore, check_calibration_window
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -315,11 +315,7 @@ class WheelRadiusParams:
         if not self.accel_filter_hz < 0.5 * self.sample_rate_hz:
             raise ValueError(f'WheelRadiusParams.accel_filter_hz must be below half the sample '
                              f'rate, got {self.accel_filter_hz}')
-        if self.calibration_duration_s < self.calibration_settle_s + self.min_calibration_s:
-            raise ValueError(
-                f'calibration_duration_s ({self.calibration_duration_s:g}) must be at least '
-                f'calibration_settle_s + min_calibration_s '
-                f'({self.calibration_settle_s + self.min_calibration_s:g})')
+        check_calibration_window(self)
 
 
 @dataclass(frozen=True)
