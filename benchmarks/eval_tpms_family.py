@@ -36,13 +36,19 @@ from dataclasses import dataclass
 import json
 import math
 import multiprocessing
+import os
 from pathlib import Path
+import pickle
 import time
 from typing import Any
 
 import numpy as np
 
-from tpms_ros.core.stiffness_observer import StiffnessObserverParams, TireStiffnessObserver
+from tpms_ros.core.stiffness_observer import (
+    PressureRelation,
+    StiffnessObserverParams,
+    TireStiffnessObserver,
+)
 from tpms_ros.core.tires import TIRE_NAMES, TpmsIndication
 from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
 from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
@@ -84,6 +90,12 @@ class Settings:
     observe_s: float = 60.0
     diffusion_pct_per_min: float = 15.0
     tooth_correction: bool = True
+    # The tire's stiffness-pressure law given to the stiffness observer as tire data
+    # (FamilyCar.tire_law_parameters); default: not known, the core's default (the paper's line).
+    law_given: bool = False
+    # Where simulated drives are kept ('' = not kept): a replay with other method settings
+    # then costs ~6 s instead of ~46 s (the drive depends only on the car, case and timing).
+    sim_cache: str = ''
 
 
 @dataclass(frozen=True)
@@ -128,7 +140,9 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
     stiffness = StiffnessObserverParams(
         driven_axle=car.layout, rolling_radius_m=user['nominal_radius_m'],
         wheelbase_m=user['wheelbase_m'], nominal_pressure_kpa=(user['nominal_pressure_kpa'],) * 4,
-        encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction)
+        encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction,
+        pressure_relation=(PressureRelation(**car.tire_law_parameters()) if settings.law_given
+                           else PressureRelation()))
     return vibration, radius, stiffness
 
 
@@ -171,6 +185,8 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
     warnings = {s: np.zeros((n_ticks, 4), dtype=bool) for s in voters}
     pressure = np.full((n_ticks, 4), np.nan)
     valid = np.zeros((n_ticks, 4), dtype=bool)
+    trust: dict[str, np.ndarray] = {}
+    s_trust: dict[str, np.ndarray] = {}
     ticks = np.empty(n_ticks)
     errors: dict[str, str] = {}
     statuses: dict[str, int] = {}
@@ -198,6 +214,9 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
                 np.asarray(s_est.underinflated) & s_known,
                 np.where(s_known, s_est.confidence, 0.0), s_known)
             stiff_pos += chunk
+            s_trust = stiff.trust_features()
+        for name, values in s_trust.items():
+            trust.setdefault(name, np.full((n_ticks, 4), np.nan))[k] = values
         if s_est is not None:
             known = np.asarray(s_est.valid) & np.asarray(s_est.wheel_calibrated) \
                 & (not s_est.calibrating)
@@ -229,7 +248,7 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
                              for w in range(4)])
     speed = np.interp(ticks, result.handling.t, np.asarray(result.handling.vx))
     return {'t': ticks, 'conf': conf, 'warnings': warnings, 'pressure': pressure,
-            'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors,
+            'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors, 'trust': trust,
             'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0}
 
 
@@ -296,16 +315,38 @@ def score(job: Job, car: FamilyCar, tr: dict[str, Any], tires: tuple[int, ...],
     return rec
 
 
+def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
+                 ) -> RoadSimulationResult:
+    """The job's drive, from the cache when it holds it (keyed by everything the drive
+    depends on)."""
+    s = job.settings
+    name = f'car{job.seed}_{job.case}_{job.drive}'
+    path = None
+    if s.sim_cache:
+        key = f'{name}_f{s.fault_s:g}_o{s.observe_s:g}_d{s.diffusion_pct_per_min:g}.pkl'
+        path = Path(s.sim_cache) / key
+        if path.exists():
+            with path.open('rb') as f:
+                cached: RoadSimulationResult = pickle.load(f)
+            return cached
+    scenario = car_scenario(car, job.drive, duration, events,
+                            seed=job.seed * 10 + CASES.index(job.case), name=name)
+    result = simulate_scenario(scenario)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_suffix(f'.{os.getpid()}.tmp')
+        with partial.open('wb') as f:
+            pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
+        partial.replace(path)
+    return result
+
+
 def run_job(job: Job) -> dict[str, Any]:
-    """Simulate and replay one job (worker)."""
+    """Simulate (or load) and replay one job (worker)."""
     t0 = time.perf_counter()
     car = sample_car(job.seed)
     events, tires, _, reached = case_events(job, car)
-    duration = reached + job.settings.observe_s
-    scenario = car_scenario(car, job.drive, duration, events,
-                            seed=job.seed * 10 + CASES.index(job.case),
-                            name=f'car{job.seed}_{job.case}_{job.drive}')
-    result = simulate_scenario(scenario)
+    result = simulate_job(job, car, events, reached + job.settings.observe_s)
     t_sim = time.perf_counter() - t0
     tr = replay(result, car, job.settings)
     rec = score(job, car, tr, tires, reached)
@@ -444,6 +485,11 @@ def main() -> None:
     parser.add_argument('--diffusion-pct-per-min', type=float,
                         default=Settings.diffusion_pct_per_min)
     parser.add_argument('--no-tooth-correction', action='store_true')
+    parser.add_argument('--law-given', action='store_true',
+                        help="give the stiffness observer the tire's stiffness-pressure law "
+                             '(tire data) instead of the default line')
+    parser.add_argument('--sim-cache', default='',
+                        help='directory keeping the simulated drives for later replays')
     parser.add_argument('--workers', type=int, default=1)
     parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
     parser.add_argument('--report', type=Path, nargs='+',
@@ -453,7 +499,8 @@ def main() -> None:
         report(args.report)
         return
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
-                        args.diffusion_pct_per_min, not args.no_tooth_correction)
+                        args.diffusion_pct_per_min, not args.no_tooth_correction,
+                        args.law_given, args.sim_cache)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])

@@ -195,3 +195,32 @@ def test_estimate_unknown_while_recovering_from_a_fault(short_bag: Path) -> None
     # Unknown from the fault until one memory (3.33 s = 3330 samples) after it cleared.
     assert not any(v for k, v in valid_fl if 6000 <= k < 6500 + 3300)
     assert valid_fl[-1][1]
+
+
+def test_uncertain_tires_are_unknown_and_named_on_the_status(short_bag: Path) -> None:
+    """Issue 21: a tire the trust check does not trust is published as a masked one (not valid,
+    indication unknown, confidence 0) and the status names it with the reason. Forced here by
+    trust_max_spread_ratio 1 (any block spread above the calibration's)."""
+    processor = make_processor({**FAST, 'trust_max_spread_ratio': 1.0},
+                               '/tire_stiffness_observer')
+    uncertain_seen = False
+    for _topic, _, _, data in iter_raw(short_bag, ['/vehicle/wheel_speeds']):
+        outputs = processor.process('vehicle/wheel_speeds', data)
+        status = processor.tire_status()
+        uncertain = [s == 'uncertain_noisy' for s in status]
+        for o in outputs:
+            if o.topic == STIFFNESS:
+                assert not any(v and u for v, u in zip(o.fields['valid'], uncertain,
+                                                       strict=True))
+            else:
+                assert not any((k or c) and u for k, c, u in zip(
+                    o.fields['known'], o.fields['confidence'], uncertain, strict=True))
+        if any(uncertain) and outputs:
+            uncertain_seen = True
+            message = processor.status(0).message
+            assert 'uncertain (estimate not trusted, reported unknown)' in message
+            names = [n for n, u in zip(('FL', 'FR', 'RL', 'RR'), uncertain, strict=True) if u]
+            assert all(f'{n}: block stiffnesses spread wider' in message for n in names)
+    assert uncertain_seen
+    values = processor.status(0).values
+    assert len(values['trust_spread_ratio']) == 4 and len(values['trust_blocks']) == 4

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tpms_ros.core.stiffness_observer import PressureRelation
 from tpms_ros.simulation.car_family import (
     DRIVE_KINDS,
     HELD_OUT_SEEDS,
@@ -78,6 +79,24 @@ def test_power_law_stiffness() -> None:
     assert parsed.driveline.wheels == 'all'
     with pytest.raises(ValueError, match='speed_method'):
         parse_scenario('duration_s: 1\nsensors: {encoder: {speed_method: counting}}\n')
+
+
+def test_tire_law_parameters_invert_the_simulated_law_and_stay_out_of_user_parameters(
+        ) -> None:
+    """The law as the stiffness observer's pressure_relation maps each car's simulated K(p)
+    back to p; a user of the car is not given it by default."""
+    laws = set()
+    for seed in TUNING_SEEDS[:12]:
+        car = sample_car(seed)
+        law = car.tire_law_parameters()
+        laws.add(law['law'])
+        p0 = car.placard_kpa
+        pressures = np.array([0.7, 0.8, 1.0]) * p0
+        ratio = car.tire.stiffness(pressures) / car.tire.stiffness(np.array([p0]))
+        np.testing.assert_allclose(p0 * PressureRelation(**law).pressure_ratio(ratio),
+                                   pressures, rtol=1e-9)
+        assert not any('law' in key or 'exponent' in key for key in car.user_parameters())
+    assert laws == {'line', 'power'}
 
 
 def test_window_average_reads_constant_speed_and_shrinks_the_tooth_error() -> None:

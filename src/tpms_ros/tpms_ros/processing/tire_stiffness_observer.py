@@ -76,6 +76,10 @@ INDICATION = 'tpms/indication/stiffness'
 
 # Core reasons that mean the sensor data are bad (ERROR), not that the method is paused.
 SENSOR_FAULTS = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing')
+# Core reasons for a calibrated, converged estimate that is not trusted (reported unknown).
+UNCERTAIN = {
+    'uncertain_noisy': 'block stiffnesses spread wider than at calibration',
+}
 
 
 @dataclass(frozen=True)
@@ -475,11 +479,15 @@ class TireStiffnessObserverProcessor:
         values['confidence'] = est.confidence.tolist()
         for name, counts in self.observer.counters.items():
             values[f'core_{name}'] = list(counts)
+        for name, per_tire in self.observer.trust_features().items():
+            values[f'trust_{name}'] = per_tire.tolist()
         faults = [f'{w}: {s}' for w, s in zip(TIRE_NAMES, status, strict=True)
                   if s in SENSOR_FAULTS]
         recovering = [w for w, s in zip(TIRE_NAMES, status, strict=True) if s == 'recovering']
+        uncertain = [f'{w}: {UNCERTAIN[s]}' for w, s in zip(TIRE_NAMES, status, strict=True)
+                     if s in UNCERTAIN]
         paused = [f'{w}: {s}' for w, s in zip(TIRE_NAMES, status, strict=True)
-                  if s not in (*SENSOR_FAULTS, 'ok', 'recovering', 'rate_mismatch')]
+                  if s not in (*SENSOR_FAULTS, *UNCERTAIN, 'ok', 'recovering', 'rate_mismatch')]
         low = [w for w, flag, s in zip(TIRE_NAMES, est.underinflated, status, strict=True)
                if flag and s == 'ok']
         if faults:
@@ -490,6 +498,10 @@ class TireStiffnessObserverProcessor:
                             f'{recovery_s(p):.3g} s of data): ' + ', '.join(recovering))
         if low:
             problems.append('under-inflated: ' + ', '.join(low))
+        if uncertain:
+            # Not a fault of the data: the estimate is withheld (unknown, never low).
+            problems.append('uncertain (estimate not trusted, reported unknown) '
+                            + ', '.join(uncertain))
         if paused:
             # Outside the method's valid conditions or converging: not a fault.
             notes.append('not estimating ' + ', '.join(paused))

@@ -117,6 +117,16 @@ class FamilyCar:
                 'wheel_inertia_kgm2': v.iw, 'cg_height_m': v.h}
 
 
+    def tire_law_parameters(self) -> dict[str, Any]:
+        """The tire's stiffness-pressure law as the stiffness observer's ``pressure_relation``
+        parameters: tire data a user may have (a stiffness or resonance measured at two
+        pressures), not part of :meth:`user_parameters`."""
+        t = self.tire
+        if t.stiffness_law == 'power':
+            return {'law': 'power', 'exponent': t.stiffness_pressure_exponent}
+        return {'law': 'line', 'slope': t.stiffness_pressure_slope}
+
+
 def _uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(rng.uniform(low, high))
 
