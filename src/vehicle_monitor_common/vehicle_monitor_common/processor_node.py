@@ -48,16 +48,7 @@ from vehicle_monitor_common.node_helpers import (
     time_msg,
 )
 from vehicle_monitor_common.parameters import flatten
-from vehicle_monitor_common.processing import (
-    ERROR,
-    WARN,
-    CrossCheck,
-    Output,
-    ParameterGroup,
-    Processor,
-    ProcessorFactory,
-    ProcessorSpec,
-)
+from vehicle_monitor_common.processing import ERROR, WARN, Output, Processor, ProcessorSpec
 
 P = TypeVar('P')
 
@@ -90,15 +81,8 @@ class ProcessorNode(Node):
     processor_spec: ClassVar[ProcessorSpec[Any] | None] = None
 
     def __init_subclass__(cls, *, spec: ProcessorSpec[Any] | None = None,
-                          name: str = '', groups: tuple[ParameterGroup, ...] = (),
-                          factory: ProcessorFactory[Any] | None = None, hardware_id: str = '',
-                          cross_check: CrossCheck | None = None, **kwargs: Any) -> None:
+                          **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        if groups:
-            # The keywords the stiffness node still declares itself with, until its
-            # processing module declares its SPEC (issue 18): the same spec, written here.
-            spec = ProcessorSpec(name, hardware_id, groups, factory=factory,
-                                 cross_check=cross_check)
         if spec is not None:
             cls.processor_spec = spec
 

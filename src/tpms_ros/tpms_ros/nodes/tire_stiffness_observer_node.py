@@ -3,10 +3,11 @@
 A transport adapter (:class:`~vehicle_monitor_common.processor_node.ProcessorNode`) around
 :class:`tpms_ros.processing.tire_stiffness_observer.TireStiffnessObserverProcessor`, which holds
 the node's logic (stamp checks and time jumps, chunking, output timing in data time,
-calibration, gating, status) and is run by the offline engine too. Here: the parameter groups
-(:class:`StiffnessObserverParams`, the core's, and :class:`TireStiffnessObserverNodeParams`),
-the rule across them (a chunk holds at least one sample) and the processor's factory; the
-calibration file (``node_helpers.calibration_path``: empty = per node and namespace under
+calibration, gating, status) and is run by the offline engine too; its module declares the node
+(``SPEC``: the parameter groups, the core's ``StiffnessObserverParams`` and the node's
+``TireStiffnessObserverNodeParams``, the rule across them, a chunk holds at least one sample,
+and the processor's factory). The calibration file
+(``node_helpers.calibration_path``: empty = per node and namespace under
 ``$ROS_HOME``, ``none`` = not persisted), its events in the log and ``~/calibrate`` are
 :class:`~vehicle_monitor_common.processor_node.ProcessorNode`'s, as for every calibrating node.
 
@@ -20,27 +21,11 @@ silence after ``silence_timeout_s`` is an ERROR naming the input). Service ``~/c
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
-from tpms_ros.core.stiffness_observer import StiffnessObserverParams
-from tpms_ros.processing.tire_stiffness_observer import (
-    TireStiffnessObserverNodeParams,
-    chunk_problem,
-    make_processor,
-)
-from vehicle_monitor_common.processor_node import ParameterGroup, ProcessorNode
+from tpms_ros.processing import tire_stiffness_observer
+from vehicle_monitor_common.processor_node import ProcessorNode
 
 
-def _chunk_problem(values: Mapping[str, Any]) -> str:
-    return chunk_problem(float(values['process_period_s']), float(values['sample_rate_hz']))
-
-
-class TireStiffnessObserverNode(
-        ProcessorNode, name='tire_stiffness_observer', factory=make_processor,
-        hardware_id='wheel_speed_sensors', cross_check=_chunk_problem,
-        groups=(ParameterGroup(StiffnessObserverParams, 'set_params'),
-                ParameterGroup(TireStiffnessObserverNodeParams, 'set_node_params'))):
+class TireStiffnessObserverNode(ProcessorNode, spec=tire_stiffness_observer.SPEC):
     """The ``tire_stiffness_observer`` node (see the module docstring)."""
 
 

@@ -65,6 +65,8 @@ from vehicle_monitor_common.processing import (
     WARN,
     Input,
     Output,
+    ParameterGroup,
+    ProcessorSpec,
     Status,
     header_stamp_ns,
 )
@@ -512,11 +514,27 @@ class TireStiffnessObserverProcessor:
 
 
 def make_processor(values: Mapping[str, Any], fqn: str) -> TireStiffnessObserverProcessor:
-    """The processor from flat parameter values (the offline engine's way in). Offline, the
-    calibration is persisted only where ``calibration_file`` names a file (the engine carries a
-    vehicle's calibration from one recording to the next itself)."""
+    """The processor from flat parameter values (the node's and the offline engine's way in).
+    The calibration is persisted only where ``calibration_file`` names a file (the node resolves
+    an empty one to its own file first; the engine carries a vehicle's calibration from one
+    recording to the next itself)."""
     del fqn
     params = build(StiffnessObserverParams, values)
     node_params = build(TireStiffnessObserverNodeParams, values)
     return TireStiffnessObserverProcessor(
         params, node_params, offline_calibration_file(node_params.calibration_file))
+
+
+def chunk_rule(values: Mapping[str, Any]) -> str:
+    """:func:`chunk_problem` across the method's and the node's groups (flat values)."""
+    return chunk_problem(float(values['process_period_s']), float(values['sample_rate_hz']))
+
+
+# The node, declared once: the live node (nodes/tire_stiffness_observer_node.py) and the offline
+# engine (make_processor, the registered entry point) build it from this; a chunk holds at least
+# one sample (chunk_rule, checked on every runtime change across the two groups).
+SPEC = ProcessorSpec(
+    'tire_stiffness_observer', 'wheel_speed_sensors', factory=make_processor,
+    cross_check=chunk_rule,
+    groups=(ParameterGroup(StiffnessObserverParams, 'set_params'),
+            ParameterGroup(TireStiffnessObserverNodeParams, 'set_node_params')))
