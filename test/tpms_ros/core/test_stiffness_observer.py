@@ -156,7 +156,7 @@ def test_power_law_tire_read_right_only_with_its_law():
 
 def test_noisy_tire_is_reported_uncertain_not_low():
     """FR loses 30 % of its stiffness but is barely excited (road torque 2 instead of 20, twice
-    the sensor noise): its block stiffnesses spread 5.4-5.6 times the calibration's (measured)
+    the sensor noise): its block stiffnesses spread 5.6 times the calibration's (measured)
     and it reads anywhere from 200 to 290 kPa. It is reported 'uncertain_noisy' on every
     update: not valid, never low, confidence 0. The other tires stay 'ok'; without the trust
     check FR would be reported valid."""
