@@ -31,12 +31,13 @@ x its critical speed, a front spring fault (130-160 %) and a front damper fault 
 spectrum, the sensors' noise levels and the map's stated accuracy (its rms error). Figures:
 delay until the correct hypothesis (modes within half a grid step of the truth) exceeds 0.5,
 the first declaration of the right component, the share of time after that detection the
-correct hypothesis holds above 0.5, the time a wrong component is declared, the component
-declared at the end; healthy runs: declared faults and the time the normal hypothesis is below
-0.5. Targets: spring within 0.5 s and damper within 1 s on >= 95 %; zero declared faults in 30
-healthy minutes per car; the right component declared at the end of every fault case. The
-shared discretisation cache of the IMM module, if present, is cleared before each run, so the
-figures do not depend on the order of the runs.
+correct hypothesis holds above 0.5, the share of time after its first declaration the right
+component stays declared, the time a wrong component is declared, the component declared at
+the end; healthy runs: declared faults and the time the normal hypothesis is below 0.5; and a
+summary per speed band. Targets: spring within 0.5 s and damper within 1 s on >= 95 %; zero
+declared faults in 30 healthy minutes per car; the right component declared at the end of
+every fault case. The shared discretisation cache of the IMM module, if present, is cleared
+before each run, so the figures do not depend on the order of the runs.
 """
 
 from __future__ import annotations
