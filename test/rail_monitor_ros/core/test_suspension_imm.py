@@ -406,3 +406,14 @@ def test_outputs_do_not_depend_on_earlier_runs_in_the_process() -> None:
     for name in ('probability', 'smoothed_probability', 'mode_spring_ratio', 'state',
                  'fault_component'):
         np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name), err_msg=name)
+
+
+def test_runtime_decision_parameters_keep_a_declared_fault() -> None:
+    """A change of the decision's runtime parameters takes effect at once and keeps a declared
+    fault (hysteresis on the decision): only what was pending is dropped."""
+    imm = SuspensionImm()
+    imm.decision.load_state(((1.5, 1.0), '', 7))
+    changed = replace(imm.params, hold_time_s=1.0, clear_time_s=3.0, min_fault_deviation=0.25)
+    imm.update_runtime_params(changed)
+    assert imm.decision.state == ((1.5, 1.0), None, 0)
+    assert imm.decision.clear_samples == 600 and imm.decision.min_deviation == 0.25
