@@ -85,6 +85,9 @@ class _NodeParams(Protocol):
     @property
     def calibrate_on_start(self) -> bool: ...
 
+    @property
+    def calibration_file(self) -> str: ...
+
 
 class _Core(Calibratable, Protocol):
     params: Any
@@ -255,3 +258,17 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         if self._last_flags.any():
             problems.warn(f'low tires indicated: {", ".join(low)}')
         return values, problems
+
+
+P = TypeVar('P', bound=CalibratingTpmsProcessor[Any, Any, Any])
+
+
+def from_parameters(processor: Callable[[C, N, str], P]) -> Callable[[C, N], P]:
+    """How the node and the offline engine build a calibrating processor (its
+    ``ProcessorSpec``'s ``make``): from the method's and the node's parameters, with the
+    calibration file ``calibration_file`` names, if any (the node resolves an empty one to its
+    own file first)."""
+    def make(params: C, node_params: N) -> P:
+        return processor(params, node_params,
+                         offline_calibration_file(node_params.calibration_file))
+    return make

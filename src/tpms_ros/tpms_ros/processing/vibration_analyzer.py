@@ -36,7 +36,6 @@ when it is right again, the filters (fed at the wrong rate) restart.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 from typing import Any
@@ -54,11 +53,11 @@ from tpms_ros.processing.calibrating_tpms import (
     INDICATION_TYPE,
     CalibratingTpmsParams,
     CalibratingTpmsProcessor,
-    offline_calibration_file,
+    from_parameters,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
-from vehicle_monitor_common.parameters import build, param
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     Input,
     Output,
@@ -355,19 +354,10 @@ class VibrationAnalyzerProcessor(
                                if rejected_total else 'ok')
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> VibrationAnalyzerProcessor:
-    """The processor from flat parameter values (the node's and the offline engine's way in):
-    a calibration file is used where ``calibration_file`` names one (the node resolves an empty
-    one to its own file first)."""
-    del fqn
-    node_params = build(VibrationAnalyzerNodeParams, values)
-    return VibrationAnalyzerProcessor(build(VibrationParams, values), node_params,
-                                      offline_calibration_file(node_params.calibration_file))
-
-
 # The node, declared once: the live node (nodes/vibration_analyzer_node.py) and the offline engine
 # (make_processor, the registered entry point) build it from this.
 SPEC = ProcessorSpec(
-    'vibration_analyzer', 'tpms/vibration', factory=make_processor,
+    'vibration_analyzer', 'tpms/vibration', make=from_parameters(VibrationAnalyzerProcessor),
     groups=(ParameterGroup(VibrationParams, 'set_params'),
             ParameterGroup(VibrationAnalyzerNodeParams, 'set_node_params')))
+make_processor = SPEC.make_processor

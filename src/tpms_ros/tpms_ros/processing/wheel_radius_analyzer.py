@@ -47,7 +47,6 @@ again.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 from typing import Any
@@ -65,7 +64,7 @@ from tpms_ros.processing.calibrating_tpms import (
     INDICATION_TYPE,
     CalibratingTpmsParams,
     CalibratingTpmsProcessor,
-    offline_calibration_file,
+    from_parameters,
 )
 from tpms_ros.processing.vehicle_inputs import (
     DRIVER_INPUTS,
@@ -76,7 +75,7 @@ from tpms_ros.processing.vehicle_inputs import (
 )
 from tpms_ros.processing.wheel_speeds import decode_wheel_speeds
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
-from vehicle_monitor_common.parameters import build, param
+from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     Output,
     ParameterGroup,
@@ -473,19 +472,11 @@ class WheelRadiusAnalyzerProcessor(
         return problems.status(values)
 
 
-def make_processor(values: Mapping[str, Any], fqn: str) -> WheelRadiusAnalyzerProcessor:
-    """The processor from flat parameter values (the node's and the offline engine's way in):
-    a calibration file is used where ``calibration_file`` names one (the node resolves an empty
-    one to its own file first)."""
-    del fqn
-    node_params = build(WheelRadiusAnalyzerNodeParams, values)
-    return WheelRadiusAnalyzerProcessor(build(WheelRadiusParams, values), node_params,
-                                        offline_calibration_file(node_params.calibration_file))
-
-
 # The node, declared once: the live node (nodes/wheel_radius_analyzer_node.py) and the offline
 # engine (make_processor, the registered entry point) build it from this.
 SPEC = ProcessorSpec(
-    'wheel_radius_analyzer', 'tpms/wheel_radius', factory=make_processor,
+    'wheel_radius_analyzer', 'tpms/wheel_radius',
+    make=from_parameters(WheelRadiusAnalyzerProcessor),
     groups=(ParameterGroup(WheelRadiusParams, 'set_params'),
             ParameterGroup(WheelRadiusAnalyzerNodeParams, 'set_node_params')))
+make_processor = SPEC.make_processor
