@@ -153,7 +153,7 @@ def test_namespaced_nodes_take_the_shipped_yaml_and_own_calibration_files(
                        cli_args=['--ros-args', '--params-file', str(CONFIG), '-p',
                                  f'publish_rate_hz:={rate}'])
              for ns, rate in (('/car1', 0.42), ('/car2', 5.0))]
-    assert [n.node_parameters.publish_rate_hz for n in nodes] == [0.42, 5.0]
+    assert [n.parameter_values['publish_rate_hz'] for n in nodes] == [0.42, 5.0]
     files = [n.processor.calibration_file for n in nodes]
     assert files[0] != files[1]
     assert all(f.endswith(f'{ns}/tire_stiffness_observer.yaml')
