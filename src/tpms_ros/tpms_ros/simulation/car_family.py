@@ -227,6 +227,15 @@ class Drive:
     road: tuple[RoadSegment, ...]
 
 
+#: Corners of the urban and rural drives: straight length, corner radius (either side) and
+#: corner duration ranges (s, m, s) and the steering rise time, s.
+_Range = tuple[float, float]
+_CORNERS: dict[str, tuple[_Range, _Range, _Range, float]] = {
+    'urban': ((8.0, 25.0), (40.0, 120.0), (3.0, 7.0), 1.0),
+    'rural': ((20.0, 40.0), (150.0, 500.0), (5.0, 15.0), 2.0),
+}
+
+
 def _steer_deg(wheelbase: float, speed_kmh: float, lateral_acc: float) -> float:
     """Kinematic road-wheel angle for a lateral acceleration at a speed, degrees."""
     v = max(speed_kmh, 10.0) / 3.6
@@ -275,19 +284,13 @@ def drive_profile(kind: str, duration_s: float, seed: int, wheelbase_m: float = 
     elapsed = 0.0
     typical = 0.5 * (low + high)
     while elapsed < duration_s:
-        if kind == 'urban':
-            straight = _uniform(rng, 8.0, 25.0)
-            radius = _uniform(rng, 40.0, 120.0) * (1 if rng.uniform() < 0.5 else -1)
-            turn = _uniform(rng, 3.0, 7.0)
-            steering += [SteerSegment('straight', straight, to_deg=0.0, rise_s=1.0),
-                         SteerSegment('turn', turn, radius_m=radius, rise_s=1.0)]
-            elapsed += straight + turn
-        elif kind == 'rural':
-            straight = _uniform(rng, 20.0, 40.0)
-            radius = _uniform(rng, 150.0, 500.0) * (1 if rng.uniform() < 0.5 else -1)
-            turn = _uniform(rng, 5.0, 15.0)
-            steering += [SteerSegment('straight', straight, to_deg=0.0, rise_s=2.0),
-                         SteerSegment('turn', turn, radius_m=radius, rise_s=2.0)]
+        if kind in _CORNERS:
+            straights, radii, turns, rise_s = _CORNERS[kind]
+            straight = _uniform(rng, *straights)
+            radius = _uniform(rng, *radii) * (1 if rng.uniform() < 0.5 else -1)
+            turn = _uniform(rng, *turns)
+            steering += [SteerSegment('straight', straight, to_deg=0.0, rise_s=rise_s),
+                         SteerSegment('turn', turn, radius_m=radius, rise_s=rise_s)]
             elapsed += straight + turn
         else:
             straight = _uniform(rng, 10.0, 35.0)
