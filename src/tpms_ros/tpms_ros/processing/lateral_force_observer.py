@@ -245,7 +245,10 @@ class LateralForceObserverProcessor:
             # A bad sample must not enter the interval mean; the others still do.
             self._reject('wheel_speeds_invalid')
             return []
-        median = float(np.median(omega))
+        # the median of four by sorting: np.median costs ~30 us a message at 1 kHz (the same
+        # value: the mean of the middle two)
+        ordered = sorted(speeds)
+        median = 0.5 * (ordered[1] + ordered[2])
         if median > _PLAUSIBLE_MIN_RAD_S and np.any(
                 np.abs(omega - median) > self.node_params.max_wheel_deviation * median):
             self._reject('wheel_speeds_implausible')
