@@ -199,6 +199,13 @@ class CalibrationManager:
         self.state = 'loaded'
         self.detail = f'calibration loaded from {self.path}'
 
+    def put_in_force(self, state: Mapping[str, Any]) -> None:
+        """Put a calibration kept elsewhere than the file in force (the fleet job's per-vehicle
+        chain); ValueError, and nothing changed, when the estimator refuses it."""
+        self._estimator.load_calibration_state(state)
+        self.state = 'loaded'
+        self.detail = 'calibration loaded'
+
     def request(self, duration_s: float) -> tuple[bool, str]:
         """Ask for a calibration over the next ``duration_s`` of data; (accepted, message)."""
         if self._pending:

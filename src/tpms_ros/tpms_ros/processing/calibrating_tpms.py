@@ -174,9 +174,7 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a stored calibration in force; ValueError when it does not fit."""
-        self.core.load_calibration_state(state)
-        self._calibration.state = 'loaded'
-        self._calibration.detail = 'calibration loaded'
+        self._calibration.put_in_force(state)
 
     def _calibration_event(self, first_s: float, last_s: float) -> None:
         event = self._calibration.update(first_s, last_s)

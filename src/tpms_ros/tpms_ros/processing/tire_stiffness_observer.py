@@ -229,9 +229,7 @@ class TireStiffnessObserverProcessor:
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a stored calibration in force; ValueError when it does not fit."""
-        self.observer.load_calibration_state(state)
-        self._calibration.state = 'loaded'
-        self._calibration.detail = 'calibration loaded'
+        self._calibration.put_in_force(state)
 
     # -- inputs ------------------------------------------------------------------------------
 
