@@ -8,6 +8,7 @@ be read.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from vehicle_monitor_common.processing import ERROR, OK, WARN, Status
@@ -40,3 +41,17 @@ class StatusProblems:
         level = max((found_level for found_level, _ in self._found), default=OK)
         message = '; '.join(text for _, text in self._found) or ok_message
         return Status(level, message, values)
+
+
+class NewSinceLastStatus:
+    """Counts by reason that grew since the previous status: reported while they grow, so the
+    warning clears once they stop (the totals stay in the status values)."""
+
+    def __init__(self) -> None:
+        self._reported: dict[str, int] = {}
+
+    def text(self, counts: Mapping[str, int]) -> str:
+        """``'<n> <reason>, ...'`` of what grew since the previous call ('' if nothing)."""
+        grown = {k: v - self._reported.get(k, 0) for k, v in counts.items()}
+        self._reported = dict(counts)
+        return ', '.join(f'{n} {reason}' for reason, n in sorted(grown.items()) if n)

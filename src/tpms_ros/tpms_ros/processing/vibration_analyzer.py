@@ -65,7 +65,7 @@ from vehicle_monitor_common.processing import (
     ProcessorSpec,
     Status,
 )
-from vehicle_monitor_common.status_report import StatusProblems
+from vehicle_monitor_common.status_report import NewSinceLastStatus, StatusProblems
 
 WHEEL_SPEEDS = 'vehicle/wheel_speeds'
 RESONANCE = 'tpms/tire_resonance'
@@ -106,13 +106,9 @@ def recovery_s(params: VibrationParams) -> float:
 class VibrationAnalyzerProcessor(
         CalibratingTpmsProcessor[VibrationParams, VibrationAnalyzerNodeParams,
                                  VibrationAnalyzer]):
-    """What the vibration analyzer does with its wheel speeds (see the module docstring).
-
-    Args:
-        params: the method's parameters, handed to the core as they are.
-        node_params: blocks, output timing, time checks, fault handling, calibration.
-        calibration_file: where the calibration is kept (resolved; '' = not persisted).
-    """
+    """What the vibration analyzer does with its wheel speeds (see the module docstring); its
+    node parameters set the blocks, output timing, time checks, fault handling and calibration
+    (arguments as :class:`CalibratingTpmsProcessor`'s, without the method name and core)."""
 
     inputs = {WHEEL_SPEEDS: Input(WHEEL_SPEEDS_TYPE, raw=True)}
     outputs = {RESONANCE: 'vehicle_monitor_msgs/msg/TireResonance',
@@ -139,7 +135,7 @@ class VibrationAnalyzerProcessor(
         self._input_rate_hz = math.nan
         self._rate_was_wrong = False
         self._rate = RateMeter()
-        self._rejected_at_status: dict[str, int] = {}
+        self._new_rejections = NewSinceLastStatus()
 
     def set_node_params(self, node_params: VibrationAnalyzerNodeParams) -> None:
         """New node parameters take effect at once (the gap limit on the next sample)."""
@@ -342,12 +338,9 @@ class VibrationAnalyzerProcessor(
             problems.warn(f'recovering after a filter restart (sensor fault, gap, time jump or '
                           f'rate): {names} unknown until estimated again (at least '
                           f'{recovery_s(p):.3g} s of data)')
-        # Rejected messages are reported while they are recent (counts stay in the values).
-        recent = {k: v - self._rejected_at_status.get(k, 0) for k, v in rejected.items()}
-        self._rejected_at_status = rejected
-        if any(recent.values()):
-            problems.warn('wheel-speed messages rejected: ' + ', '.join(
-                f'{n} {reason}' for reason, n in sorted(recent.items()) if n))
+        new_rejections = self._new_rejections.text(rejected)
+        if new_rejections:
+            problems.warn('wheel-speed messages rejected: ' + new_rejections)
         problems.extend(tire_problems)
         rejected_total = sum(rejected.values()) + int(rejected_values.sum())
         return problems.status(values, f'ok ({rejected_total} samples rejected so far)'

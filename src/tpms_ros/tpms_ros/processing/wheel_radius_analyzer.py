@@ -83,7 +83,7 @@ from vehicle_monitor_common.processing import (
     Status,
     header_stamp_ns,
 )
-from vehicle_monitor_common.status_report import StatusProblems
+from vehicle_monitor_common.status_report import NewSinceLastStatus, StatusProblems
 
 RADIUS = 'tpms/wheel_radius'
 _TOPICS = {'wheel_speeds': WHEEL_SPEEDS, 'imu': IMU, 'driver_inputs': DRIVER_INPUTS}
@@ -125,13 +125,10 @@ class WheelRadiusAnalyzerNodeParams(CalibratingTpmsParams):
 class WheelRadiusAnalyzerProcessor(
         CalibratingTpmsProcessor[WheelRadiusParams, WheelRadiusAnalyzerNodeParams,
                                  WheelRadiusAnalyzer]):
-    """What the wheel-radius analyzer does with its inputs (see the module docstring).
-
-    Args:
-        params: the method's parameters, handed to the core as they are.
-        node_params: alignment, output timing, time checks, fault detection, calibration.
-        calibration_file: where the calibration is kept (resolved; '' = not persisted).
-    """
+    """What the wheel-radius analyzer does with its inputs (see the module docstring): the
+    three streams aligned into bins for the core, which its node parameters set with output
+    timing, time checks, fault detection and calibration (arguments as
+    :class:`CalibratingTpmsProcessor`'s, without the method name and core)."""
 
     inputs = VEHICLE_INPUTS
     outputs = {RADIUS: 'vehicle_monitor_msgs/msg/WheelRadiusOffsets',
@@ -171,7 +168,7 @@ class WheelRadiusAnalyzerProcessor(
         self._last_value: tuple[float, ...] = (math.nan,) * N_TIRES
         self._value_since_ns = [0] * N_TIRES
         self._fault_kind = [''] * N_TIRES                 # last fault per wheel, for the status
-        self._rejected_at_status: dict[str, int] = {}
+        self._new_rejections = NewSinceLastStatus()
         self._events_at_status: dict[str, int] = {}
 
     # -- inputs --------------------------------------------------------------------------------
@@ -463,11 +460,9 @@ class WheelRadiusAnalyzerProcessor(
         if recent_events['rate_bursts']:
             problems.warn(f"wheel-speed rate bursts in {recent_events['rate_bursts']} bins "
                           f'(over 3 x {self._samples_per_bin:.3g} samples per bin)')
-        recent = {k: v - self._rejected_at_status.get(k, 0) for k, v in rejected.items()}
-        self._rejected_at_status = rejected
-        if any(recent.values()):
-            problems.warn('messages rejected: ' + ', '.join(
-                f'{n} {reason}' for reason, n in sorted(recent.items()) if n))
+        new_rejections = self._new_rejections.text(rejected)
+        if new_rejections:
+            problems.warn('messages rejected: ' + new_rejections)
         problems.extend(tire_problems)
         return problems.status(values)
 
