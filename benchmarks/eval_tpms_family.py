@@ -12,8 +12,8 @@ Every case starts with all tires at placard: the three methods calibrate at the 
 drive (vibration and wheel radius over [0, ``--calibration-s``], the stiffness observer over its
 own 60 s of valid data), then [``--calibration-s``, ``--fault-s``] is nominal driving. Each
 method gets only what a user of the car can know (``FamilyCar.user_parameters``): placard
-(stiffness ``nominal_pressure_kpa``), driven axle (stiffness ``driven_axle``; vibration and
-wheel radius ``rear`` for all-wheel drive, they have no ``all``), nominal radius, track,
+(stiffness ``nominal_pressure_kpa``), driven axle (``driven_axle``, vibration
+``driveline_compensation``: front, rear or all), nominal radius, track,
 wheelbase, encoder teeth; everything else at the core defaults (the nodes' defaults). The
 methods are fed as their nodes feed them (vibration in 0.1 s blocks, wheel radius on IMU-rate
 bins, the stiffness observer in 0.25 s chunks with held driver inputs; the voter at 10 Hz).
@@ -131,7 +131,7 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
                                                                StiffnessObserverParams]:
     """Core defaults plus only what the user of this car knows."""
     user = car.user_parameters()
-    axle = 'rear' if car.layout == 'all' else car.layout
+    axle = car.layout
     vibration = VibrationParams(driveline_compensation=axle)
     radius = WheelRadiusParams(nominal_radius_m=user['nominal_radius_m'],
                                track_front_m=user['track_front_m'],
