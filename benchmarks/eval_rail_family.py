@@ -38,6 +38,11 @@ summary per speed band. Targets: spring within 0.5 s and damper within 1 s on >=
 declared faults in 30 healthy minutes per car; the right component declared at the end of
 every fault case. The shared discretisation cache of the IMM module, if present, is cleared
 before each run, so the figures do not depend on the order of the runs.
+
+``--scoreboard PATH`` also writes one row per target of the issue (pass rate, worst case) as the
+main job's scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
+``docs/results/rail_family.json``), after a run or from a saved ``--json`` file:
+``python benchmarks/eval_rail_family.py --report RUN.json --scoreboard PATH [--commit SHA]``.
 """
 
 from __future__ import annotations
@@ -86,6 +91,13 @@ from rail_monitor_ros.simulation.rail_simulator import (  # noqa: E402
     RailSimulationResult,
     lateral_states_fields,
     simulate,
+)
+from vehicle_monitor_common.family_results import (  # noqa: E402
+    FamilyResults,
+    FamilyRow,
+    current_commit,
+    today,
+    write_family_results,
 )
 from vehicle_monitor_common.parameters import build, flatten  # noqa: E402
 
@@ -437,6 +449,110 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
     return cases
 
 
+# ----------------------------------------------------------------------------- scoreboard
+
+def _where(case: CreepCase | ImmCase) -> str:
+    return f'{case.car} at {case.speed:.1f} m/s'
+
+
+def _creep_row(cases: Sequence[CreepCase], config: str, text: str) -> FamilyRow | None:
+    chosen = [c for c in cases if c.config == config]
+    if not chosen:
+        return None
+    tolerance, limit, share = CREEP_TARGETS[config]
+    settle = [(max(c.settle_5 if tolerance == 0.05 else c.settle_10), c) for c in chosen]
+    worst_s, worst = max(settle, key=lambda item: item[0])
+    row = FamilyRow(f'creep {config}', text, sum(c.passes() for c in chosen), len(chosen),
+                    'cases', share, worst_s if math.isfinite(worst_s) else None, 's',
+                    _where(worst) if math.isfinite(worst_s)
+                    else f'never stays within the band: {_where(worst)}', False)
+    return replace(row, met=row.share_met())
+
+
+def _imm_delay_row(cases: Sequence[ImmCase], kind: str, limit_s: float, text: str,
+                   ) -> FamilyRow | None:
+    chosen = [c for c in cases if c.kind == kind]
+    if not chosen:
+        return None
+    worst = max(chosen, key=lambda c: c.delay)
+    row = FamilyRow(f'IMM {kind}', text, sum(c.delay <= limit_s for c in chosen), len(chosen),
+                    'cases', IMM_PASS_SHARE,
+                    worst.delay if math.isfinite(worst.delay) else None, 's',
+                    f'{_where(worst)}, {100 * worst.ratio:.0f} %' if math.isfinite(worst.delay)
+                    else f'never above 0.5: {_where(worst)}, {100 * worst.ratio:.0f} %', False)
+    return replace(row, met=row.share_met())
+
+
+def _healthy_row(cases: Sequence[ImmCase], healthy_s: float) -> FamilyRow | None:
+    healthy = [c for c in cases if c.kind == 'healthy']
+    if not healthy:
+        return None
+    declared: dict[int, int] = {}
+    runs: dict[int, int] = {}
+    for c in healthy:
+        declared[c.car] = declared.get(c.car, 0) + c.false_declarations
+        runs[c.car] = runs.get(c.car, 0) + 1
+    minutes = min(runs.values()) * healthy_s / 60.0
+    worst_car = max(declared, key=lambda car: declared[car])
+    row = FamilyRow(
+        'IMM healthy', 'suspension IMM: zero declared faults in 30 healthy minutes per car',
+        sum(n == 0 for n in declared.values()), len(declared), 'cars', 1.0,
+        float(declared[worst_car]) if declared[worst_car] else None, 'declared',
+        f'car {worst_car}' if declared[worst_car] else 'none', False,
+        f'judged on {minutes:g} healthy min per car ({min(runs.values())} runs of '
+        f'{healthy_s:g} s), not 30: not met until 30 min are run')
+    return replace(row, met=row.share_met() and minutes >= 30.0)
+
+
+def _end_component_row(cases: Sequence[ImmCase]) -> FamilyRow | None:
+    faults = [c for c in cases if c.kind != 'healthy']
+    if not faults:
+        return None
+    wrong = [c for c in faults if c.end_component != c.kind]
+    more = f' (and {len(wrong) - 1} more)' if len(wrong) > 1 else ''
+    row = FamilyRow(
+        'IMM component at the end',
+        'suspension IMM: the right component declared at the end of every fault case',
+        len(faults) - len(wrong), len(faults), 'cases', 1.0, None, '',
+        f'{wrong[0].kind} at {_where(wrong[0])}: ended {wrong[0].end_component}{more}'
+        if wrong else 'none wrong', False)
+    return replace(row, met=row.share_met())
+
+
+def scoreboard_rows(creep: Sequence[CreepCase], imm: Sequence[ImmCase], healthy_s: float,
+                    ) -> list[FamilyRow]:
+    """One row per target of issue 19 (the sections and configs that were run)."""
+    rows = [
+        _creep_row(creep, 'D/none', 'creep estimator, pattern D (IMUs), no track: within '
+                   '+/-10 % of the true creep factor within 2 s of each step'),
+        _creep_row(creep, 'C-spec/map0.3', 'creep estimator, pattern C (contract fields), '
+                   'track map of 0.3 mm rms error: within +/-5 % within 1 s of each step'),
+        _creep_row(creep, 'C-spec/exact', 'creep estimator, pattern C (contract fields), exact '
+                   'track: within +/-5 % within 1 s of each step'),
+        _imm_delay_row(imm, 'spring', SPRING_TARGET_S, 'suspension IMM: spring fault '
+                       '130-160 %, the correct mode above p 0.5 within 0.5 s of the onset'),
+        _imm_delay_row(imm, 'damper', DAMPER_TARGET_S, 'suspension IMM: damper fault 30-70 %, '
+                       'the correct mode above p 0.5 within 1 s of the onset'),
+        _healthy_row(imm, healthy_s),
+        _end_component_row(imm),
+    ]
+    return [row for row in rows if row is not None]
+
+
+def write_scoreboard(path: str, out: dict[str, Any], commit: str) -> None:
+    """The committed result file the main job's scoreboard shows, from the ``--json`` dict."""
+    settings = out.get('settings', {})
+    creep = [CreepCase(**c) for c in out.get('creep', [])]
+    imm = [ImmCase(**c) for c in out.get('imm', [])]
+    seeds = tuple(int(s) for s in out['seeds'])
+    results = FamilyResults(
+        'benchmarks/eval_rail_family.py', commit, out.get('date', today()), seeds,
+        all(s in HELD_OUT_SEEDS for s in seeds),
+        tuple(scoreboard_rows(creep, imm, float(settings['healthy_s']))), settings)
+    write_family_results(path, results)
+    _say(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', choices=('held-out', 'development'), default='held-out')
@@ -457,7 +573,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--no-offsets', action='store_true',
                         help='ablation: the cars without their constant sensor offsets')
     parser.add_argument('--json', help='write the per-case figures here')
+    parser.add_argument('--scoreboard', default=None,
+                        help='also write the per-target result file the main job shows '
+                             '(docs/results/rail_family.json)')
+    parser.add_argument('--report', default=None, metavar='JSON',
+                        help='do not run: write --scoreboard from a saved --json file')
+    parser.add_argument('--commit', default='',
+                        help="commit the runs were made on (default: the one saved in the "
+                             "--json file, else the checkout's HEAD)")
     args = parser.parse_args(argv)
+    if args.report:
+        if not args.scoreboard:
+            parser.error('--report writes --scoreboard: give it')
+        with open(args.report, encoding='utf-8') as handle:
+            saved = json.load(handle)
+        # Files written before the settings were saved: the healthy run length from the
+        # command line (its default is what those runs used unless told otherwise).
+        saved.setdefault('settings', {}).setdefault('healthy_s', args.healthy_s)
+        commit = args.commit or saved.get('commit', '')
+        if not commit:
+            parser.error('the --json file does not say its commit: give --commit')
+        write_scoreboard(args.scoreboard, saved, commit)
+        return 0
     seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS
     if args.cars > 0:
         seeds = seeds[:args.cars]
@@ -475,7 +612,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         _say('  ' + car.describe())
     nominal = RailVehicleParams()
     _say(f'  (nominal body yaw inertia {nominal.body_yaw_inertia:.3g} kg m^2)')
-    out: dict[str, Any] = {'seeds': list(seeds)}
+    out: dict[str, Any] = {
+        'seeds': list(seeds), 'commit': args.commit or current_commit(), 'date': today(),
+        'settings': {'speeds': args.speeds, 'healthy_s': args.healthy_s,
+                     'creep_configs': configs, 'creep_track_model': args.creep_track_model,
+                     'offset_states': not args.no_offset_states,
+                     'sensor_offsets': not args.no_offsets}}
     start = time.time()
     if not args.skip_creep:
         out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs,
@@ -487,6 +629,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as handle:
             json.dump(out, handle, indent=1, default=str)
+    if args.scoreboard:
+        write_scoreboard(args.scoreboard, out, out['commit'])
     return 0
 
 

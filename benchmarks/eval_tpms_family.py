@@ -26,13 +26,17 @@ method's own time for the diffusion, false warnings (a healthy tire warned after
 and the highest confidence of each method in nominal driving with its margin to its threshold.
 
 Run (reduced first): ``python benchmarks/eval_tpms_family.py --cars 4 --cases diffusion20``;
-``--workers 2`` at most on this machine; results also in ``--out`` (JSON).
+``--workers 2`` at most on this machine; results also in ``--out`` (JSON). ``--scoreboard PATH``
+also writes one row per target of the issue (pass rate, worst case) as the main job's
+scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
+``docs/results/tpms_family.json``), after a run or from saved runs:
+``python benchmarks/eval_tpms_family.py --report RUNS.json --scoreboard PATH [--commit SHA]``.
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import json
 import math
 import multiprocessing
@@ -71,6 +75,13 @@ from tpms_ros.simulation.road_simulator import (
     RoadSimulationResult,
     simulate_scenario,
     to_topic_series,
+)
+from vehicle_monitor_common.family_results import (
+    FamilyResults,
+    FamilyRow,
+    current_commit,
+    today,
+    write_family_results,
 )
 
 METHODS = ('vibration', 'wheel_radius', 'stiffness')
@@ -457,13 +468,149 @@ def markdown(records: list[dict[str, Any]]) -> str:
     return '\n'.join(lines)
 
 
-def report(paths: list[Path]) -> None:
-    """Merge result files (later ones override the same car and case) and print tables."""
+def _run_name(rec: dict[str, Any]) -> str:
+    return f'{rec["seed"]} {rec["case"]} {rec["drive"]}'
+
+
+def _stiffness_nominal_row(records: list[dict[str, Any]]) -> FamilyRow:
+    """Per run: every tire within the bounds; the others must be unknown (NaN), not wrong."""
+    within = acceptable = unknown_runs = low = 0
+    worst: tuple[float, str] | None = None
+    for r in records:
+        known = [(w, m, s) for w, (m, s) in enumerate(zip(
+            r['nominal_mean_err_kpa'], r['nominal_std_kpa'], strict=True)) if not math.isnan(m)]
+        good = all(abs(m) < 10.0 and s < 5.0 for _, m, s in known)
+        within += good and len(known) == 4
+        acceptable += good
+        unknown_runs += len(known) < 4
+        low += sum(m < -10.0 for _, m, _ in known)
+        for w, m, _ in known:
+            if worst is None or abs(m) > worst[0]:
+                worst = (abs(m), f'{_run_name(r)} {TIRE_NAMES[w]}')
+    row = FamilyRow(
+        'stiffness at placard',
+        'stiffness observer at placard: |mean error| < 10 kPa and std < 5 kPa on every tire '
+        'of a car x drive; in the others the tires out of bounds reported unknown, not low',
+        within, len(records), 'runs', 0.95, None if worst is None else worst[0], 'kPa',
+        '' if worst is None else f'|mean|, {worst[1]}', False,
+        f'{unknown_runs} runs with a tire unknown; every tire within or unknown in '
+        f'{acceptable} / {len(records)}; {low} tires read more than 10 kPa low')
+    return replace(row, met=row.share_met() and acceptable == len(records))
+
+
+def _diffusion_reading_row(diffusion: list[dict[str, Any]]) -> FamilyRow:
+    errors = [(abs(read - truth), f'{_run_name(r)} {TIRE_NAMES[w]}')
+              for r in diffusion for w, (read, truth) in enumerate(zip(
+                  r['end_reading_kpa'], r['end_truth_kpa'], strict=True))
+              if not math.isnan(read)]
+    unknown = 4 * len(diffusion) - len(errors)
+    worst = max(errors, default=None)
+    row = FamilyRow(
+        'stiffness reads -20 %',
+        'stiffness observer reads the 20 % four-tire loss within 10 kPa (mean of the last 20 s)',
+        sum(e < 10.0 for e, _ in errors), 4 * len(diffusion), 'tires', 1.0,
+        None if worst is None else worst[0], 'kPa', '' if worst is None else worst[1], False,
+        f'{unknown} tires unknown' if unknown else '')
+    return replace(row, met=row.share_met())
+
+
+def _detection_row(target: str, text: str, runs: list[dict[str, Any]], key: str,
+                   limit_s: float, required_share: float) -> FamilyRow:
+    """Runs whose detection time (``key``, s after the loss reached its level) is within the
+    limit; the worst is the first missed run, else the slowest."""
+    times = [(r[key], r) for r in runs]
+    missed = [r for t, r in times if t is None]
+    passed = sum(t is not None and t <= limit_s for t, _ in times)
+    if missed:
+        more = f' (and {len(missed) - 1} more missed)' if len(missed) > 1 else ''
+        worst_value, worst_case = None, f'missed: {_run_name(missed[0])}{more}'
+    elif times:
+        slowest = max(times, key=lambda item: item[0])
+        worst_value, worst_case = slowest[0], _run_name(slowest[1])
+    else:
+        worst_value, worst_case = None, ''
+    row = FamilyRow(target, text, passed, len(runs), 'runs', required_share, worst_value, 's',
+                    worst_case, False)
+    return replace(row, met=row.share_met())
+
+
+def _false_warning_row(records: list[dict[str, Any]]) -> FamilyRow:
+    worst = max(records, key=lambda r: len(r['false_warning_tires']), default=None)
+    count = 0 if worst is None else len(worst['false_warning_tires'])
+    minutes: dict[int, float] = {}
+    for r in records:
+        minutes[r['seed']] = minutes.get(r['seed'], 0.0) + r.get('nominal_s', 0.0) / 60.0
+    row = FamilyRow(
+        'no false warning',
+        'fused: no false warning (a tire warned in nominal driving, or a healthy tire warned '
+        'after calibration in a fault case)',
+        sum(not r['false_warning_tires'] for r in records), len(records), 'runs', 1.0,
+        float(count) if count else None, 'tires',
+        f'{_run_name(worst)}: {",".join(worst["false_warning_tires"])}'
+        if worst is not None and count else 'none',
+        False,
+        f'{sum(minutes.values()):.0f} min of nominal driving, '
+        f'{max(minutes.values(), default=0.0):.0f} min at most per car (docs/targets.md: '
+        'zero in 30 min)')
+    return replace(row, met=row.share_met())
+
+
+def scoreboard_rows(records: list[dict[str, Any]]) -> list[FamilyRow]:
+    """One row per target of issue 21 (the cases present in the records)."""
+    by_case = {case: [r for r in records if r['case'] == case] for case in CASES}
+    rows = [_stiffness_nominal_row(records)]
+    if by_case['diffusion20']:
+        rows.append(_diffusion_reading_row(by_case['diffusion20']))
+    if by_case['puncture25']:
+        rows.append(_detection_row(
+            'fused: 25 % puncture', 'fused warning names a 25 % puncture within 60 s, every car',
+            by_case['puncture25'], 'fused_detect_s', 60.0, 1.0))
+    if by_case['diffusion20']:
+        rows.append(_detection_row(
+            'fused: 20 % diffusion',
+            'fused warning names all four tires of a 20 % diffusion within 2 min of reaching it',
+            by_case['diffusion20'], 'fused_detect_s', 120.0, 1.0))
+    if by_case['puncture15']:
+        rows.append(_detection_row(
+            'fused: 15 % on 1-2 tires',
+            'fused warning names a 15 % loss on one or two tires within 60 s',
+            by_case['puncture15'], 'fused_detect_s', 60.0, 0.9))
+    if by_case['diffusion20']:
+        rows.append(_detection_row(
+            'stiffness alone: 20 % diffusion',
+            'the stiffness method alone warns of all four tires of the 20 % diffusion by the end '
+            'of the run', by_case['diffusion20'], 'stiffness_detect_s', math.inf, 0.9))
+    rows.append(_false_warning_row(records))
+    return rows
+
+
+def write_scoreboard(path: Path, records: list[dict[str, Any]], commit: str, date: str,
+                     settings: dict[str, Any]) -> None:
+    """The committed result file the main job's scoreboard shows."""
+    seeds = tuple(sorted({int(r['seed']) for r in records}))
+    results = FamilyResults('benchmarks/eval_tpms_family.py', commit, date, seeds,
+                            all(s in HELD_OUT_SEEDS for s in seeds),
+                            tuple(scoreboard_rows(records)), settings)
+    write_family_results(path, results)
+    print(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
+
+
+def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Merge result files (later ones override the same car and case); the records and the
+    last file's header (settings, commit, date)."""
     merged: dict[tuple[int, str], dict[str, Any]] = {}
+    header: dict[str, Any] = {}
     for path in paths:
-        for rec in json.loads(path.read_text())['records']:
+        data = json.loads(path.read_text())
+        header = {k: v for k, v in data.items() if k in ('settings', 'commit', 'date')}
+        header.setdefault('date', time.strftime('%Y-%m-%d', time.gmtime(path.stat().st_mtime)))
+        for rec in data['records']:
             merged[(rec['seed'], rec['case'])] = rec
-    records = list(merged.values())
+    return list(merged.values()), header
+
+
+def report(records: list[dict[str, Any]]) -> None:
+    """Print the tables of saved runs."""
     print(markdown(records))
     print()
     for key, value in summary(records).items():
@@ -494,9 +641,22 @@ def main() -> None:
     parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
     parser.add_argument('--report', type=Path, nargs='+',
                         help='print Markdown tables from result files instead of running')
+    parser.add_argument('--scoreboard', type=Path, default=None,
+                        help='also write the per-target result file the main job shows '
+                             '(docs/results/tpms_family.json)')
+    parser.add_argument('--commit', default='',
+                        help='commit the runs were made on (default: the one saved in the '
+                             'result file, else the checkout\'s HEAD)')
     args = parser.parse_args()
     if args.report:
-        report(args.report)
+        saved, header = load_records(args.report)
+        report(saved)
+        if args.scoreboard:
+            commit = args.commit or header.get('commit', '')
+            if not commit:
+                parser.error('the result file does not say its commit: give --commit')
+            write_scoreboard(args.scoreboard, saved, commit, header['date'],
+                             header.get('settings', {}))
         return
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
@@ -512,6 +672,8 @@ def main() -> None:
             drive = args.drives or DRIVE_KINDS[(seed + CASES.index(case)) % len(DRIVE_KINDS)]
             jobs.append(Job(seed, case, drive, settings))
     print(f'{len(jobs)} runs: cars {seeds}, cases {cases}; {settings}', flush=True)
+    header = {'settings': settings.__dict__, 'commit': args.commit or current_commit(),
+              'date': today()}
     t0 = time.perf_counter()
     records: list[dict[str, Any]] = []
     workers = max(1, min(args.workers, 2))
@@ -522,7 +684,7 @@ def main() -> None:
             print(f'[{len(records)}/{len(jobs)} {time.perf_counter() - t0:5.0f} s] '
                   f'{rec["car"]}', flush=True)
             print_record(rec)
-            args.out.write_text(json.dumps({'settings': settings.__dict__, 'records': records}))
+            args.out.write_text(json.dumps({**header, 'records': records}))
     records.sort(key=lambda r: (r['seed'], r['case']))
     print('\n=== per car and case ===')
     for rec in records:
@@ -531,9 +693,12 @@ def main() -> None:
     print('\n=== summary ===')
     for key, value in result.items():
         print(f'{key}: {value}')
-    args.out.write_text(json.dumps({'settings': settings.__dict__, 'records': records,
-                                    'summary': result}, default=str))
+    args.out.write_text(json.dumps({**header, 'records': records, 'summary': result},
+                                   default=str))
     print(f'wrote {args.out}; {time.perf_counter() - t0:.0f} s wall')
+    if args.scoreboard:
+        write_scoreboard(args.scoreboard, records, header['commit'], header['date'],
+                         header['settings'])
 
 
 if __name__ == '__main__':
