@@ -248,6 +248,15 @@ def render_family_markdown(tables: Sequence[FamilyTable]) -> str:
     return '\n'.join(lines).rstrip('\n')
 
 
+FAMILY_INTRO = ('Measured by the family evaluations (too long for the main job) on cars nothing '
+                'was tuned on, committed under docs/results/ and read from there, not run here.')
+
+
+def render_family_section(tables: Sequence[FamilyTable], heading: str) -> str:
+    """A Markdown section: ``heading``, what the tables are, the tables."""
+    return '\n\n'.join([heading, FAMILY_INTRO, render_family_markdown(tables)])
+
+
 def render_family_text(tables: Sequence[FamilyTable]) -> str:
     """The held-out family tables as fixed-width text (the printed scoreboard)."""
     lines: list[str] = []

@@ -5,9 +5,10 @@ For each domain registered under ``vehicle_monitor.evaluations`` (road: ``tpms_r
 mode, every estimator node, a recorder) is brought up in this process as real rclpy nodes over
 real topics; the bag is replayed as fast as the graph keeps up (paced by the estimators' outputs,
 no message dropped); the recording is evaluated against its ground truth. Then it prints the
-scoreboard (one row per scenario and method: key figure, docs/targets.md target, pass/fail) and
-each
-graph's real-time factor, and writes into the output folder (default ``out/demo``):
+scoreboard (one row per scenario and method: key figure, docs/targets.md target, pass/fail),
+each graph's real-time factor and the held-out family tables (one row per target of the family
+evaluations, read from the committed ``docs/results/*_family.json``: those runs take too long
+for the main job), and writes into the output folder (default ``out/demo``):
 
 - ``results.json``: every metric and run figure, machine-readable;
 - ``report.md``: the scoreboard, the runs and the figures (PNG, named after the papers');
@@ -47,6 +48,7 @@ from vehicle_monitor_common.evaluation import (
     write_report,
     write_results,
 )
+from vehicle_monitor_common.family_results import FamilyTable, load_family_tables
 from vehicle_monitor_common.graph_spec import GraphSpec, load_graph
 from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
@@ -247,8 +249,10 @@ def evaluate_recording(domain: Domain, recorded: Path, scenario: str, figure_dir
 
 
 def run_demo(out_dir: Path, only: Sequence[str] = (), executor: str | None = None,
-             log: Callable[[str], None] = print) -> tuple[list[Evaluation], list[RunStats]]:
-    """Run every registered scenario (or those named in ``only``) and write the outputs."""
+             log: Callable[[str], None] = print, families: Sequence[FamilyTable] = (),
+             ) -> tuple[list[Evaluation], list[RunStats]]:
+    """Run every registered scenario (or those named in ``only``) and write the outputs; the
+    report also shows the held-out family tables ``families``."""
     registered = domains()
     if not registered:
         raise ConfigurationError('no domain registered under vehicle_monitor.evaluations '
@@ -280,7 +284,8 @@ def run_demo(out_dir: Path, only: Sequence[str] = (), executor: str | None = Non
             f'{sum(m.passed is not None for m in evaluation.metrics)} targets met')
     descriptions = {s.name: s.description for _, s in selected}
     write_results(out_dir / 'results.json', evaluations, runs)
-    write_report(out_dir / 'report.md', evaluations, runs, descriptions=descriptions)
+    write_report(out_dir / 'report.md', evaluations, runs, descriptions=descriptions,
+                 families=families)
     return evaluations, runs
 
 
@@ -311,20 +316,21 @@ def main(argv: list[str] | None = None) -> int:
     if not args.shared_domain:
         use_private_domain()
     def run() -> int:
+        families = load_family_tables()
         if args.from_results is not None:
             if not args.update_readme:
                 parser.error('--from-results only makes sense with --update-readme')
-            changed = update_readme(readme, args.from_results)
+            changed = update_readme(readme, args.from_results, families)
             print(f'{readme}: {"updated" if changed else "already up to date"}')
             return 0
         started = time.monotonic()
-        evaluations, runs = run_demo(args.out, args.only, args.executor)
+        evaluations, runs = run_demo(args.out, args.only, args.executor, families=families)
         print()
-        print(render_scoreboard(evaluations, runs))
+        print(render_scoreboard(evaluations, runs, families))
         print(f'\nmain job: {time.monotonic() - started:.0f} s wall; figures, report.md and '
               f'results.json in {args.out}/')
         if args.update_readme:
-            changed = update_readme(readme, args.out / 'results.json')
+            changed = update_readme(readme, args.out / 'results.json', families)
             print(f'{readme}: {"updated" if changed else "already up to date"}')
         # Missed targets are the product's state, not an error: exit 0. A run that dropped
         # messages is one (the scores would not be the graph's).
