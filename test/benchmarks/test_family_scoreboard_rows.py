@@ -1,0 +1,129 @@
+"""The family evaluations' scoreboard rows (``--scoreboard``) from small hand-made records:
+pass counts, worst cases and verdicts against the issues' targets."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+import sys
+from types import ModuleType
+from typing import Any
+
+import pytest
+
+from vehicle_monitor_common.family_results import load_family_results
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / 'benchmarks'
+
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f'{name}.py')
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+tpms = _load('eval_tpms_family')
+rail = _load('eval_rail_family')
+
+NAN = math.nan
+
+
+def _record(seed: int, case: str, **figures: Any) -> dict[str, Any]:
+    base: dict[str, Any] = {
+        'seed': seed, 'case': case, 'drive': 'rural', 'tires': ['FL'],
+        'nominal_mean_err_kpa': [1.0, -2.0, 3.0, 0.5], 'nominal_std_kpa': [1.0, 1.0, 1.0, 1.0],
+        'end_truth_kpa': [160.0] * 4, 'end_reading_kpa': [NAN] * 4, 'fused_detect_s': 10.0,
+        'stiffness_detect_s': None, 'false_warning_tires': [], 'nominal_s': 60.0,
+        'speed_corr_fl': 0.1, 'confidence': {m: {'nominal_max_conf': 0.3, 'healthy_max_conf': 0.2,
+                                                  'threshold': 0.8, 'margin': 0.5}
+                                              for m in tpms.METHODS}}
+    return base | figures
+
+
+RECORDS = [
+    _record(21000, 'diffusion20', tires=['FL', 'FR', 'RL', 'RR'],
+            nominal_mean_err_kpa=[1.0, NAN, 2.0, -3.0],
+            end_reading_kpa=[165.0, 172.0, NAN, 158.0], fused_detect_s=-20.0,
+            stiffness_detect_s=-20.0),
+    _record(21000, 'puncture25', fused_detect_s=None),
+    _record(21001, 'puncture25', fused_detect_s=12.5,
+            nominal_mean_err_kpa=[-14.0, 0.0, 0.0, 0.0]),
+    _record(21001, 'puncture15', fused_detect_s=30.0, false_warning_tires=['RL', 'RR']),
+]
+
+
+def _rows(rows: list[Any]) -> dict[str, Any]:
+    return {row.target: row for row in rows}
+
+
+def test_tpms_rows() -> None:
+    """Unknown tires pass the nominal row only as unknown; a miss is the worst detection;
+    readings are judged per tire against that tire's truth."""
+    rows = _rows(tpms.scoreboard_rows(RECORDS))
+    nominal = rows['stiffness at placard']
+    assert (nominal.passed, nominal.cases) == (2, 4)  # the unknown FR and the -14 kPa fail
+    assert nominal.worst_value == 14.0 and '21001 puncture25 rural FL' in nominal.worst_case
+    assert '1 runs with a tire unknown' in nominal.detail and '1 tires read more' in nominal.detail
+    assert not nominal.met
+    reading = rows['stiffness reads -20 %']
+    assert (reading.passed, reading.cases, reading.worst_value) == (2, 4, 12.0)
+    assert reading.detail == '1 tires unknown'
+    puncture = rows['fused: 25 % puncture']
+    assert (puncture.passed, puncture.cases, puncture.worst_value) == (1, 2, None)
+    assert puncture.worst_case == 'missed: 21000 puncture25 rural' and not puncture.met
+    assert rows['fused: 20 % diffusion'].met and rows['fused: 15 % on 1-2 tires'].met
+    false = rows['no false warning']
+    assert (false.passed, false.cases, false.worst_value) == (3, 4, 2.0)
+    assert false.worst_case == '21001 puncture15 rural: RL,RR' and not false.met
+    assert '4 min of nominal driving, 2 min at most per car' in false.detail
+
+
+def test_tpms_scoreboard_from_saved_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                         ) -> None:
+    """``--report RUNS --scoreboard`` writes the file the main job reads, with the commit
+    given and the date of the saved runs."""
+    runs = tmp_path / 'runs.json'
+    runs.write_text(json.dumps({'settings': {'fault_s': 150.0}, 'date': '2026-11-28',
+                                'records': RECORDS}))
+    out = tmp_path / 'tpms_family.json'
+    monkeypatch.setattr(sys, 'argv', ['eval_tpms_family.py', '--report', str(runs),
+                                      '--scoreboard', str(out), '--commit', 'abc1234'])
+    tpms.main()
+    results = load_family_results(out)
+    assert (results.commit, results.date, results.seeds) == ('abc1234', '2026-11-28',
+                                                             (21000, 21001))
+    assert results.held_out and results.settings == {'fault_s': 150.0}
+    assert [row.target for row in results.rows] == [row.target for row in
+                                                    tpms.scoreboard_rows(RECORDS)]
+
+
+def test_rail_rows() -> None:
+    """Creep rows judge each config by its own band; a case that never settles is the worst;
+    the healthy row is not met on fewer than 30 minutes per car even without a declaration."""
+    creep = [rail.CreepCase(190001, 30.0, 'D/none', settle_10=[0.5, 1.5, 0.2]),
+             rail.CreepCase(190002, 40.0, 'D/none', settle_10=[0.5, math.inf, 0.2]),
+             rail.CreepCase(190001, 30.0, 'C-spec/exact', settle_5=[0.3, 0.4, 0.9])]
+    imm = [rail.ImmCase(190001, 35.0, 'spring', 1.4, delay=0.1, end_component='spring'),
+           rail.ImmCase(190001, 35.0, 'damper', 0.5, delay=1.2, end_component='none'),
+           rail.ImmCase(190001, 35.0, 'healthy', 1.0),
+           rail.ImmCase(190002, 45.0, 'healthy', 1.0)]
+    rows = _rows(rail.scoreboard_rows(creep, imm, 60.0))
+    assert list(rows) == ['creep D/none', 'creep C-spec/exact', 'IMM spring', 'IMM damper',
+                          'IMM healthy', 'IMM component at the end']
+    d_none = rows['creep D/none']
+    assert (d_none.passed, d_none.cases, d_none.worst_value) == (1, 2, None)
+    assert d_none.worst_case == 'never stays within the band: 190002 at 40.0 m/s'
+    assert rows['creep C-spec/exact'].met and rows['creep C-spec/exact'].worst_value == 0.9
+    damper = rows['IMM damper']
+    assert (damper.passed, damper.worst_value, damper.met) == (0, 1.2, False)
+    healthy = rows['IMM healthy']
+    assert (healthy.passed, healthy.cases, healthy.met) == (2, 2, False)
+    assert 'judged on 1 healthy min per car' in healthy.detail
+    end = rows['IMM component at the end']
+    assert (end.passed, end.cases) == (1, 2)
+    assert end.worst_case == 'damper at 190001 at 35.0 m/s: ended none'
