@@ -195,10 +195,19 @@ def load_family_tables(directory: Path | None = None,
         try:
             tables.append(FamilyTable(source, load_family_results(path)))
         except FileNotFoundError:
-            tables.append(FamilyTable(source, None, f'not measured yet: no {path}'))
+            tables.append(FamilyTable(source, None, f'not measured yet: no {_shown(path)}'))
         except ValueError as exc:  # json.JSONDecodeError is a ValueError
             tables.append(FamilyTable(source, None, f'unreadable: {exc}'))
     return tables
+
+
+def _shown(path: Path) -> Path:
+    """The path relative to the working directory when inside it (the README shows
+    ``docs/results/...``, not this machine's workspace path)."""
+    try:
+        return path.resolve().relative_to(Path.cwd().resolve())
+    except ValueError:
+        return path
 
 
 def seeds_text(seeds: Sequence[int]) -> str:
