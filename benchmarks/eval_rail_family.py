@@ -579,8 +579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--report', default=None, metavar='JSON',
                         help='do not run: write --scoreboard from a saved --json file')
     parser.add_argument('--commit', default='',
-                        help="commit the runs were made on (default: the one saved in the "
-                             "--json file, else the checkout's HEAD)")
+                        help="commit the runs were made on (default: the checkout's HEAD; "
+                             'with --report, the one the --json file saved)')
     args = parser.parse_args(argv)
     if args.report:
         if not args.scoreboard:

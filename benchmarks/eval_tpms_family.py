@@ -645,8 +645,8 @@ def main() -> None:
                         help='also write the per-target result file the main job shows '
                              '(docs/results/tpms_family.json)')
     parser.add_argument('--commit', default='',
-                        help='commit the runs were made on (default: the one saved in the '
-                             'result file, else the checkout\'s HEAD)')
+                        help="commit the runs were made on (default: the checkout's HEAD; "
+                             'with --report, the one the result file saved)')
     args = parser.parse_args()
     if args.report:
         saved, header = load_records(args.report)
