@@ -103,6 +103,13 @@ import math
 import numpy as np
 from scipy.linalg.lapack import dposv as _cholesky_solve
 
+from rail_monitor_ros.core.creep_kernel import (
+    OUTLIER,
+    SINGULAR,
+    augmented_transition,
+    ekf_predict,
+    ekf_update,
+)
 from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     OBSERVATION_PATTERNS,
@@ -574,6 +581,7 @@ class CreepEkf:
         self._build_observation()
         self._q_x = self._state_process_noise()
         self._jacobian = np.eye(self.dim_x)
+        self._update_out = np.empty(3)      # ekf_update's NIS, ln c correction and spread
         self.rejected: dict[str, int] = {}
         self.resets: dict[str, int] = {}
         self.clipped = 0
@@ -687,7 +695,6 @@ class CreepEkf:
         self._r_track = {k: r_track[:k] for k in (N_U, 2 * N_U)}
         # Diagonal measurement noise, kept as vectors (added on the diagonal of S).
         self._r = {k: np.concatenate([self._r_meas, r_track[:k]]) for k in (0, N_U, 2 * N_U)}
-        self._diag_index = {k: np.diag_indices(v.size) for k, v in self._r.items()}
         self._gate2 = p.gate_sigma ** 2
 
     def _state_process_noise(self) -> np.ndarray:
@@ -759,7 +766,8 @@ class CreepEkf:
         f, _, df, _ = discretize_zoh_sensitivity(m.a0 + c * m.da, no_input, m.da, no_input,
                                                  self._dt)
         self.discretizations += 1
-        return Discretization(c, f, df)
+        # C-contiguous: what the compiled transition takes.
+        return Discretization(c, np.ascontiguousarray(f), np.ascontiguousarray(df))
 
     def transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The augmented transition x -> f(x) and its Jacobian df/dx at x.
@@ -779,18 +787,12 @@ class CreepEkf:
 
     def _transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """As :meth:`transition`, returning the internal Jacobian buffer (no copy)."""
-        i_theta = self.i_theta
-        c = math.exp(x[i_theta])
+        c = math.exp(x[self.i_theta])
         d = self.discretization(c, exact)
-        x_q = x[:i_theta]
-        fg = d.fg + (c - d.creep_factor) * d.dfg
-        jac = self._jacobian
-        jac[:i_theta, :i_theta] = fg
-        # d/d(ln c) = c d/dc; the derivative of the Taylor-stepped transition actually used.
-        jac[:i_theta, i_theta] = c * (d.dfg @ x_q)
-        x_next = x.copy()
-        x_next[:i_theta] = fg @ x_q
-        return x_next, jac
+        x_next = np.empty_like(x)
+        augmented_transition(np.ascontiguousarray(x), d.fg, d.dfg, c, d.creep_factor,
+                             self.i_theta, x_next, self._jacobian)
+        return x_next, self._jacobian
 
     # -- filter --------------------------------------------------------------------------------
 
@@ -872,30 +874,19 @@ class CreepEkf:
     def _update(self, z: np.ndarray, u_meas: np.ndarray | None) -> tuple[str, float]:
         with_track = 0 if u_meas is None else u_meas.size
         z_all = z if u_meas is None else np.concatenate((z, u_meas))
-        h, r = self._h[with_track], self._r[with_track]
-        hp = h @ self.P
-        s = hp @ h.T
-        s[self._diag_index[with_track]] += r
-        y = z_all - h @ self.x
-        n = self._n_meas
-        if (y[:n] ** 2 > self._gate2 * s.diagonal()[:n]).any():
+        # Joseph form, the gate on the vehicle channels and the ln c correction with its
+        # predicted spread (K S K^T)_theta, compiled (creep_kernel.ekf_update).
+        outcome = ekf_update(self.x, self.P, self._h[with_track], self._r[with_track],
+                             np.ascontiguousarray(z_all, dtype=float), self._n_meas,
+                             self._gate2, self.i_theta, self._update_out)
+        if outcome == OUTLIER:
             # The vehicle measurement is an outlier; the track sample (if any) is still used.
             if u_meas is not None:
                 self._update_track(u_meas)
             return self._reject('outlier'), math.nan
-        # One Cholesky solve (LAPACK dposv: S is SPD; numpy.linalg.solve costs 5x more in
-        # call overhead at this size) gives the gain K = (S^-1 H P)^T and S^-1 y.
-        _, solved, info = _cholesky_solve(s, np.column_stack((hp, y)))
-        if info != 0:
+        if outcome == SINGULAR:
             return self._reject('singular_innovation'), math.nan
-        gain = solved[:, :self.dim_x].T
-        nis = float(y @ solved[:, self.dim_x])
-        i = self.i_theta
-        # The correction of ln c, normalised by its predicted spread (K S K^T)_theta.
-        correction = float(hp[:, i] @ solved[:, self.dim_x])
-        spread = float(hp[:, i] @ solved[:, i])
-        self.x += gain @ y
-        self._joseph(gain, hp, s)
+        nis, correction, spread = self._update_out.tolist()
         self._clip()
         if spread > 0.0:
             self._detect_change(correction / math.sqrt(spread))
@@ -952,9 +943,10 @@ class CreepEkf:
             self._pinned_run = 0
 
     def _predict(self) -> None:
-        self.x, jac = self._transition(self.x)
-        self.P = jac @ self.P @ jac.T + self._q_x
-        self.P = 0.5 * (self.P + self.P.T)
+        c = math.exp(self.x[self.i_theta])
+        d = self.discretization(c)
+        ekf_predict(self.x, self.P, d.fg, d.dfg, c, d.creep_factor, self._q_x, self.i_theta,
+                    self._jacobian)
 
     def _check_divergence(self, status: str, nis_per_channel: float) -> bool:
         p = self.params
