@@ -121,7 +121,9 @@ class VibrationAnalyzerProcessor(
         self._block_len = max(1, round(node_params.block_s * params.sample_rate_hz))
         self._stamps = StampCheck(max_gap_s=node_params.max_gap_s,
                                   jump_horizon_s=node_params.jump_horizon_s)
-        self._buffer: list[Any] = []
+        # the block's rows as decoded tuples (a numpy array per 1 kHz sample cost more than the
+        # rest of the per-sample work)
+        self._buffer: list[tuple[float, ...]] = []
         self._buffer_stamps: list[int] = []     # of the received samples (not the NaN rows)
         self._buffer_first_ns = 0
         self._buffer_last_ns = 0
@@ -158,7 +160,6 @@ class VibrationAnalyzerProcessor(
         return self._on_sample(stamp, speeds)
 
     def _on_sample(self, stamp: int, speeds: tuple[float, ...]) -> list[Output]:
-        omega = np.array(speeds)
         verdict = self._stamps.check(stamp)
         if verdict in ('repeated', 'out_of_order', 'future_stamp'):
             return []
@@ -182,10 +183,10 @@ class VibrationAnalyzerProcessor(
                 self.counts['missing_samples'] += missing
                 self._missing_per_wheel += missing
                 self._block_missing += missing
-                self._buffer.extend(np.full(N_TIRES, np.nan) for _ in range(missing))
+                self._buffer.extend([(math.nan,) * N_TIRES] * missing)
         if not self._buffer:
             self._buffer_first_ns = stamp
-        self._buffer.append(omega)
+        self._buffer.append(speeds)
         self._buffer_stamps.append(stamp)
         self._buffer_last_ns = stamp
         n = self.node_params
@@ -203,7 +204,7 @@ class VibrationAnalyzerProcessor(
     def _process_buffer(self) -> list[Output]:
         if not self._buffer:
             return []
-        block = np.vstack(self._buffer)
+        block = np.array(self._buffer)
         first_s, last_s = self._buffer_first_ns * 1e-9, self._buffer_last_ns * 1e-9
         self._measure_rate(self._buffer_stamps)
         self._buffer = []
