@@ -66,6 +66,9 @@ NORMAL_HYPOTHESIS = (1.0, 1.0)
 Hypothesis = tuple[float, float]
 # What FaultDecision.state returns: (declared hypothesis, pending component, samples held).
 DecisionState = tuple[Hypothesis, str | None, int]
+# How a list of hypotheses groups for the decision: each hypothesis's group, the groups'
+# decision hypotheses (in the order first seen) and their fault components.
+Grouping = tuple[list[int], list[Hypothesis], list[str]]
 
 
 def fault_component(spring_ratio: float, damper_ratio: float) -> str:
@@ -101,6 +104,10 @@ class FaultDecision:
         self.hold_samples = int(round(hold_time_s / dt))
         self.clear_samples = int(round(clear / dt))
         self.min_deviation = min_deviation
+        # The grouping of each list of hypotheses seen, with and without a declared spring
+        # fault (the only state it depends on): the bank's hypotheses change only when it
+        # adapts, and the decision runs at every sample.
+        self._groupings: dict[tuple[tuple[Hypothesis, ...], bool], Grouping] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -119,7 +126,7 @@ class FaultDecision:
         """Back to a :attr:`state`."""
         self._declared, self._pending, self._held = state
 
-    def _decision_key(self, key: Hypothesis) -> Hypothesis:
+    def _decision_key(self, key: Hypothesis, spring_declared: bool) -> Hypothesis:
         """The hypothesis as the decision sees it (module docstring): near-nominal ratios
         nominal; a compound without a declared spring fault before it: damper only."""
         spring, damper = key
@@ -127,28 +134,45 @@ class FaultDecision:
             spring = 1.0
         if abs(damper - 1.0) < self.min_deviation + 10.0 ** -RATIO_DECIMALS:
             damper = 1.0
-        if spring != 1.0 and damper != 1.0 and fault_component(*self._declared) not in (
-                'spring', 'spring+damper'):
+        if spring != 1.0 and damper != 1.0 and not spring_declared:
             spring = 1.0
         return spring, damper
+
+    def _grouping(self, keys: Sequence[Hypothesis], declared: str) -> Grouping:
+        """How ``keys`` group for the decision with the component ``declared``."""
+        spring_declared = declared in ('spring', 'spring+damper')
+        cache_key = (tuple(keys), spring_declared)
+        grouping = self._groupings.get(cache_key)
+        if grouping is None:
+            order: dict[Hypothesis, int] = {}
+            index = [order.setdefault(self._decision_key(key, spring_declared), len(order))
+                     for key in keys]
+            grouping = (index, list(order), [fault_component(*key) for key in order])
+            self._groupings[cache_key] = grouping
+        return grouping
+
+    def _totals(self, grouping: Grouping, probabilities: np.ndarray) -> list[float]:
+        index, group_keys, _ = grouping
+        totals = [0.0] * len(group_keys)
+        for group, probability in zip(index, probabilities.tolist(), strict=True):
+            totals[group] += probability
+        return totals
 
     def grouped(self, keys: Sequence[Hypothesis], probabilities: np.ndarray,
                 ) -> dict[Hypothesis, float]:
         """The probabilities summed per decision hypothesis (in the order first seen)."""
-        totals: dict[Hypothesis, float] = {}
-        for key, probability in zip(keys, probabilities.tolist(), strict=True):
-            decision_key = self._decision_key(key)
-            totals[decision_key] = totals.get(decision_key, 0.0) + probability
-        return totals
+        grouping = self._grouping(keys, fault_component(*self._declared))
+        return dict(zip(grouping[1], self._totals(grouping, probabilities), strict=True))
 
     def update(self, keys: Sequence[Hypothesis], probabilities: np.ndarray) -> FaultStatus:
         """One sample: hypothesis keys (spring, damper) and their smoothed probabilities."""
-        totals = self.grouped(keys, probabilities)
-        components: dict[str, float] = {}
-        for key, probability in totals.items():
-            component = fault_component(*key)
-            components[component] = components.get(component, 0.0) + probability
         declared = fault_component(*self._declared)
+        grouping = self._grouping(keys, declared)
+        _, group_keys, group_components = grouping
+        totals = self._totals(grouping, probabilities)
+        components: dict[str, float] = {}
+        for component, probability in zip(group_components, totals, strict=True):
+            components[component] = components.get(component, 0.0) + probability
         best = max(components, key=components.__getitem__)
         if components[best] > self.threshold and best != declared:
             if best == self._pending:
@@ -164,7 +188,8 @@ class FaultDecision:
             self._declared = NORMAL_HYPOTHESIS
             return NO_FAULT
         # Sized by the most probable hypothesis of the declared component, every sample.
-        self._declared = max((key for key in totals if fault_component(*key) == declared),
-                             key=totals.__getitem__)
+        best_group = max((g for g, component in enumerate(group_components)
+                          if component == declared), key=totals.__getitem__)
+        self._declared = group_keys[best_group]
         return FaultStatus(True, declared, self._declared[0], self._declared[1],
                            components[declared])
