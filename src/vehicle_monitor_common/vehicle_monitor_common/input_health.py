@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -105,18 +106,26 @@ class FrozenDetector:
     """
 
     def __init__(self, n_channels: int) -> None:
-        self._last = np.full(n_channels, np.nan)
-        self._repeats = np.zeros(n_channels, dtype=np.int64)
+        # Python lists: a sample has a few channels and comes at the sensor's rate, where
+        # numpy's per-call overhead would cost more than the comparison itself.
+        self._last = [math.nan] * n_channels
+        self._repeats = [0] * n_channels
 
     def update(self, values: np.ndarray | list[float] | tuple[float, ...]) -> int:
-        """Feed one sample of every channel; the longest run of repeats."""
-        x = np.asarray(values, dtype=float)
-        same = x == self._last
-        self._repeats = np.where(same, self._repeats + 1, 0)
+        """Feed one sample of every channel (one value each); the longest run of repeats."""
+        x = values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+        if len(x) != len(self._last):
+            raise ValueError(f'expected {len(self._last)} channels, got {len(x)}')
+        repeats = self._repeats
+        longest = 0
+        for i, (value, last) in enumerate(zip(x, self._last, strict=True)):
+            run = repeats[i] + 1 if value == last else 0
+            repeats[i] = run
+            longest = max(longest, run)
         self._last = x
-        return int(self._repeats.max(initial=0))
+        return longest
 
     def reset(self) -> None:
         """Forget the history (after a restart of the stream)."""
-        self._last[:] = np.nan
-        self._repeats[:] = 0
+        self._last = [math.nan] * len(self._last)
+        self._repeats = [0] * len(self._repeats)
