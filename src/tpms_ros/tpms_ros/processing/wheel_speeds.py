@@ -27,12 +27,28 @@ _HEAD = {order: struct.Struct(f'{order}iII') for order in '<>'}
 _OMEGA = {order: struct.Struct(f'{order}4d') for order in '<>'}
 
 
+# The latest bytes object decoded and its result: the offline engine hands the same message
+# object to all four processors, which then decode it once (a bytes object cannot change, and
+# the reference kept here keeps its identity from being reused).
+_last_decoded: tuple[bytes, tuple[int, tuple[float, float, float, float]]] | None = None
+
+
 def decode_wheel_speeds(data: bytes) -> tuple[int, tuple[float, float, float, float]]:
     """(header stamp in ns, omega) of a serialised WheelSpeeds.
 
     Raises:
         ValueError: the bytes are not a WheelSpeeds (unknown encapsulation, too short).
     """
+    global _last_decoded
+    if _last_decoded is not None and _last_decoded[0] is data:
+        return _last_decoded[1]
+    decoded = _decode(data)
+    if type(data) is bytes:
+        _last_decoded = data, decoded
+    return decoded
+
+
+def _decode(data: bytes) -> tuple[int, tuple[float, float, float, float]]:
     kind = _ENCAPSULATIONS.get(bytes(data[:2]))
     if kind is None:
         raise ValueError(f'unknown CDR encapsulation {bytes(data[:2]).hex()}')
