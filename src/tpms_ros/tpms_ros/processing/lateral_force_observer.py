@@ -246,11 +246,12 @@ class LateralForceObserverProcessor:
             # A bad sample must not enter the interval mean; the others still do.
             self._reject('wheel_speeds_invalid')
             return []
-        # the median of four: the mean of the middle two
-        ordered = sorted(speeds)
-        median = 0.5 * (ordered[1] + ordered[2])
+        # the median of four: the mean of the middle two; the farthest wheels from it are the
+        # extremes (|w - median| over all four, exactly)
+        low, mid_low, mid_high, high = sorted(speeds)
+        median = 0.5 * (mid_low + mid_high)
         limit = self.node_params.max_wheel_deviation * median
-        if median > _PLAUSIBLE_MIN_RAD_S and any(abs(w - median) > limit for w in speeds):
+        if median > _PLAUSIBLE_MIN_RAD_S and (median - low > limit or high - median > limit):
             self._reject('wheel_speeds_implausible')
             return []
         self._wheels.append((stamp, speeds))

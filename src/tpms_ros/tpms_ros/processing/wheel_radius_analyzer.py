@@ -336,14 +336,16 @@ class WheelRadiusAnalyzerProcessor(
         """No wheel of one sample is invalid or implausible, as :meth:`_bin_mean` judges them
         on the bin's array (per sample in plain Python: ten numpy operations a bin cost three
         times as much when, as almost always, nothing is flagged)."""
-        if not (all(map(math.isfinite, speeds)) and min(speeds) >= 0.0
-                and max(speeds) <= self.params.max_wheel_speed_rad_s):
+        if not all(map(math.isfinite, speeds)):
             return False
-        ordered = sorted(speeds)
-        median = 0.5 * (ordered[1] + ordered[2])
+        low, mid_low, mid_high, high = sorted(speeds)
+        if low < 0.0 or high > self.params.max_wheel_speed_rad_s:
+            return False
+        # the farthest wheels from the median are the extremes (|w - median|, exactly)
+        median = 0.5 * (mid_low + mid_high)
         limit = self.node_params.max_wheel_deviation * median
         return not (median > _PLAUSIBLE_MIN_RAD_S
-                    and any(abs(w - median) > limit for w in speeds))
+                    and (median - low > limit or high - median > limit))
 
     def _track_rate(self, samples: int) -> None:
         """Wheel-speed samples per bin against their running mean: a burst (3 times as many)
