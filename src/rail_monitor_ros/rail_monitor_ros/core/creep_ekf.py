@@ -121,6 +121,7 @@ from rail_monitor_ros.core.rail_model import (
 )
 from rail_monitor_ros.core.track_shaping import van_loan_discretization
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from vehicle_monitor_common.input_health import all_finite
 from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
@@ -846,7 +847,7 @@ class CreepEkf:
             z = np.asarray(measurement, dtype=float)
             if z.shape != (self._n_meas,):
                 status, z = self._reject('wrong_shape'), None
-            elif not np.isfinite(z).all():
+            elif not all_finite(z):
                 status, z = self._reject('non_finite'), None
         u_meas = None
         if track is not None:
@@ -854,7 +855,7 @@ class CreepEkf:
             if u_meas.shape not in ((N_U,), (2 * N_U,)):
                 self._reject('track_wrong_shape')
                 u_meas = None
-            elif not np.isfinite(u_meas).all():
+            elif not all_finite(u_meas):
                 self._reject('track_non_finite')
                 u_meas = None
         reset = False

@@ -95,6 +95,7 @@ from rail_monitor_ros.core.track_shaping import (
     track_shaping_model,
 )
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
+from vehicle_monitor_common.input_health import all_finite
 from vehicle_monitor_common.parameters import group, param
 
 N_OUTPUTS = len(SENSOR_OUTPUT_NAMES)
@@ -965,7 +966,7 @@ class SuspensionImm:
             z = np.asarray(measurement, dtype=float)
             if z.shape != (N_OUTPUTS,):
                 reason, z = f'measurement shape {z.shape}, expected ({N_OUTPUTS},)', None
-            elif not np.all(np.isfinite(z)):
+            elif not all_finite(z):
                 reason, z = 'non-finite measurement', None
         else:
             reason = 'no measurement'
@@ -973,7 +974,7 @@ class SuspensionImm:
         if known_input is not None:
             candidate = np.asarray(known_input, dtype=float)
             if (candidate.ndim == 1 and candidate.size in self._known_sizes[1:]
-                    and np.all(np.isfinite(candidate))):
+                    and all_finite(candidate)):
                 u = candidate
             elif not reason:
                 reason = 'bad known input (process-noise model used)'

@@ -66,7 +66,7 @@ from rail_monitor_ros.core.creep_ekf import (
 )
 from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
 from vehicle_monitor_common.imu_pairing import ImuPair
-from vehicle_monitor_common.input_health import FrozenDetector
+from vehicle_monitor_common.input_health import FrozenDetector, all_finite
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     ERROR,
@@ -287,9 +287,11 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             self._counts['wrong_size'] += 1
             return self._add_part('main', stamp, _WRONG_SIZE)
         # NaN is the message's "not measured": the pattern is not fed (other fields may be NaN).
-        unfed = tuple(name if index is None else f'{name}[{index}]'
-                      for name, index in pattern_fields(p.pattern, p.bogie, p.model)
-                      if np.isnan(fields[name][0] if index is None else fields[name][0, index]))
+        # Every field the pattern reads enters its vector, so only a NaN there names them.
+        unfed = () if all_finite(vector) else tuple(
+            name if index is None else f'{name}[{index}]'
+            for name, index in pattern_fields(p.pattern, p.bogie, p.model)
+            if np.isnan(fields[name][0] if index is None else fields[name][0, index]))
         return self._add_part('main', stamp, vector, unfed)
 
     def _on_bogie(self, stamp: int, msg: Any) -> list[Output]:
@@ -453,7 +455,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         if entry.unfed:
             self._counts['missing_fields'] += 1
             return None, 'missing_fields'
-        if not np.all(np.isfinite(main)):
+        if not all_finite(main):
             self._counts['non_finite'] += 1
             return None, 'non_finite'
         n = self.node_params

@@ -48,6 +48,7 @@ from __future__ import annotations
 from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
@@ -60,7 +61,7 @@ from rail_monitor_ros.core.suspension_imm import (
 )
 from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
 from vehicle_monitor_common.imu_pairing import ImuPair
-from vehicle_monitor_common.input_health import FrozenDetector
+from vehicle_monitor_common.input_health import FrozenDetector, all_finite
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.processing import (
     ERROR,
@@ -263,7 +264,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
     def _on_creep_factor(self, stamp: int, msg: Any) -> list[Output]:
         self._creep.seen(stamp)
         c, std = float(msg.creep_factor), float(msg.std_dev)
-        if not (np.isfinite(c) and 0.0 < c <= MAX_CREEP_FACTOR and np.isfinite(std)):
+        if not (math.isfinite(c) and 0.0 < c <= MAX_CREEP_FACTOR and math.isfinite(std)):
             self._rejected['creep_factor_invalid'] += 1
         else:
             self._creep.add(stamp, (c, std))
@@ -279,7 +280,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         # All four wheelsets when the model has the rear bogie, else the monitored bogie's.
         full_car = self.params.estimation_model == 'full_car'
         used = 4 if alignment.size >= 4 and full_car else 2
-        if not (np.all(np.isfinite(alignment[:used])) and np.all(np.isfinite(rate[:used]))):
+        if not (all_finite(alignment[:used]) and all_finite(rate[:used])):
             self._rejected['track_irregularity_non_finite'] += 1
             return self._drain()
         # A track measurement repeating itself bit for bit is a frozen sensor, not a track.
@@ -335,7 +336,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
 
     def _check(self, z: np.ndarray) -> str:
         n = self.node_params
-        if not np.all(np.isfinite(z)):
+        if not all_finite(z):
             return 'non_finite'
         if n.imu_saturated(z):
             return 'saturated'
