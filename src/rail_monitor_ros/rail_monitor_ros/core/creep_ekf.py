@@ -1059,6 +1059,36 @@ def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
     return tuple(out)
 
 
+def measurement_fields(pattern: str, bogie: str = 'front', model: str = 'end',
+                       ) -> tuple[tuple[str, int | None], ...] | None:
+    """The RailLateralStates fields (field name, array index or None) that are a pattern A-C's
+    measurement vector, in its order, when it is a selection of fields (``model='end'``);
+    None for the half car, whose body channels combine the body's lateral and yaw.
+
+    Raises:
+        ValueError: naming the argument that is not a lateral-states pattern, model or bogie.
+    """
+    j = _lateral_states_bogie(pattern, bogie, model)
+    if model != 'end':
+        return None
+    out: list[tuple[str, int | None]] = []
+    if pattern == 'A':
+        for w in (2 * j, 2 * j + 1):
+            out += [('wheelset_lateral', w), ('wheelset_lateral_rate', w), ('wheelset_yaw', w),
+                    ('wheelset_yaw_rate', w)]
+    out += [('bogie_lateral', j), ('bogie_lateral_rate', j)]
+    if pattern in ('A', 'B'):
+        out += [('bogie_yaw', j), ('bogie_yaw_rate', j)]
+    if pattern in ('B', 'C'):
+        # docs/methods/creep_estimator.md: B and C measure the body's lateral displacement and
+        # velocity only; its yaw fields are not read (NaN there does not reject the sample).
+        out += [('body_lateral', None), ('body_lateral_rate', None)]
+    else:
+        out += [('body_lateral', None), ('body_yaw', None), ('body_lateral_rate', None),
+                ('body_yaw_rate', None)]
+    return tuple(out)
+
+
 def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
                                bogie: str = 'front',
                                body_pivot_offset: float = RailVehicleParams().
@@ -1077,7 +1107,8 @@ def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
     Returns:
         (N, p) in the order of :func:`measurement_channels`.
     """
-    j = _lateral_states_bogie(pattern, bogie, model)
+    selection = measurement_fields(pattern, bogie, model)
+    j = BOGIES.index(bogie)
     sign = 1.0 if j == 0 else -1.0
 
     def col(name: str, index: int | None = None) -> np.ndarray:
@@ -1086,18 +1117,10 @@ def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
         values = np.asarray(states[name], dtype=float)
         return values if index is None else values[:, index]
 
-    if model == 'end' and pattern in ('B', 'C'):
-        # docs/methods/creep_estimator.md: B and C measure the body's lateral displacement and
-        # velocity only; its yaw
-        # fields are not read (NaN there does not reject the sample).
-        body = [col('body_lateral')]
-        body_rate = [col('body_lateral_rate')]
-    elif model == 'end':
-        body = [col('body_lateral'), col('body_yaw')]
-        body_rate = [col('body_lateral_rate'), col('body_yaw_rate')]
-    else:
-        body = [col('body_lateral') + sign * body_pivot_offset * col('body_yaw')]
-        body_rate = [col('body_lateral_rate') + sign * body_pivot_offset * col('body_yaw_rate')]
+    if selection is not None:
+        return np.column_stack([col(name, index) for name, index in selection])
+    body = [col('body_lateral') + sign * body_pivot_offset * col('body_yaw')]
+    body_rate = [col('body_lateral_rate') + sign * body_pivot_offset * col('body_yaw_rate')]
     bogie_cols = [col('bogie_lateral', j), col('bogie_lateral_rate', j)]
     columns: list[np.ndarray] = []
     if pattern == 'A':

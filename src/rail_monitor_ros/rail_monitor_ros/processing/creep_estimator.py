@@ -62,6 +62,7 @@ from rail_monitor_ros.core.creep_ekf import (
     CreepEkfParams,
     CreepEstimate,
     lateral_states_measurement,
+    measurement_fields,
     pattern_fields,
 )
 from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
@@ -92,6 +93,7 @@ LATERAL_FIELDS = ('wheelset_lateral', 'wheelset_lateral_rate', 'wheelset_yaw',
                   'wheelset_yaw_rate', 'bogie_lateral', 'bogie_lateral_rate', 'bogie_yaw',
                   'bogie_yaw_rate', 'body_lateral', 'body_lateral_rate', 'body_yaw',
                   'body_yaw_rate')
+_FIELD_SIZES = {name: _LATERAL_SIZES[name.split('_')[0]] for name in LATERAL_FIELDS}
 
 
 @dataclass(frozen=True)
@@ -161,6 +163,9 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         super().__init__(node_params, inputs)
         self.ekf = CreepEkf(params)
         self._bogie_index = BOGIES.index(params.bogie)
+        # Patterns A-C of the end model measure a selection of the lateral states' fields.
+        self._selection = (None if params.pattern == 'D' else
+                           measurement_fields(params.pattern, params.bogie, params.model))
         self._driving = BOGIE_IMU if params.pattern == 'D' else LATERAL_STATES
         self._handlers = {LATERAL_STATES: self._on_lateral_states, BOGIE_IMU: self._on_bogie,
                           BODY_IMU: self._on_body, TRACK: self._on_track}
@@ -274,13 +279,19 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
     def _on_lateral_states(self, stamp: int, msg: Any) -> list[Output]:
         p = self.params
         try:
-            fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
+            fields = {name: np.asarray(getattr(msg, name), dtype=float)
                       for name in LATERAL_FIELDS}
             sizes = {name: f.size for name, f in fields.items()}
-            if any(sizes[name] != _LATERAL_SIZES[name.split('_')[0]] for name in sizes):
+            if any(sizes[name] != size for name, size in _FIELD_SIZES.items()):
                 raise ValueError(f'array sizes {sizes}')
-            vector = lateral_states_measurement(fields, p.pattern, p.bogie,
-                                                p.vehicle.bogie_pivot_semi_spacing, p.model)[0]
+            if self._selection is not None:
+                # The vector is a selection of fields: taken directly, one sample.
+                vector = np.array([fields[name] if index is None else fields[name][index]
+                                   for name, index in self._selection])
+            else:
+                vector = lateral_states_measurement(
+                    {name: f[None, ...] for name, f in fields.items()}, p.pattern, p.bogie,
+                    p.vehicle.bogie_pivot_semi_spacing, p.model)[0]
         except (ValueError, IndexError):
             # Unreachable over DDS for fixed-size arrays, but an in-process caller can: the
             # sample is missing (prediction only), not a gap.
@@ -291,7 +302,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         unfed = () if all_finite(vector) else tuple(
             name if index is None else f'{name}[{index}]'
             for name, index in pattern_fields(p.pattern, p.bogie, p.model)
-            if np.isnan(fields[name][0] if index is None else fields[name][0, index]))
+            if np.isnan(fields[name] if index is None else fields[name][index]))
         return self._add_part('main', stamp, vector, unfed)
 
     def _on_bogie(self, stamp: int, msg: Any) -> list[Output]:
