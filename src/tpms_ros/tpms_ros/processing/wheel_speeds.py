@@ -40,8 +40,9 @@ def decode_wheel_speeds(data: bytes) -> tuple[int, tuple[float, float, float, fl
         ValueError: the bytes are not a WheelSpeeds (unknown encapsulation, too short).
     """
     global _last_decoded
-    if _last_decoded is not None and _last_decoded[0] is data:
-        return _last_decoded[1]
+    last = _last_decoded     # read once: another executor thread may replace it meanwhile
+    if last is not None and last[0] is data:
+        return last[1]
     decoded = _decode(data)
     if type(data) is bytes:
         _last_decoded = data, decoded
