@@ -133,31 +133,47 @@ def build_message(store: Typestore, msgtype: str, values: Mapping[str, Any]) -> 
     Raises:
         ValueError: a field the message does not have, or a value of the wrong shape.
     """
-    cls = store.types[msgtype]
-    _, fields = store.fielddefs[msgtype]
-    nested: dict[str, dict[str, Any]] = {}
-    direct: dict[str, Any] = {}
+    nested: dict[str, Any] = {}
     for path, value in values.items():
-        head, _, rest = path.partition('.')
-        if rest:
-            nested.setdefault(head, {})[rest] = value
-        else:
-            direct[head] = value
+        *heads, leaf = path.split('.')
+        target = nested
+        for head in heads:
+            target = target.setdefault(head, {})
+            if not isinstance(target, dict):
+                raise ValueError(f'{msgtype}: {path!r} sets a sub-field of a value given whole')
+        target[leaf] = value
+    return message_from_fields(store, msgtype, nested)
+
+
+def message_from_fields(store: Typestore, msgtype: str, fields: Mapping[str, Any]) -> Any:
+    """A rosbags message whose fields are taken from ``fields``, nested as the message is
+    (``{'header': {'stamp': {'sec': 1}}}``; numbers, sequences, numpy arrays), the rest
+    defaulted. (The offline engine builds every output this way, without dotted paths.)
+
+    Raises:
+        ValueError: a field the message does not have, or a value of the wrong shape.
+    """
+    cls = store.types[msgtype]
+    _, definitions = store.fielddefs[msgtype]
     kwargs: dict[str, Any] = {}
-    for name, node in fields:
-        if name in nested:
+    given = 0
+    for name, node in definitions:
+        if name not in fields:
+            kwargs[name] = _default_value(store, node)
+            continue
+        given += 1
+        value = fields[name]
+        if isinstance(value, Mapping):
             if node[0] != Nodetype.NAME:
                 raise ValueError(f'{msgtype}.{name} is not a message, cannot set sub-fields')
-            kwargs[name] = build_message(store, node[1], nested.pop(name))
-        elif name in direct:
-            try:
-                kwargs[name] = _column_value(store, node, direct.pop(name))
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f'{msgtype}.{name}: {exc}') from None
-        else:
-            kwargs[name] = _default_value(store, node)
-    unknown = sorted(set(nested) | set(direct))
-    if unknown:
+            kwargs[name] = message_from_fields(store, node[1], value)
+            continue
+        try:
+            kwargs[name] = _column_value(store, node, value)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f'{msgtype}.{name}: {exc}') from None
+    if given < len(fields):
+        unknown = sorted(set(fields) - {name for name, _ in definitions})
         raise ValueError(f'{msgtype} has no field {unknown[0]!r}')
     return cls(**kwargs)
 

@@ -33,14 +33,13 @@ from vehicle_monitor_common.bag_io import (
     BAG_RTOL,
     BagWriter,
     bag_topics,
-    build_message,
     compare_bags,
     iter_raw,
+    message_from_fields,
     typestore,
 )
 from vehicle_monitor_common.graph_spec import (
     GraphSpec,
-    dotted_items,
     fully_qualified_name,
     node_parameter_values,
 )
@@ -216,10 +215,11 @@ class OfflineGraph:
     def _publish(self, node: EngineNode, output: Output, sink: Sink | None,
                  stats: EngineStats) -> None:
         topic, msgtype = self._outputs[(id(node), output.topic)]
-        values = dict(dotted_items(output.fields))
         sec, nanosec = divmod(output.stamp_ns, 1_000_000_000)
-        values['header.stamp.sec'], values['header.stamp.nanosec'] = sec, nanosec
-        message = build_message(self._store, msgtype, values)
+        fields = dict(output.fields)
+        fields['header'] = {**fields.get('header', {}),
+                            'stamp': {'sec': sec, 'nanosec': nanosec}}
+        message = message_from_fields(self._store, msgtype, fields)
         stats.messages_out += 1
         stats.published[topic] = stats.published.get(topic, 0) + 1
         if sink is not None:
