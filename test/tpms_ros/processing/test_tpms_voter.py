@@ -118,3 +118,29 @@ def test_clock_jump_back_reanchors_the_periodic_output(indications: Path) -> Non
     (output,) = processor.tick(clock[0] + 3 * 10**9)
     assert output.fields['methods'] == []
     assert processor.status(0).message == 'no fresh indication from any enabled method'
+
+
+def test_periodic_output_does_not_change_the_answers(indications: Path) -> None:
+    """The node's timer (``tick``, at node-clock times unrelated to the data) shows the vote
+    between indications but does not move it: the warnings answering the indications, their
+    reasons and hold timers included, are those of a run without the timer. (When the timer
+    moved the hold timers, the live graph's warnings depended on when it happened to run.)"""
+    rng = np.random.default_rng(22)
+    messages = [(topic.lstrip('/'), deserialize_message(data, TpmsIndication))
+                for topic, _, _, data in iter_raw(indications)]
+    clock = [0]
+    plain, ticked = make_processor({}, '/plain'), make_processor({}, '/ticked')
+    plain._clock = ticked._clock = lambda: clock[0]
+    answers: dict[str, list[Output]] = {'plain': [], 'ticked': []}
+    periodic = []
+    for topic, msg in messages:
+        clock[0] += int(rng.integers(1, 200_000_000))
+        answers['plain'] += plain.process(topic, msg)
+        answers['ticked'] += ticked.process(topic, msg)
+        for _ in range(int(rng.integers(0, 3))):
+            clock[0] += int(rng.integers(1, 300_000_000))
+            periodic += ticked.tick(clock[0])
+    assert len(periodic) > 100
+    assert any(o.fields['warning'][1] for o in answers['plain'])
+    for mine, theirs in zip(answers['plain'], answers['ticked'], strict=True):
+        assert (mine.stamp_ns, mine.fields) == (theirs.stamp_ns, theirs.fields)

@@ -207,6 +207,28 @@ class TpmsVoter:
             self.rejected['time_backwards'] += 1
             assert self._last_result is not None
             return self._last_result
+        return self._vote(now_s)
+
+    def preview(self, now_s: float) -> TpmsWarningResult:
+        """What :meth:`evaluate` at ``now_s`` would say, with the voter left as it was: the
+        periodic output between indications (a node's timer), so that how often it runs
+        cannot change the warnings the indications themselves give. A ``now_s`` before the
+        last evaluation gives the last result."""
+        if not math.isfinite(now_s):
+            raise ValueError(f'now_s must be finite, got {now_s}')
+        if self._last_eval_s is not None and now_s < self._last_eval_s:
+            assert self._last_result is not None
+            return self._last_result
+        held = (self._warning.copy(), self._on_time.copy(), self._off_time.copy(),
+                self._last_eval_s, self._last_result)
+        try:
+            return self._vote(now_s)
+        finally:
+            (self._warning, self._on_time, self._off_time, self._last_eval_s,
+             self._last_result) = held
+
+    def _vote(self, now_s: float) -> TpmsWarningResult:
+        """The vote at ``now_s`` (not before the last one): timers advanced, result kept."""
         dt = 0.0 if self._last_eval_s is None else now_s - self._last_eval_s
         self._last_eval_s = now_s
 

@@ -209,12 +209,16 @@ class TpmsVoterProcessor:
 
     def tick(self, now_ns: int) -> list[Output]:
         """The periodic warning between indications, at data time extrapolated with the node
-        clock (none before the first indication)."""
+        clock (none before the first indication): the voter's preview, which leaves its
+        timers alone, so the warnings answering the indications are the same however often
+        and whenever the node's timer runs (live graph and offline engine alike)."""
         if self._anchor is None:
             return []       # no data time yet: nothing to decide on
         stamp_s, arrived_ns = self._anchor
         now_s = stamp_s + (now_ns - arrived_ns) * 1e-9
-        return [self._evaluate(max(now_s, self._last_eval_s))]
+        # What the node last said, for its status; the vote itself is not moved.
+        self.last_result = self.voter.preview(max(now_s, self._last_eval_s))
+        return [self._output(self.last_result)]
 
     def clock_jumped(self, now_ns: int) -> None:
         """The node clock jumped (``/clock`` reset, a step): extrapolate from now on."""
@@ -225,6 +229,11 @@ class TpmsVoterProcessor:
         result = self.voter.evaluate(now_s)
         self._last_eval_s = now_s
         self.last_result = result
+        return self._output(result)
+
+    def _output(self, result: TpmsWarningResult) -> Output:
+        """The warning message of a vote, stamped with the newest indication it used."""
+        now_s = result.stamp_s
         used = [self._latest_stamp[m] for m in result.methods_used]
         stamp_s = max(used) if used else now_s
         return Output(WARNING, round(stamp_s * 1e9), {
