@@ -494,13 +494,15 @@ def _healthy_row(cases: Sequence[ImmCase], healthy_s: float) -> FamilyRow | None
         runs[c.car] = runs.get(c.car, 0) + 1
     minutes = min(runs.values()) * healthy_s / 60.0
     worst_car = max(declared, key=lambda car: declared[car])
+    short = '' if minutes >= 30.0 else ', not 30: not met until 30 min are run'
+    declarations = f'; {sum(declared.values())} declared in all' if any(declared.values()) else ''
     row = FamilyRow(
         'IMM healthy', 'suspension IMM: zero declared faults in 30 healthy minutes per car',
         sum(n == 0 for n in declared.values()), len(declared), 'cars', 1.0,
         float(declared[worst_car]) if declared[worst_car] else None, 'declared',
         f'car {worst_car}' if declared[worst_car] else 'none', False,
         f'judged on {minutes:g} healthy min per car ({min(runs.values())} runs of '
-        f'{healthy_s:g} s), not 30: not met until 30 min are run')
+        f'{healthy_s:g} s){short}{declarations}')
     return replace(row, met=row.share_met() and minutes >= 30.0)
 
 
