@@ -85,7 +85,10 @@ from vehicle_monitor_common.family_results import (
 )
 
 METHODS = ('vibration', 'wheel_radius', 'stiffness')
-CASES = ('diffusion20', 'puncture25', 'puncture15')
+CASES = ('diffusion20', 'puncture25', 'puncture15', 'nominal')
+# The fault cases (the scoreboard's rows); 'nominal' is a drive without a fault, every
+# second of it after the calibration nominal driving (--fault-s sets its length).
+FAULT_CASES = CASES[:3]
 VIBRATION_BLOCK_S = 0.1
 STIFFNESS_CHUNK_S = 0.25
 DRIVER_MAX_AGE_S = 0.1
@@ -123,6 +126,8 @@ def case_events(job: Job, car: FamilyCar) -> tuple[list, tuple[int, ...], float,
     """(events, faulty tire indices, loss percent, time the loss reaches its level)."""
     s = job.settings
     rng = np.random.default_rng([23, job.seed, CASES.index(job.case)])
+    if job.case == 'nominal':
+        return [], (), 0.0, s.fault_s
     if job.case == 'diffusion20':
         loss = 20.0
         event = pressure_event('diffusion', s.fault_s, drop_percent=loss,
@@ -303,9 +308,10 @@ def score(job: Job, car: FamilyCar, tr: dict[str, Any], tires: tuple[int, ...],
     healthy = [w for w in range(4) if w not in tires]
     after_cal = t >= s.calibration_s
     fused = tr['warnings']['fused']
-    first = _first_all(t, fused, tires, s.fault_s)
+    # (a nominal drive has no faulty tire: nothing to detect)
+    first = _first_all(t, fused, tires, s.fault_s) if tires else None
     rec['fused_detect_s'] = None if first is None else first - reached_s
-    first_st = _first_all(t, tr['warnings']['stiffness'], tires, s.fault_s)
+    first_st = _first_all(t, tr['warnings']['stiffness'], tires, s.fault_s) if tires else None
     rec['stiffness_detect_s'] = None if first_st is None else first_st - reached_s
     rec['false_warning_tires'] = [TIRE_NAMES[w] for w in range(4)
                                   if fused[after_cal & (t < s.fault_s), w].any()
@@ -601,7 +607,8 @@ def main() -> None:
                         help='first N held-out cars')
     parser.add_argument('--seeds', default='', help='comma-separated seeds instead')
     parser.add_argument('--tuning', action='store_true', help='use the tuning seeds')
-    parser.add_argument('--cases', default=','.join(CASES))
+    parser.add_argument('--cases', default=','.join(FAULT_CASES),
+                        help=f'comma-separated, of {", ".join(CASES)}')
     parser.add_argument('--drives', default='', help='fixed drive kind (default: rotate)')
     parser.add_argument('--calibration-s', type=float, default=Settings.calibration_s)
     parser.add_argument('--fault-s', type=float, default=Settings.fault_s)
