@@ -6,7 +6,10 @@ on a drawn drive (urban / rural / motorway in turn) in up to three cases:
 * ``diffusion20``: all four tires lose 20 % by diffusion starting at ``--fault-s``
   (``--diffusion-pct-per-min`` of placard per minute, 15 %/min = 30 kPa/min on a 200 kPa car);
 * ``puncture25``: one tire (drawn) loses 25 % over 2 s at ``--fault-s``;
-* ``puncture15``: one or two tires (drawn) lose 15 % over 2 s at ``--fault-s``.
+* ``puncture15``: one or two tires (drawn) lose 15 % over 2 s at ``--fault-s``;
+* ``nominal`` (not run by default): no fault; [``--calibration-s``, ``--fault-s``] is the
+  nominal driving judged for false warnings (``--cases nominal --fault-s 1890 --observe-s 0``:
+  the issue's 30 minutes per car).
 
 Every case starts with all tires at placard: the three methods calibrate at the start of the
 drive (vibration and wheel radius over [0, ``--calibration-s``], the stiffness observer over its
