@@ -1037,14 +1037,8 @@ def _lateral_states_bogie(pattern: str, bogie: str, model: str) -> int:
     return BOGIES.index(bogie)
 
 
-def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
-                   ) -> tuple[tuple[str, int | None], ...]:
-    """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).
-
-    What :func:`lateral_states_measurement` reads and nothing else; a caller can tell which
-    required fields a message lacks (NaN) and report the pattern as not fed.
-    """
-    j = _lateral_states_bogie(pattern, bogie, model)
+def _bogie_end_fields(pattern: str, j: int) -> list[tuple[str, int | None]]:
+    """The wheelset and bogie fields of pattern A-C at bogie ``j``, in measurement order."""
     out: list[tuple[str, int | None]] = []
     if pattern == 'A':
         for w in (2 * j, 2 * j + 1):
@@ -1053,6 +1047,18 @@ def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
     out += [('bogie_lateral', j), ('bogie_lateral_rate', j)]
     if pattern in ('A', 'B'):
         out += [('bogie_yaw', j), ('bogie_yaw_rate', j)]
+    return out
+
+
+def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
+                   ) -> tuple[tuple[str, int | None], ...]:
+    """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).
+
+    What :func:`lateral_states_measurement` reads and nothing else; a caller can tell which
+    required fields a message lacks (NaN) and report the pattern as not fed.
+    """
+    j = _lateral_states_bogie(pattern, bogie, model)
+    out = _bogie_end_fields(pattern, j)
     out += [('body_lateral', None), ('body_lateral_rate', None)]
     if model == 'half' or pattern == 'A':
         out += [('body_yaw', None), ('body_yaw_rate', None)]
@@ -1071,14 +1077,7 @@ def measurement_fields(pattern: str, bogie: str = 'front', model: str = 'end',
     j = _lateral_states_bogie(pattern, bogie, model)
     if model != 'end':
         return None
-    out: list[tuple[str, int | None]] = []
-    if pattern == 'A':
-        for w in (2 * j, 2 * j + 1):
-            out += [('wheelset_lateral', w), ('wheelset_lateral_rate', w), ('wheelset_yaw', w),
-                    ('wheelset_yaw_rate', w)]
-    out += [('bogie_lateral', j), ('bogie_lateral_rate', j)]
-    if pattern in ('A', 'B'):
-        out += [('bogie_yaw', j), ('bogie_yaw_rate', j)]
+    out = _bogie_end_fields(pattern, j)
     if pattern in ('B', 'C'):
         # docs/methods/creep_estimator.md: B and C measure the body's lateral displacement and
         # velocity only; its yaw fields are not read (NaN there does not reject the sample).
