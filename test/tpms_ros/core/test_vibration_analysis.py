@@ -162,24 +162,20 @@ def test_dead_sensor_from_start_does_not_block_others() -> None:
 def test_calibration_state_round_trip_and_corrupt() -> None:
     """The calibration exports to a plain dict, imports back, and a corrupt dict raises."""
     cal = VibrationCalibration(np.array([40.0, 41.0, 42.0, 43.0]), np.full(4, 0.1),
-                               np.full(4, 60.0), np.array([False, False, True, True]))
+                               np.full(4, 60.0))
     state = cal.to_dict()
-    analyzer = VibrationAnalyzer(VibrationParams(driveline_compensation='rear'))
+    analyzer = VibrationAnalyzer()
     analyzer.load_calibration_state(state)
     assert analyzer.calibration_state() == state
-    assert analyzer.compensated.tolist() == [False, False, True, True]
     for key, bad in (('nominal_frequency_hz', [40.0, 41.0, float('nan'), 43.0]),
                      ('noise_hz', [0.1, 0.1, 0.1]), ('duration_s', 'sixty'),
-                     ('compensated', [0, 0, 1, 1]), ('version', 1)):
+                     ('version', 99)):
         corrupt = dict(state, **{key: bad})
         with pytest.raises(ValueError, match='calibration state'):
             analyzer.load_calibration_state(corrupt)
     with pytest.raises(ValueError, match='outside the passband'):
         analyzer.load_calibration_state(dict(state, nominal_frequency_hz=[40.0, 41.0, 42.0,
                                                                           400.0]))
-    with pytest.raises(ValueError, match="another driveline_compensation than 'front'"):
-        VibrationAnalyzer(VibrationParams(driveline_compensation='front')
-                          ).load_calibration_state(state)
     fresh = VibrationAnalyzer()
     assert not fresh.indication(0.0).known.any()
     with pytest.raises(ValueError, match='not calibrated'):
@@ -238,50 +234,3 @@ def test_driveline_compensation_removes_common_mode_bias() -> None:
     np.testing.assert_allclose(f_comp[:2], f_plain[:2], atol=1e-9)
     with pytest.raises(ValueError, match='driveline_compensation'):
         VibrationParams(driveline_compensation='middle')
-
-
-def _calibrated_rear(omega: np.ndarray, fs: float) -> VibrationAnalyzer:
-    analyzer = VibrationAnalyzer(VibrationParams(sample_rate_hz=fs, driveline_compensation='rear',
-                                                 calibration_settle_s=5.0),
-                                 tooth_correction=False)
-    analyzer.start_calibration()
-    analyzer.process(omega)
-    analyzer.finish_calibration()
-    return analyzer
-
-
-def test_calibration_decides_the_compensation_per_axle() -> None:
-    """With a 52 Hz driveline mode on the rear rims the compensation moves the rear nominals
-    by many noise sigmas: the calibration keeps it, and the nominals are the compensated
-    estimates (near the tires' 42 Hz). Without a driveline the two regressions agree within
-    their noise: the axle reports its own regression, whose nominal equals a plain analyzer's.
-    The front axle (not named) is never compensated."""
-    fs = 1000.0
-    truth = np.array([42.0, 42.0, 42.0, 42.0])
-    road = wheel_speeds([truth], [40.0], fs, seed=21)
-    rng = np.random.default_rng(22)
-    driveline = signal.lfilter([0.02], ar2_coefficients(52.0, fs, damping=0.06),
-                               rng.standard_normal(road.shape[0]))
-    with_driveline = road.copy()
-    with_driveline[:, 2:] += driveline[:, None]
-
-    kept = _calibrated_rear(with_driveline, fs)
-    assert kept.compensated.tolist() == [False, False, True, True]
-    cal = kept.calibration
-    assert cal is not None and cal.compensated.tolist() == [False, False, True, True]
-    np.testing.assert_allclose(cal.nominal_frequency_hz[2:], 42.0, atol=0.5)
-
-    dropped = _calibrated_rear(road, fs)
-    assert dropped.compensated.tolist() == [False, False, False, False]
-    plain = VibrationAnalyzer(VibrationParams(sample_rate_hz=fs, calibration_settle_s=5.0),
-                              tooth_correction=False)
-    plain.start_calibration()
-    plain.process(road)
-    plain_cal = plain.finish_calibration()
-    assert dropped.calibration is not None
-    np.testing.assert_allclose(dropped.calibration.nominal_frequency_hz,
-                               plain_cal.nominal_frequency_hz, rtol=1e-12)
-    # after the decision the estimates are the plain analyzer's
-    more = wheel_speeds([truth], [5.0], fs, seed=23)
-    np.testing.assert_allclose(dropped.process(more).trace_hz, plain.process(more).trace_hz,
-                               rtol=1e-12)

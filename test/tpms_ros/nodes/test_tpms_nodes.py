@@ -242,8 +242,7 @@ def test_vibration_bad_input_rejected_and_wheel_unknown(
     unknown (never low) while the others stay known; the node keeps running."""
     cal_file = tmp_path / 'vibration.yaml'
     save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
-                                                    np.full(4, 10.0),
-                                                    np.zeros(4, dtype=bool)).to_dict())
+                                                    np.full(4, 10.0)).to_dict())
     node = _vibration_node(make_node, cal_file)
     assert node.processor.calibration.state == 'loaded'
     tester = make_node('tester')
@@ -551,8 +550,7 @@ def _calibrated_vibration(make_node: Callable[..., Any], tmp_path: Path,
                           **extra: Any) -> Any:
     cal_file = tmp_path / 'vibration.yaml'
     save_calibration(cal_file, VibrationCalibration(NOMINAL_HZ, np.full(4, 0.2),
-                                                    np.full(4, 10.0),
-                                                    np.zeros(4, dtype=bool)).to_dict())
+                                                    np.full(4, 10.0)).to_dict())
     node = _vibration_node(make_node, cal_file, **extra)
     assert node.processor.calibration.state == 'loaded'
     return node

@@ -22,13 +22,11 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    theta follows from the closed-form 2x2 solve; :func:`ar2_rls_reference` is the textbook
    per-sample recursion it equals (tested);
    On a driven axle (``driveline_compensation``) each driven wheel's regression sums are
-   also kept less the symmetrised left-right cross products, which remove the driveline modes
-   both rims share (see :class:`VibrationParams`); the calibration decides per axle which of
-   the two regressions the axle's tires use;
+   taken less the symmetrised left-right cross products, which remove the driveline modes
+   both rims share (see :class:`VibrationParams`);
 3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2)
    (:func:`tpms_ros.core.vibration_kernel.resonance_frequency`);
-4. calibration: each tire's nominal frequency and the noise of its estimate, and per driven
-   axle whether the compensation is kept (``driveline_decision_sigma``);
+4. calibration: each tire's nominal frequency and the noise of its estimate;
 5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
    confidence = clip(z / z_full, 0, 1).
 
@@ -66,7 +64,7 @@ TORSIONAL_MODE_HZ = (40.0, 50.0)
 VERTICAL_MODE_HZ = (10.0, 20.0)
 """The paper's vertical tire mode band, Hz."""
 
-CALIBRATION_VERSION = 2
+CALIBRATION_VERSION = 1
 
 TOOTH_HARMONICS = 16
 """Harmonics of the wheel revolution learned by the tooth-error correction. The encoder's
@@ -105,17 +103,6 @@ class VibrationParams:
       are taken less the symmetrised left-right cross products, the covariance form of Umeno's
       left-right difference. It needs both driven wheels: a bad sample on one leaves both out.
       ``all`` (all-wheel drive: the driveline reaches all four rims) does so on each axle.
-    - ``driveline_decision_sigma``: the compensation has a cost where the driveline is weak
-      against the road: it also takes out the road's left-right correlation, and a tire whose
-      frequency drops moves its axle partner's compensated estimate (a healthy partner
-      warned). Both regressions run on a driven axle; at calibration the axle keeps the
-      compensation only where it moves the axle's nominal frequencies by more than this many
-      noise sigmas of the own estimate (mean of the two tires): a driveline strong enough to
-      bias the estimate that far is what the compensation is for. Chosen on the family's
-      tuning cars (docs/methods/vibration_analyzer.md): of 39 driven axles, always
-      compensating left 6 axles with a healthy tire at warning level (z >= 6.4) in nominal
-      driving, never compensating 3 and 4 healthy axle partners at warning level after a 25 %
-      loss; thresholds 7-9 leave 1 and 0.
     """
 
     sample_rate_hz: float = param(1000.0, 'wheel-speed sample rate, Hz', low=50.0,
@@ -160,18 +147,14 @@ class VibrationParams:
                                         "cross-covariance ('all': each axle, all-wheel drive)",
                                         choices=('none', 'front', 'rear', 'all'),
                                         read_only=True)
-    driveline_decision_sigma: float = param(
-        8.0, 'a driven axle keeps its compensation only if, at calibration, it moves the '
-        "axle's nominal frequencies by more than this many noise sigmas (0: always)",
-        low=0.0, high=1000.0, read_only=True)
 
     def __post_init__(self) -> None:
         positive = ('sample_rate_hz', 'band_margin', 'analysis_rate_hz', 'memory_s',
                     'rls_regularization', 'max_wheel_speed_rad_s', 'z_flag', 'z_full',
                     'rel_noise_floor', 'min_calibration_s', 'stuck_s')
         require_positive(self, positive)
-        require_positive(self, ('min_wheel_speed_rad_s', 'guard_s', 'calibration_settle_s',
-                                'driveline_decision_sigma'), allow_zero=True)
+        require_positive(self, ('min_wheel_speed_rad_s', 'guard_s', 'calibration_settle_s'),
+                         allow_zero=True)
         if len(self.mode_band_hz) != 2:
             raise ValueError(f'VibrationParams.mode_band_hz must be [low, high], got '
                              f'{list(self.mode_band_hz)}')
@@ -259,13 +242,11 @@ class VibrationCalibration:
         nominal_frequency_hz: (4,) nominal resonance per tire, Hz.
         noise_hz: (4,) standard deviation of the estimate at nominal pressure, Hz.
         duration_s: (4,) seconds of known estimates that went into each tire's nominal.
-        compensated: (4,) whether each tire uses the driveline-compensated regression.
     """
 
     nominal_frequency_hz: np.ndarray
     noise_hz: np.ndarray
     duration_s: np.ndarray
-    compensated: np.ndarray
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON/YAML-serialisable state."""
@@ -275,7 +256,6 @@ class VibrationCalibration:
             'nominal_frequency_hz': [float(v) for v in self.nominal_frequency_hz],
             'noise_hz': [float(v) for v in self.noise_hz],
             'duration_s': [float(v) for v in self.duration_s],
-            'compensated': [bool(v) for v in self.compensated],
         }
 
     @classmethod
@@ -299,13 +279,7 @@ class VibrationCalibration:
                 raise ValueError(f'calibration state: {key!r} must be 4 finite values > 0, '
                                  f'got {state[key]!r}')
             arrays[key] = arr
-        compensated = state.get('compensated')
-        if (not isinstance(compensated, list) or len(compensated) != N_TIRES
-                or not all(isinstance(v, bool) for v in compensated)):
-            raise ValueError(f"calibration state: 'compensated' must be 4 booleans, got "
-                             f'{compensated!r}')
-        return cls(arrays['nominal_frequency_hz'], arrays['noise_hz'], arrays['duration_s'],
-                   np.array(compensated))
+        return cls(arrays['nominal_frequency_hz'], arrays['noise_hz'], arrays['duration_s'])
 
 
 def ar2_rls_reference(y: np.ndarray, forgetting: float, regularization: float) -> np.ndarray:
@@ -358,11 +332,6 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._driven = np.array({'none': (-1, -1), 'front': (0, 1), 'rear': (2, 3),
                                  'all': (0, 1, 2, 3)}[p.driveline_compensation],
                                 dtype=np.int64)
-        self._compensable = np.zeros(N_TIRES, dtype=bool)
-        self._compensable[self._driven[self._driven >= 0]] = True
-        # which regression each tire reports: before a calibration decides, the compensated
-        # one on the driven axle(s) named
-        self._use_compensated = self._compensable.copy()
         self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
         self._counts = np.array([max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz))),
                                  self._guard_samples], dtype=np.int64)
@@ -391,17 +360,15 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._phase = 0                                 # next chunk index to keep
         self._y_hist = np.zeros((2, N_TIRES))           # y_{t-2}, y_{t-1}
         self._v_hist = np.zeros((2, N_TIRES), dtype=bool)
-        # exponentially weighted sums R11, R12, R22, q1, q2, n as filter states (lambda x),
-        # of the own and the compensated regression
+        # exponentially weighted sums R11, R12, R22, q1, q2, n as filter states (lambda x)
         reg = self.params.rls_regularization
-        self._ls_state = np.zeros((2, 6, N_TIRES))
-        self._ls_state[:, 0] = self._lambda * reg
-        self._ls_state[:, 2] = self._lambda * reg
+        self._ls_state = np.zeros((6, N_TIRES))
+        self._ls_state[0] = self._lambda * reg
+        self._ls_state[2] = self._lambda * reg
         self._latest = np.full(N_TIRES, np.nan)
-        self._latest_a = np.zeros((2, 2, N_TIRES))
-        self._latest_known = np.zeros((2, N_TIRES), dtype=bool)
-        # count, sum f, sum f^2 of the own (channels 0-3) and compensated (4-7) regressions
-        self._cal_sum = np.zeros((3, 2 * N_TIRES))
+        self._latest_a = np.zeros((2, N_TIRES))
+        self._latest_known = np.zeros(N_TIRES, dtype=bool)
+        self._cal_sum = np.zeros((3, N_TIRES))          # count, sum f, sum f^2
         self._cal_seen = 0
 
     def reset_wheel(self, wheel: int) -> None:
@@ -420,25 +387,16 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._y_hist[:, w] = 0.0
         self._v_hist[:, w] = False
         reg = self.params.rls_regularization
-        self._ls_state[:, :, w] = 0.0
-        self._ls_state[:, 0, w] = self._lambda * reg
-        self._ls_state[:, 2, w] = self._lambda * reg
+        self._ls_state[:, w] = 0.0
+        self._ls_state[0, w] = self._lambda * reg
+        self._ls_state[2, w] = self._lambda * reg
         self._latest[w] = np.nan
-        self._latest_a[:, :, w] = 0.0
-        self._latest_known[:, w] = False
+        self._latest_a[:, w] = 0.0
+        self._latest_known[w] = False
 
     def known_wheels(self) -> np.ndarray:
         """(4,) whether each wheel's latest resonance estimate is known."""
-        return self._chosen(self._latest_known)
-
-    def _chosen(self, both: np.ndarray) -> np.ndarray:
-        """Each tire's column of the regression it reports, from (2, ..., 4) values of both."""
-        return np.where(self._use_compensated, both[1], both[0])
-
-    @property
-    def compensated(self) -> np.ndarray:
-        """(4,) whether each tire reports the driveline-compensated regression."""
-        return self._use_compensated.copy()
+        return self._latest_known.copy()
 
     def start_calibration(self) -> None:
         """Start learning the nominal frequencies from the data processed from now on."""
@@ -446,8 +404,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._cal_sum[:] = 0.0
         self._cal_seen = 0
 
-    calibration_counts = ('known estimates per tire, of the own regressions then of the '
-                          'compensated ones')
+    calibration_counts = 'known estimates per tire'
 
     @property
     def calibration_rate_hz(self) -> float:
@@ -456,20 +413,8 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
 
     def _calibration_from(self, mean: np.ndarray, std: np.ndarray,
                           duration_s: np.ndarray) -> VibrationCalibration:
-        """The nominal of the regression each tire keeps: per driven axle, the compensated
-        one where it moves the axle's nominals by more than ``driveline_decision_sigma`` of
-        the own estimate's noise (``rel_noise_floor`` below)."""
-        own, comp = slice(0, N_TIRES), slice(N_TIRES, 2 * N_TIRES)
-        sigma = np.maximum(std[own], self.params.rel_noise_floor * mean[own])
-        shift = np.abs(mean[comp] - mean[own]) / sigma
-        keep = np.zeros(N_TIRES, dtype=bool)
-        for axle in self._driven.reshape(-1, 2):
-            if axle[0] >= 0:
-                keep[axle] = shift[axle].mean() > self.params.driveline_decision_sigma
-        mean, std, duration_s = (np.where(keep, v[comp], v[own]) for v in (mean, std, duration_s))
-        self._use_compensated = keep
         # a floor on the stored noise keeps a perfectly clean calibration from dividing by ~0
-        return VibrationCalibration(mean, np.maximum(std, 1e-6 * mean), duration_s, keep)
+        return VibrationCalibration(mean, np.maximum(std, 1e-6 * mean), duration_s)
 
     def load_calibration_state(self, state: Mapping[str, Any]) -> None:
         """Put a persisted calibration in force; raises ValueError if it is corrupt."""
@@ -479,12 +424,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         if np.any(f <= low) or np.any(f >= high):
             raise ValueError(f'calibration state: nominal_frequency_hz {f} outside the '
                              f'passband {low:.1f}..{high:.1f} Hz')
-        if np.any(calibration.compensated & ~self._compensable):
-            raise ValueError(f'calibration state: compensated tires {calibration.compensated} '
-                             f'made with another driveline_compensation than '
-                             f'{self.params.driveline_compensation!r}')
         self._calibration = calibration
-        self._use_compensated = calibration.compensated.copy()
 
     # ---------------------------------------------------------- processing
     def process(self, omega: np.ndarray) -> ResonanceEstimate:
@@ -504,7 +444,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         # the decimation's phase carried across chunks
         keep = np.arange(self._phase, n, p.decimation)
         self._phase = int(keep[-1] + p.decimation - n) if keep.size else self._phase - n
-        both_hz = np.empty((2, keep.size, N_TIRES))
+        trace_hz = np.empty((keep.size, N_TIRES))
         # The runtime parameters (limits) are read at each call.
         limits = np.array([p.max_wheel_speed_rad_s, p.min_wheel_speed_rad_s,
                            1.0 / p.sample_rate_hz,
@@ -515,17 +455,15 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
                         self._sos_state, self._lp_sos, self._lp_zi_unit, self._lp_state,
                         self._tooth_correction, self._tooth_sum, self._angle,
                         self._wheel_state, self._wheel_started, self.rejected, self.gated,
-                        self._y_hist, self._v_hist, self._ls_state, both_hz,
+                        self._y_hist, self._v_hist, self._ls_state, trace_hz,
                         self._latest_a, self._latest_known)
-        trace_hz = self._chosen(both_hz)
         if keep.size:
             self._latest = trace_hz[-1].copy()
             if self._calibrating:
-                self._accumulate_calibration(np.concatenate(both_hz, axis=1))
+                self._accumulate_calibration(trace_hz)
         return self._estimate(trace_hz, keep)
 
     def _accumulate_calibration(self, trace_hz: np.ndarray) -> None:
-        """Add (M, 8) estimates (own regressions, then compensated) to the window's sums."""
         settle = int(round(self.params.calibration_settle_s * self.params.effective_rate_hz))
         skip = max(0, min(settle - self._cal_seen, trace_hz.shape[0]))
         self._cal_seen += trace_hz.shape[0]
@@ -537,9 +475,9 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     def _estimate(self, trace_hz: np.ndarray, keep: np.ndarray) -> ResonanceEstimate:
         return ResonanceEstimate(
             frequency_hz=self._latest.copy(),
-            a1=self._chosen(self._latest_a[:, 0]),
-            a2=self._chosen(self._latest_a[:, 1]),
-            known=self._chosen(self._latest_known),
+            a1=self._latest_a[0].copy(),
+            a2=self._latest_a[1].copy(),
+            known=self._latest_known.copy(),
             trace_hz=trace_hz,
             trace_index=keep,
             rejected=self.rejected.copy(),
@@ -553,8 +491,8 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         if cal is None:
             return np.full(N_TIRES, np.nan)
         sigma = np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
-        return np.where(self._chosen(self._latest_known),
-                        (cal.nominal_frequency_hz - self._latest) / sigma, np.nan)
+        return np.where(self._latest_known, (cal.nominal_frequency_hz - self._latest) / sigma,
+                        np.nan)
 
     def indication(self, stamp_s: float) -> TpmsIndication:
         """Per-tire flag and confidence from the latest estimate (unknown if uncalibrated)."""

@@ -27,7 +27,7 @@ _SIGNATURE = types.void(
     _F2, _F2, _F3, _F2, _F2, _F3,                          # band-pass, low-pass
     types.boolean, types.complex128[:, :], _F1,            # tooth correction
     _F2, _B1, _I1, _I1,                                    # per-wheel state and counts
-    _F2, _B2, _F3, _F3, _F3, _B2)                          # regression state and outputs
+    _F2, _B2, _F2, _F2, _F2, _B1)                          # regression state and outputs
 
 
 @vectorize([types.float64(types.float64, types.float64, types.float64)], cache=True)
@@ -87,13 +87,10 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
         wheel_started: (W,) a good sample has been seen (the filters run).
         rejected, gated: (W,) counts of bad and of gated (too slow) samples.
         y_hist, v_hist: (2, W) the last two decimated outputs and their validity.
-        ls_state: (2, 6, W) the RLS sums' filter states (lambda x the sums) of the two
-            regressions: [0] each wheel's own, [1] with the driven axles' left-right cross
-            products taken out (on a wheel of no driven axle it is the own one, not kept).
-        trace_hz: (2, M, W) output, the resonance of each regression at each kept row (NaN
-            where unknown).
-        latest_a, latest_known: (2, 2, W), (2, W) outputs, per regression the AR(2)
-            coefficients and knownness at the last kept row (left alone when no row is kept).
+        ls_state: (6, W) the RLS sums' filter states (lambda x the sums).
+        trace_hz: (M, W) output, the resonance at each kept row (NaN where unknown).
+        latest_a, latest_known: (2, W), (W,) outputs, the AR(2) coefficients and knownness
+            at the last kept row (left alone when no row is kept).
     """
     n, wheels = omega.shape
     max_speed, min_speed, dt, tooth_lambda, lam, fs_eff, min_valid = (
@@ -141,10 +138,6 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
             wheel_started[w] = True
 
     # Pass 2: sample by sample, all wheels (the driveline compensation couples two of them).
-    compensated = np.zeros(wheels, dtype=np.bool_)
-    for k in range(driven.size):
-        if driven[k] >= 0:
-            compensated[driven[k]] = True
     harmonic = np.empty(harmonics, dtype=np.complex128)
     y_row = np.zeros(wheels)
     valid_row = np.zeros(wheels, dtype=np.bool_)
@@ -186,60 +179,48 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
         if i < first_keep or (i - first_keep) % decimation != 0:
             continue
 
-        # A kept row: the regressor products, the exponentially weighted sums, the AR(2) of
-        # each regression. The own one (variant 0) weighs each wheel by its own validity; the
-        # compensated one (variant 1) needs both wheels of a driven axle valid.
-        for variant in range(2):
-            for w in range(wheels):
-                products[5, w] = 1.0 if valid_row[w] and v_hist[1, w] and v_hist[0, w] else 0.0
-            if variant == 1:
-                for axle in range(0, driven.size, 2):
-                    a, b = driven[axle], driven[axle + 1]
-                    if a >= 0:
-                        pair = products[5, a] * products[5, b]
-                        products[5, a] = products[5, b] = pair
-            for w in range(wheels):
-                weight, y0, y1, y2 = products[5, w], y_row[w], y_hist[1, w], y_hist[0, w]
-                products[0, w] = weight * y1 * y1
-                products[1, w] = weight * y1 * y2
-                products[2, w] = weight * y2 * y2
-                products[3, w] = weight * y1 * y0
-                products[4, w] = weight * y2 * y0
-            for axle in range(0, driven.size, 2):
-                a, b = driven[axle], driven[axle + 1]
-                if variant == 0 or a < 0:
-                    continue
-                pair = products[5, a]
-                y0a, y1a, y2a = y_row[a], y_hist[1, a], y_hist[0, a]
-                y0b, y1b, y2b = y_row[b], y_hist[1, b], y_hist[0, b]
-                cross = (pair * (y1a * y1b), pair * (0.5 * (y1a * y2b + y1b * y2a)),
-                         pair * (y2a * y2b), pair * (0.5 * (y1a * y0b + y1b * y0a)),
-                         pair * (0.5 * (y2a * y0b + y2b * y0a)))
-                for m in range(5):
-                    products[m, a] -= cross[m]
-                    products[m, b] -= cross[m]
-            for w in range(wheels):
-                if variant == 1 and not compensated[w]:
-                    trace_hz[1, kept, w] = trace_hz[0, kept, w]
-                    latest_a[1, 0, w], latest_a[1, 1, w] = latest_a[0, 0, w], latest_a[0, 1, w]
-                    latest_known[1, w] = latest_known[0, w]
-                    continue
-                for m in range(6):
-                    sums[m] = products[m, w] + ls_state[variant, m, w]
-                    ls_state[variant, m, w] = lam * sums[m]
-                r11, r12, r22, q1, q2, count = (sums[0], sums[1], sums[2], sums[3], sums[4],
-                                                sums[5])
-                det = r11 * r22 - r12 * r12
-                trace = r11 + r22
-                a1 = (r12 * q2 - r22 * q1) / det
-                a2 = (r12 * q1 - r11 * q2) / det
-                freq = resonance_frequency(a1, a2, fs_eff)
-                known = (det > 1e-9 * trace * trace and count * (1.0 - lam) >= min_valid
-                         and math.isfinite(freq))
-                trace_hz[variant, kept, w] = freq if known else math.nan
-                latest_a[variant, 0, w], latest_a[variant, 1, w] = a1, a2
-                latest_known[variant, w] = known
+        # A kept row: the regressor products, the exponentially weighted sums, the AR(2).
         for w in range(wheels):
+            products[5, w] = 1.0 if valid_row[w] and v_hist[1, w] and v_hist[0, w] else 0.0
+        for axle in range(0, driven.size, 2):
+            a, b = driven[axle], driven[axle + 1]
+            if a >= 0:
+                pair = products[5, a] * products[5, b]
+                products[5, a] = products[5, b] = pair
+        for w in range(wheels):
+            weight, y0, y1, y2 = products[5, w], y_row[w], y_hist[1, w], y_hist[0, w]
+            products[0, w] = weight * y1 * y1
+            products[1, w] = weight * y1 * y2
+            products[2, w] = weight * y2 * y2
+            products[3, w] = weight * y1 * y0
+            products[4, w] = weight * y2 * y0
+        for axle in range(0, driven.size, 2):
+            a, b = driven[axle], driven[axle + 1]
+            if a < 0:
+                continue
+            pair = products[5, a]
+            y0a, y1a, y2a = y_row[a], y_hist[1, a], y_hist[0, a]
+            y0b, y1b, y2b = y_row[b], y_hist[1, b], y_hist[0, b]
+            cross = (pair * (y1a * y1b), pair * (0.5 * (y1a * y2b + y1b * y2a)),
+                     pair * (y2a * y2b), pair * (0.5 * (y1a * y0b + y1b * y0a)),
+                     pair * (0.5 * (y2a * y0b + y2b * y0a)))
+            for m in range(5):
+                products[m, a] -= cross[m]
+                products[m, b] -= cross[m]
+        for w in range(wheels):
+            for m in range(6):
+                sums[m] = products[m, w] + ls_state[m, w]
+                ls_state[m, w] = lam * sums[m]
+            r11, r12, r22, q1, q2, count = sums[0], sums[1], sums[2], sums[3], sums[4], sums[5]
+            det = r11 * r22 - r12 * r12
+            trace = r11 + r22
+            a1 = (r12 * q2 - r22 * q1) / det
+            a2 = (r12 * q1 - r11 * q2) / det
+            freq = resonance_frequency(a1, a2, fs_eff)
+            known = (det > 1e-9 * trace * trace and count * (1.0 - lam) >= min_valid
+                     and math.isfinite(freq))
+            trace_hz[kept, w] = freq if known else math.nan
+            latest_a[0, w], latest_a[1, w], latest_known[w] = a1, a2, known
             y_hist[0, w], y_hist[1, w] = y_hist[1, w], y_row[w]
             v_hist[0, w], v_hist[1, w] = v_hist[1, w], valid_row[w]
         kept += 1

@@ -315,8 +315,6 @@ class VibrationAnalyzerProcessor(
             'gaps': self.counts['gaps'],
             'wheel_filter_resets': self.counts['wheel_resets'],
             'recovery_s': recovery_s(p),
-            # which tires use the driveline-compensated regression (decided at calibration)
-            'driveline_compensated': self.core.compensated.tolist(),
         }
         received = self.counts['received'] > 0
         tire_values, tire_problems = self._tire_status(received)
