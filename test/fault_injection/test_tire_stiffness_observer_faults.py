@@ -52,7 +52,10 @@ WHEELS = 'vehicle/wheel_speeds'
 # values as in road_graph.yaml, but no driven axle (with block_s 0.1 a calibration on the rear
 # axle's difference problem gets k_block_std 0, which load_calibration_state refuses: reported).
 FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0,
-        'rolling_radius_m': 0.305, 'wheelbase_m': 2.693, 'calibration_file': 'none'}
+        'rolling_radius_m': 0.305, 'wheelbase_m': 2.693, 'calibration_file': 'none',
+        # the loaded calibration is this data's own: used at once (the check of a stored
+        # calibration has its own tests)
+        'calibration_check_s': 0.0}
 FAULT_START_S, FAULT_S = 8.0, 3.0
 TOL_KPA = 3.0      # back: within this of the clean run (1.5 % of nominal)
 FALSE_KPA = 10.0   # never published as valid further off than this (half the 10 % threshold)

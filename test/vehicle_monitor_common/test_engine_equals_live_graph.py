@@ -12,6 +12,13 @@ be among the live ones, at its stamp and with its values.
 
 A live replay takes the bag's time over the graph's real-time factor (road ~3x, rail ~2x
 here): about 6 minutes for the eight shipped bags.
+
+The live replay runs as fast as it can, so it assumes a machine that is not overloaded. Seen
+once (2026-11-29, the suite run beside two other test processes on 2 cores): rail_healthy's
+creep factor differed from message 21 on; alone, the same test passed. The likely cause (not
+confirmed): the rail nodes pair the bogie and body IMU samples in data time and give a bogie
+sample up as unpaired (missing) once the other stream is ``pair_timeout_s`` ahead (0.1 s of
+data, ~50 ms of wall time at this replay speed); the engine pairs in log-time order.
 """
 
 from __future__ import annotations

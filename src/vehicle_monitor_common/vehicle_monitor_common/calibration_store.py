@@ -152,7 +152,9 @@ class CalibrationManager:
     States: ``uncalibrated``, ``loaded`` (from the file), ``calibrating``, ``calibrated`` (by a
     run in this process), ``failed`` (the last run had too little valid data; the previous
     calibration, if any, stays in force), ``file_corrupt`` (the file was unusable: the node runs
-    uncalibrated and a recalibration is required). Why the file was unusable stays in
+    uncalibrated and a recalibration is required), ``refused`` (a loaded calibration that the
+    estimator found not to fit the data, e.g. made on other tires: the node runs uncalibrated
+    and a recalibration is required). Why the file was unusable or refused stays in
     :attr:`file_problem` until a calibration is saved over it, whatever the state.
 
     The run ends after ``duration_s`` of data, or, for a :class:`SelfTimedCalibratable`, when
@@ -205,6 +207,12 @@ class CalibrationManager:
         self._estimator.load_calibration_state(state)
         self.state = 'loaded'
         self.detail = 'calibration loaded'
+
+    def refuse(self, why: str) -> None:
+        """The estimator dropped the loaded calibration as not fitting the data (``why``)."""
+        self.state = 'refused'
+        self.file_problem = why
+        self.detail = f'{why}: not used, recalibrate at nominal tire pressures (~/calibrate)'
 
     def request(self, duration_s: float) -> tuple[bool, str]:
         """Ask for a calibration over the next ``duration_s`` of data; (accepted, message)."""

@@ -661,3 +661,34 @@ def test_four_tire_diffusion_flagged_on_all_four_on_simulator(drop_kpa):
     # 10-20 s after the step starts; mean |error| 0.7-3.5 kPa
     assert flags[after].mean(axis=0).min() > 0.9, flags[after].mean(axis=0)
     assert np.all(np.abs(pressure[after] - truth[after]).mean(axis=0) < 10.0)
+
+
+def test_stored_calibration_is_checked_and_one_from_other_tires_refused():
+    """A loaded calibration is checked over ``calibration_check_s`` of estimates (tires
+    'checking_calibration', unknown) before it is used: this data's own is then used; one
+    whose stored stiffness is twice these tires' (resonance ratio 0.71, other tires) is
+    refused, the tires uncalibrated: never low."""
+    params = StiffnessObserverParams(calibration_s=20.0, calibration_check_s=5.0)
+    omega = synthesize(np.full(4, MODEL.k), 30.0, seed=81)
+    observer = TireStiffnessObserver(params)
+    observer.start_calibration()
+    run(observer, omega)
+    state = observer.calibration_state()
+
+    same = TireStiffnessObserver(params)
+    same.load_calibration_state(state)
+    early = run(same, omega[:int(15 * FS)])[-1]   # converged at ~13 s
+    assert same.calibration_checking
+    assert 'checking_calibration' in early.status and not early.underinflated.any()
+    assert not np.any(early.valid & (np.array(early.status) == 'checking_calibration'))
+    last = run(same, omega[int(15 * FS):])[-1]
+    assert not same.calibration_checking and same.calibration_misfit == ''
+    assert last.calibrated and last.valid.all()
+
+    other = TireStiffnessObserver(params)
+    other.load_calibration_state({**state, 'k_nominal': [2.0 * k for k in state['k_nominal']]})
+    last = run(other, omega)[-1]
+    assert 'does not fit these tires' in other.calibration_misfit
+    assert 'median resonance ratio 0.7' in other.calibration_misfit
+    assert not last.wheel_calibrated.any() and not last.underinflated.any()
+    assert np.all(last.confidence == 0.0)

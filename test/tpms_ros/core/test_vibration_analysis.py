@@ -234,3 +234,36 @@ def test_driveline_compensation_removes_common_mode_bias() -> None:
     np.testing.assert_allclose(f_comp[:2], f_plain[:2], atol=1e-9)
     with pytest.raises(ValueError, match='driveline_compensation'):
         VibrationParams(driveline_compensation='middle')
+
+
+def test_stored_calibration_is_checked_against_the_tires() -> None:
+    """A stored calibration is used only after the tires were estimated for
+    ``calibration_check_s``: made on these tires (42 Hz) it is kept, the tires then known;
+    made on other tires (30 Hz stored, 42 Hz driven: ratio 1.4) it is refused with both
+    resonances named, and the analyzer is uncalibrated (every tire unknown, never low)."""
+    fs = 1000.0
+    params = VibrationParams(sample_rate_hz=fs, calibration_check_s=5.0, calibration_settle_s=2.0)
+    drive = wheel_speeds([np.full(4, 42.0)], [20.0], fs, seed=31)
+    for stored_hz, fits in ((42.0, True), (30.0, False)):
+        analyzer = VibrationAnalyzer(params, tooth_correction=False)
+        analyzer.load_calibration_state(VibrationCalibration(
+            np.full(4, stored_hz), np.full(4, 0.3), np.full(4, 60.0)).to_dict())
+        assert analyzer.calibration_checking
+        analyzer.process(drive[:2000])
+        assert analyzer.calibration_checking and not analyzer.indication(2.0).known.any()
+        analyzer.process(drive[2000:])
+        assert not analyzer.calibration_checking
+        if fits:
+            assert analyzer.calibration is not None and analyzer.calibration_misfit == ''
+            assert analyzer.indication(20.0).known.all()
+        else:
+            assert analyzer.calibration is None
+            assert 'does not fit these tires' in analyzer.calibration_misfit
+            assert 'FL 4' in analyzer.calibration_misfit and '30.0' in analyzer.calibration_misfit
+            assert not analyzer.indication(20.0).known.any()
+    # a calibration made here needs no check
+    fresh = VibrationAnalyzer(params, tooth_correction=False)
+    fresh.start_calibration()
+    fresh.process(drive)
+    fresh.finish_calibration()
+    assert not fresh.calibration_checking

@@ -132,7 +132,10 @@ def _resonant_wheel_speeds(n: int, freqs: np.ndarray, seed: int) -> np.ndarray:
 
 VIB_TEST = {'sample_rate_hz': FS, 'analysis_rate_hz': FS, 'memory_s': 2.0,
             'calibration_settle_s': 1.0, 'min_calibration_s': 2.0,
-            'calibration_duration_s': 4.0, 'diagnostics_period_s': 0.1, 'bad_hold_s': 0.5}
+            'calibration_duration_s': 4.0, 'diagnostics_period_s': 0.1, 'bad_hold_s': 0.5,
+            # a stored calibration is used at once here; its check against the tires has its
+            # own test (test_vibration_calibration_from_other_tires_is_refused)
+            'calibration_check_s': 0.0}
 
 
 def _vibration_node(make_node: Callable[..., Any], calibration_file: Path, namespace: str = '',
@@ -355,6 +358,48 @@ def test_vibration_corrupt_calibration_file_is_reported(
 
     assert spin_until(reported, 5.0)
     assert status.level == b'\x01' and _values(status)['calibration_state'] == 'file_corrupt'
+
+
+@pytest.mark.parametrize('calibrate_on_start', [False, True])
+def test_vibration_calibration_from_other_tires_is_refused(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path,
+        calibrate_on_start: bool) -> None:
+    """A stored calibration made on other tires (resonances 30 % below these tires'): tires
+    unknown while it is checked, then refused with both resonances named at ERROR, never a low
+    tire; with calibrate_on_start a recalibration starts at once and learns these tires."""
+    cal_file = tmp_path / 'vibration.yaml'
+    save_calibration(cal_file, VibrationCalibration(0.7 * NOMINAL_HZ, np.full(4, 0.2),
+                                                    np.full(4, 10.0)).to_dict())
+    node = _vibration_node(make_node, cal_file, calibration_check_s=1.0,
+                           calibrate_on_start=calibrate_on_start)
+    assert node.processor.calibration.state == 'loaded'
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication,
+                             '/diagnostics': DiagnosticArray})
+    WheelFeeder(tester, out, spin_until).feed(_resonant_wheel_speeds(1600, NOMINAL_HZ, seed=9))
+    indications = out.msgs['/tpms/indication/vibration']
+    assert not any(any(m.underinflated) for m in indications)
+    if calibrate_on_start:
+        # recalibrated over the stored file: these tires' resonances, not the stored 0.7 x
+        assert node.processor.calibration.state == 'calibrated'
+        stored = load_calibration(cal_file).state
+        np.testing.assert_allclose(stored['nominal_frequency_hz'], NOMINAL_HZ, atol=1.5)
+        assert all(indications[-1].known)
+    else:
+        assert node.processor.calibration.state == 'refused'
+        status = None
+
+        def reported() -> bool:
+            nonlocal status
+            status = out.diag('/vibration_analyzer',
+                              lambda s: 'does not fit these tires' in s.message)
+            return status is not None
+
+        assert spin_until(reported, 5.0)
+        assert status.level == b'\x02' and 'recalibrate' in status.message
+        assert 'does not fit' in _values(status)['calibration_file_problem']
+        assert not any(indications[-1].known)
 
 
 # ---------------------------------------------------------------- wheel_radius_analyzer

@@ -18,8 +18,9 @@ from vehicle_monitor_msgs.msg import DriverInputs
 from tpms_ros.nodes.tire_stiffness_observer_node import TireStiffnessObserverNode
 from tpms_ros.processing.tire_stiffness_observer import STIFFNESS, make_processor
 from vehicle_monitor_common.bag_io import BagWriter, iter_raw
+from vehicle_monitor_common.calibration_store import load_calibration, save_calibration
 from vehicle_monitor_common.offline_engine import EngineNode, OfflineGraph
-from vehicle_monitor_common.processing import Output
+from vehicle_monitor_common.processing import ERROR, Output
 
 ROOT = Path(__file__).resolve().parents[3]
 BAG = ROOT / 'bags' / 'road_puncture_15pct_fl'
@@ -224,3 +225,43 @@ def test_uncertain_tires_are_unknown_and_named_on_the_status(short_bag: Path) ->
     assert uncertain_seen
     values = processor.status(0).values
     assert len(values['trust_spread_ratio']) == 4 and len(values['trust_blocks']) == 4
+
+
+def test_calibration_from_other_tires_is_refused_on_the_status(short_bag: Path,
+                                                             tmp_path: Path) -> None:
+    """A calibration file whose stiffness is twice these tires' (other tires, resonance ratio
+    0.71): the tires are unknown while it is checked (the status says so), then it is refused
+    at ERROR naming the stored and measured stiffness, no tire low; with calibrate_on_start a
+    recalibration starts at once."""
+    learn = make_processor(FAST, '/tire_stiffness_observer')
+    for _topic, _, _, data in iter_raw(short_bag, ['/vehicle/wheel_speeds']):
+        learn.process('vehicle/wheel_speeds', data)
+    state = learn.calibration_state()
+    assert state is not None
+    cal_file = tmp_path / 'stiffness.yaml'
+    save_calibration(cal_file, {**state, 'k_nominal': [2.0 * k for k in state['k_nominal']]})
+    processor = make_processor({**FAST, 'calibration_file': str(cal_file),
+                                'calibration_check_s': 2.0}, '/tire_stiffness_observer')
+    assert processor.calibration.state == 'loaded'
+    checking_seen = False
+    for _topic, _, _, data in iter_raw(short_bag, ['/vehicle/wheel_speeds']):
+        for output in processor.process('vehicle/wheel_speeds', data):
+            if output.topic != STIFFNESS:
+                assert not any(output.fields['underinflated'])
+        if processor.observer.calibration_checking:
+            checking_seen |= 'checking the stored calibration' in processor.status(0).message
+    assert checking_seen
+    # calibrate_on_start: recalibrated on these tires and saved over the refused file
+    assert processor.calibration.state == 'calibrated'
+    np.testing.assert_allclose(load_calibration(cal_file).state['k_nominal'],
+                               state['k_nominal'], rtol=0.1)
+    other_file = tmp_path / 'other.yaml'
+    save_calibration(other_file, {**state, 'k_nominal': [2.0 * k for k in state['k_nominal']]})
+    refused = make_processor({**FAST, 'calibration_file': str(other_file),
+                              'calibration_check_s': 2.0, 'calibrate_on_start': False},
+                             '/tire_stiffness_observer')
+    for _topic, _, _, data in iter_raw(short_bag, ['/vehicle/wheel_speeds']):
+        refused.process('vehicle/wheel_speeds', data)
+    status = refused.status(0)
+    assert refused.calibration.state == 'refused' and status.level == ERROR
+    assert 'does not fit these tires' in status.message and 'recalibrate' in status.message

@@ -6,13 +6,21 @@ window must hold enough valid data, and the mean and standard deviation follow
 (:func:`calibration_moments`). The calibration in force, whether a run is on and its
 persistence as plain data are the same bookkeeping in both (:class:`CalibratedCore`), which
 is what ``calibration_store.CalibrationManager`` drives.
+
+A calibration put in force from outside (the file at start, the fleet job's chain) may have
+been made on other tires; the vibration and stiffness cores check it against the tires before
+using it the same way (:class:`StoredCalibrationCheck`, parameters
+:class:`StoredCalibrationCheckParams`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
+
+from vehicle_monitor_common.parameters import param
 
 
 class _Persistable(Protocol):
@@ -119,3 +127,78 @@ def check_calibration_window(params: Any) -> None:
         raise ValueError(
             f'calibration_duration_s ({params.calibration_duration_s:g}) must be at least '
             f'calibration_settle_s + min_calibration_s ({least:g})')
+
+
+@dataclass(frozen=True)
+class StoredCalibrationCheckParams:
+    """How a stored calibration is checked against the tires (the vibration and stiffness cores'
+    parameters derive from this: one definition for both).
+
+    - ``calibration_check_s``: until the tires have been estimated for this much data after a
+      stored calibration was put in force, every tire is unknown; then it is refused when the
+      median over the tires of the resonance ratio (measured / stored; for the stiffness,
+      sqrt(K / K0), the resonance ratio it implies) is above ``calibration_fit_ratio`` or below
+      its inverse. Pressure cannot explain that: on the paper's line a 20 % overpressure
+      raises the resonance about 6 %, and 1 / 1.25 is a stiffness of 0.64, about 40 % of
+      nominal pressure on every tire. The band is that wide because the estimates wander: on
+      the car family's 32 tuning cars the 20 s mean of the four tires' median resonance ratio
+      stayed within 0.89-1.14 of their own calibration at nominal pressure
+      (docs/methods/vibration_analyzer.md).
+    """
+
+    calibration_check_s: float = param(20.0, 'a stored calibration is checked against this '
+                                       'much data of estimated tires before it is used (tires '
+                                       'unknown until then), s (0: used at once)', low=0.0,
+                                       high=3600.0)
+    calibration_fit_ratio: float = param(1.25, 'a stored calibration is refused (made on other '
+                                         'tires) when the median over the tires of the '
+                                         'resonance ratio, measured / stored, is above this or '
+                                         'below its inverse', low=1.01, high=10.0)
+
+
+class StoredCalibrationCheck:
+    """The check of a stored calibration against the tires (see
+    :class:`StoredCalibrationCheckParams`): per tire, the data time with an estimate and the
+    time-weighted sum of its resonance ratio, until one tire has ``calibration_check_s``."""
+
+    def __init__(self, n_tires: int) -> None:
+        self.pending = False
+        self._seconds = np.zeros(n_tires)
+        self._ratio_s = np.zeros(n_tires)
+
+    def start(self, params: StoredCalibrationCheckParams) -> None:
+        """A stored calibration was put in force: check it (unless the check is off)."""
+        self.pending = params.calibration_check_s > 0.0
+        self._seconds[:] = 0.0
+        self._ratio_s[:] = 0.0
+
+    def progress_s(self) -> float:
+        """Data time of estimates so far (the tire with the most), s."""
+        return float(self._seconds.max())
+
+    def add(self, ratio: np.ndarray, row_s: float, params: StoredCalibrationCheckParams
+            ) -> tuple[float, np.ndarray] | None:
+        """Add (M, tires) resonance ratios (NaN: no estimate), each row ``row_s`` of data.
+
+        Returns:
+            None while pending; once decided, (median ratio, per-tire mean ratio with NaN for
+            the tires with less than half the check's data); the caller refuses the
+            calibration when the median is outside ``1 / calibration_fit_ratio ..
+            calibration_fit_ratio`` (:meth:`fits`).
+        """
+        ok = np.isfinite(ratio)
+        self._seconds += ok.sum(axis=0) * row_s
+        self._ratio_s += np.where(ok, ratio, 0.0).sum(axis=0) * row_s
+        needed = params.calibration_check_s
+        if self._seconds.max() < needed:
+            return None
+        self.pending = False
+        used = self._seconds >= 0.5 * needed
+        mean = np.where(used, self._ratio_s / np.maximum(self._seconds, 1e-12), np.nan)
+        return float(np.median(mean[used])), mean
+
+    @staticmethod
+    def fits(median_ratio: float, params: StoredCalibrationCheckParams) -> bool:
+        """Whether a median resonance ratio lies within the band."""
+        fit = params.calibration_fit_ratio
+        return 1.0 / fit <= median_ratio <= fit

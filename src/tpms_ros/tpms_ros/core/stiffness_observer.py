@@ -56,6 +56,7 @@ from tpms_ros.core.block_least_squares import (
     ls_families,
     solve_normal,
 )
+from tpms_ros.core.nominal_calibration import StoredCalibrationCheck, StoredCalibrationCheckParams
 from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
 from tpms_ros.core.tooth_correction import ToothErrorCorrector
@@ -79,6 +80,8 @@ REASONS: tuple[str, ...] = (
     'axle_partner', 'wheel_slip', 'wheel_torque', 'cornering', 'acceleration', 'speed_band',
 )
 _CODE = {name: code for code, name in enumerate(REASONS)}
+CHECKING = 'checking_calibration'
+"""A tire's status while a stored calibration is checked against the tires (unknown)."""
 _NO_REASON = len(REASONS)  # sentinel above every code, for min-reductions
 
 
@@ -137,7 +140,7 @@ class PressureRelation:
 
 
 @dataclass(frozen=True)
-class StiffnessObserverParams:
+class StiffnessObserverParams(StoredCalibrationCheckParams):
     """Parameters of :class:`TireStiffnessObserver`, each its ROS parameter of the same name.
 
     Defaults from the paper and docs/methods/tire_stiffness_observer.md. The ``tire`` group is the
@@ -550,6 +553,8 @@ class TireStiffnessObserver:
         self._calibration: _Calibration | None = None
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
         self._k_nominal = np.full(N_WHEELS, np.nan)
+        self._check = StoredCalibrationCheck(N_WHEELS)
+        self.calibration_misfit = ''         # why the last stored calibration was refused
         self._k_block_std = np.full(N_WHEELS, np.nan)
         self.reset()
 
@@ -628,6 +633,8 @@ class TireStiffnessObserver:
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f'duration_s must be finite and > 0, got {duration}')
         needed = max(2, int(math.ceil(duration / self.params.block_s)))
+        self._check.pending = False
+        self.calibration_misfit = ''
         self._calibration = _Calibration(
             [np.zeros((f.wheels.shape[0], f.n_params, f.n_params)) for f in self._families],
             [np.zeros((f.wheels.shape[0], f.n_params)) for f in self._families],
@@ -715,6 +722,44 @@ class TireStiffnessObserver:
         self._wheel_calibrated = np.ones(N_WHEELS, dtype=bool)
         self._calibration = None
         self._cached = None
+        self.calibration_misfit = ''
+        self._check.start(self.params)
+
+    @property
+    def calibration_checking(self) -> bool:
+        """A stored calibration is in force but not yet checked against the tires."""
+        return self._check.pending
+
+    def calibration_check_progress_s(self) -> float:
+        """Data time of estimates the pending check has (the tire with the most), s."""
+        return self._check.progress_s()
+
+    def _check_calibration(self, samples: int) -> None:
+        """Add the estimate after ``samples`` new samples to the pending check of a stored
+        calibration (tires that would be 'ok'; the resonance ratio sqrt(K / K0)); refuse the
+        calibration when the tires do not fit it: the tires are then uncalibrated."""
+        est = self.estimate()
+        checked = np.array([status == CHECKING for status in est.status])
+        with np.errstate(invalid='ignore'):
+            ratio = np.where(checked, np.sqrt(est.stiffness_ratio), np.nan)
+        decided = self._check.add(ratio[None, :], samples / self.params.sample_rate_hz,
+                                  self.params)
+        if decided is None:
+            return
+        self._cached = None
+        if self._check.fits(decided[0], self.params):
+            return
+        median, mean = decided
+        k0 = self._k_nominal
+        measured = ', '.join(f'{TIRE_NAMES[w]} {m * m * k:.0f}' for w, (m, k) in
+                             enumerate(zip(mean, k0, strict=True)) if np.isfinite(m))
+        fit = self.params.calibration_fit_ratio
+        self.calibration_misfit = (
+            f'stored calibration does not fit these tires: stiffness {measured} against '
+            f'{", ".join(f"{k:.0f}" for k in k0)} N m/rad stored (median resonance ratio '
+            f'{median:.2f}, outside 1/{fit:g}..{fit:g}): made on other tires?')
+        self._k_nominal = np.full(N_WHEELS, np.nan)
+        self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
 
     def _collect_calibration(self, block_k: np.ndarray, good: np.ndarray,
                              sums: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
@@ -888,6 +933,8 @@ class TireStiffnessObserver:
             self._timing_pending = False
         self._counters['timing_breaks'] += int(np.count_nonzero(timing_break))
         self._process(omega, timing_break, wheel_torque, steering_angle)
+        if self._check.pending:
+            self._check_calibration(n)
         return self.estimate()
 
     def _process(self, omega: np.ndarray, timing_break: np.ndarray,
@@ -1192,6 +1239,8 @@ class TireStiffnessObserver:
                 status.append('converging')
             elif untrusted[w]:
                 status.append(untrusted[w])
+            elif calibrated[w] and self._check.pending:
+                status.append(CHECKING)
             else:
                 status.append('ok')
         valid = np.array([s == 'ok' for s in status])

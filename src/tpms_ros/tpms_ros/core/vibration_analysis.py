@@ -26,7 +26,9 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    both rims share (see :class:`VibrationParams`);
 3. resonance f = fs/(2 pi) arccos(-a1 / (2 sqrt(a2))) for complex poles (a1^2 < 4 a2)
    (:func:`tpms_ros.core.vibration_kernel.resonance_frequency`);
-4. calibration: each tire's nominal frequency and the noise of its estimate;
+4. calibration: each tire's nominal frequency and the noise of its estimate; a stored one is
+   checked against the tires before it is used (``calibration_check_s``: a calibration made
+   on other tires is refused, not used);
 5. indication: z = (f_nominal - f) / sigma in units of the noise, flag at ``z_flag``,
    confidence = clip(z / z_full, 0, 1).
 
@@ -53,8 +55,13 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from tpms_ros.core.nominal_calibration import CalibratedCore, check_calibration_window
-from tpms_ros.core.tires import N_TIRES, TpmsIndication
+from tpms_ros.core.nominal_calibration import (
+    CalibratedCore,
+    StoredCalibrationCheck,
+    StoredCalibrationCheckParams,
+    check_calibration_window,
+)
+from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -79,7 +86,7 @@ TOOTH_SMOOTH_HZ = 3.0
 
 
 @dataclass(frozen=True)
-class VibrationParams:
+class VibrationParams(StoredCalibrationCheckParams):
     """Parameters of the vibration analysis (each field is also the node's ROS parameter).
 
     Read-only ones shape the filters at construction; the others are read at each call and may
@@ -95,7 +102,9 @@ class VibrationParams:
       about its impulse-response length.
     - ``rel_noise_floor``: the frequency also wanders with road, speed and temperature, which a
       short calibration does not see.
-    - ``driveline_compensation`` (VEHICLE-SPECIFIC): driveline and suspension-member modes
+    - ``calibration_check_s``, ``calibration_fit_ratio``: the check of a stored calibration
+      against the tires (:class:`~tpms_ros.core.nominal_calibration.StoredCalibrationCheckParams`);
+      the resonance ratio is the estimate over the stored nominal.
       (e.g. 25 and 52 Hz, moving with speed) reach both driven rims in phase and pull each
       driven wheel's AR(2) by several Hz, a bias a calibration at one speed does not absorb.
       Their contribution to each wheel's covariances is the left-right cross-covariance (the
@@ -153,8 +162,8 @@ class VibrationParams:
                     'rls_regularization', 'max_wheel_speed_rad_s', 'z_flag', 'z_full',
                     'rel_noise_floor', 'min_calibration_s', 'stuck_s')
         require_positive(self, positive)
-        require_positive(self, ('min_wheel_speed_rad_s', 'guard_s', 'calibration_settle_s'),
-                         allow_zero=True)
+        require_positive(self, ('min_wheel_speed_rad_s', 'guard_s', 'calibration_settle_s',
+                                'calibration_check_s'), allow_zero=True)
         if len(self.mode_band_hz) != 2:
             raise ValueError(f'VibrationParams.mode_band_hz must be [low, high], got '
                              f'{list(self.mode_band_hz)}')
@@ -337,6 +346,8 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
                                  self._guard_samples], dtype=np.int64)
         self._calibration: VibrationCalibration | None = None
         self._calibrating = False
+        self._check = StoredCalibrationCheck(N_TIRES)
+        self.calibration_misfit = ''         # why the last stored calibration was refused
         self.rejected = np.zeros(N_TIRES, dtype=np.int64)
         self.gated = np.zeros(N_TIRES, dtype=np.int64)
         self.reset_filters()
@@ -401,6 +412,8 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     def start_calibration(self) -> None:
         """Start learning the nominal frequencies from the data processed from now on."""
         self._calibrating = True
+        self._check.pending = False
+        self.calibration_misfit = ''
         self._cal_sum[:] = 0.0
         self._cal_seen = 0
 
@@ -425,6 +438,38 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
             raise ValueError(f'calibration state: nominal_frequency_hz {f} outside the '
                              f'passband {low:.1f}..{high:.1f} Hz')
         self._calibration = calibration
+        self.calibration_misfit = ''
+        self._check.start(self.params)
+
+    @property
+    def calibration_checking(self) -> bool:
+        """A stored calibration is in force but not yet checked against the tires."""
+        return self._check.pending
+
+    def calibration_check_progress_s(self) -> float:
+        """Data time of estimates the pending check has (the tire with the most), s."""
+        return self._check.progress_s()
+
+    def _check_calibration(self, trace_hz: np.ndarray) -> None:
+        """Add the chunk's estimates to the pending check; refuse the calibration when the
+        tires' resonances do not fit it."""
+        cal = self._calibration
+        assert cal is not None
+        decided = self._check.add(trace_hz / cal.nominal_frequency_hz,
+                                  1.0 / self.params.effective_rate_hz, self.params)
+        if decided is None or self._check.fits(decided[0], self.params):
+            return
+        ratio, mean = decided
+        resonance = ', '.join(f'{TIRE_NAMES[w]} {m * f0:.1f} Hz' for w, (m, f0) in
+                              enumerate(zip(mean, cal.nominal_frequency_hz, strict=True))
+                              if np.isfinite(m))
+        stored = ', '.join(f'{f0:.1f}' for f0 in cal.nominal_frequency_hz)
+        fit = self.params.calibration_fit_ratio
+        self.calibration_misfit = (
+            f'stored calibration does not fit these tires: resonance {resonance} against '
+            f'{stored} Hz stored (median ratio {ratio:.2f}, outside 1/{fit:g}..{fit:g}): made '
+            'on other tires?')
+        self._calibration = None
 
     # ---------------------------------------------------------- processing
     def process(self, omega: np.ndarray) -> ResonanceEstimate:
@@ -461,6 +506,8 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
             self._latest = trace_hz[-1].copy()
             if self._calibrating:
                 self._accumulate_calibration(trace_hz)
+            elif self._check.pending:
+                self._check_calibration(trace_hz)
         return self._estimate(trace_hz, keep)
 
     def _accumulate_calibration(self, trace_hz: np.ndarray) -> None:
@@ -488,7 +535,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     def frequency_drop_sigma(self) -> np.ndarray:
         """(4,) frequency drop below nominal in noise sigmas (NaN where unknown)."""
         cal = self._calibration
-        if cal is None:
+        if cal is None or self._check.pending:
             return np.full(N_TIRES, np.nan)
         sigma = np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
         return np.where(self._latest_known, (cal.nominal_frequency_hz - self._latest) / sigma,

@@ -176,6 +176,15 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         """Put a stored calibration in force; ValueError when it does not fit."""
         self._calibration.put_in_force(state)
 
+    def _refuse_stored_calibration(self, why: str) -> None:
+        """The core refused the stored calibration in force (``why``): the node runs
+        uncalibrated and says so; with ``calibrate_on_start`` a new calibration starts at once
+        (the recalibration the refusal asks for)."""
+        self._calibration.refuse(why)
+        self.events.append(self._calibration.detail)
+        if self.node_params.calibrate_on_start:
+            self._calibration.request(self._calibration_duration_s())
+
     def _calibration_event(self, first_s: float, last_s: float) -> None:
         event = self._calibration.update(first_s, last_s)
         if event:
@@ -245,7 +254,9 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         problems = StatusProblems()
         if cal.file_problem:
             values['calibration_file_problem'] = cal.file_problem
-        if cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
+        if cal.state == 'refused':
+            problems.error(cal.detail)
+        elif cal.state in ('file_corrupt', 'failed', 'uncalibrated', 'calibrating'):
             problems.warn(cal.detail)
         elif received and not self._last_known.all():
             unknown = [TIRE_NAMES[i] for i in np.flatnonzero(~self._last_known)]

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from tpms_ros.core.stiffness_observer import (
+    CHECKING,
     StiffnessEstimate,
     StiffnessObserverParams,
     TireStiffnessObserver,
@@ -347,6 +348,12 @@ class TireStiffnessObserverProcessor:
         event = self._calibration.update(float(t[0]), float(t[-1]))
         if event:
             self.events.append(event)
+        if self.observer.calibration_misfit and self._calibration.state == 'loaded':
+            # the tires are uncalibrated now; a recalibration asked for starts next chunk
+            self._calibration.refuse(self.observer.calibration_misfit)
+            self.events.append(self._calibration.detail)
+            if self.node_params.calibrate_on_start:
+                self._calibration.request(self.params.calibration_s)
         self._estimate = estimate
         self._last_t = float(t[-1])
         self._follow_faults(estimate)
@@ -445,11 +452,20 @@ class TireStiffnessObserverProcessor:
         }
         for reason, count in self.rejected.items():
             values[f'rejected_messages_{reason}'] = count
-        if calibration.file_problem:
+        if calibration.state == 'refused':
+            level = ERROR
+            values['calibration_file_problem'] = calibration.file_problem
+            problems.append(calibration.detail)
+        elif calibration.file_problem:
             values['calibration_file_problem'] = calibration.file_problem
             problems.append(f'calibration file unusable ({calibration.file_problem})')
         if calibration.state in ('uncalibrated', 'failed'):
             problems.append(calibration.detail)
+        elif self.observer.calibration_checking:
+            problems.append(f'checking the stored calibration against the tires '
+                            f'({self.observer.calibration_check_progress_s():.1f} / '
+                            f'{p.calibration_check_s:g} s of estimates): tires unknown until '
+                            'then')
         elif calibration.state == 'calibrating':
             notes.append('calibrating')
         # Rejections are reported while they are recent: the counts stay in the values, the
@@ -487,7 +503,8 @@ class TireStiffnessObserverProcessor:
         uncertain = [f'{w}: {UNCERTAIN[s]}' for w, s in zip(TIRE_NAMES, status, strict=True)
                      if s in UNCERTAIN]
         paused = [f'{w}: {s}' for w, s in zip(TIRE_NAMES, status, strict=True)
-                  if s not in (*SENSOR_FAULTS, *UNCERTAIN, 'ok', 'recovering', 'rate_mismatch')]
+                  if s not in (*SENSOR_FAULTS, *UNCERTAIN, 'ok', 'recovering', 'rate_mismatch',
+                               CHECKING)]
         low = [w for w, flag, s in zip(TIRE_NAMES, est.underinflated, status, strict=True)
                if flag and s == 'ok']
         if faults:
