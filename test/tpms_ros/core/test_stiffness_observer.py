@@ -678,17 +678,17 @@ def test_stored_calibration_is_checked_and_one_from_other_tires_refused():
     same = TireStiffnessObserver(params)
     same.load_calibration_state(state)
     early = run(same, omega[:int(15 * FS)])[-1]   # converged at ~13 s
-    assert same.calibration_checking
+    assert same.calibration_check.pending
     assert 'checking_calibration' in early.status and not early.underinflated.any()
     assert not np.any(early.valid & (np.array(early.status) == 'checking_calibration'))
     last = run(same, omega[int(15 * FS):])[-1]
-    assert not same.calibration_checking and same.calibration_misfit == ''
+    assert not same.calibration_check.pending and same.calibration_check.misfit == ''
     assert last.calibrated and last.valid.all()
 
     other = TireStiffnessObserver(params)
     other.load_calibration_state({**state, 'k_nominal': [2.0 * k for k in state['k_nominal']]})
     last = run(other, omega)[-1]
-    assert 'does not fit these tires' in other.calibration_misfit
-    assert 'median resonance ratio 0.7' in other.calibration_misfit
+    assert 'does not fit these tires' in other.calibration_check.misfit
+    assert 'median resonance ratio 0.7' in other.calibration_check.misfit
     assert not last.wheel_calibrated.any() and not last.underinflated.any()
     assert np.all(last.confidence == 0.0)

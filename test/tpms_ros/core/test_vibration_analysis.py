@@ -248,22 +248,23 @@ def test_stored_calibration_is_checked_against_the_tires() -> None:
         analyzer = VibrationAnalyzer(params, tooth_correction=False)
         analyzer.load_calibration_state(VibrationCalibration(
             np.full(4, stored_hz), np.full(4, 0.3), np.full(4, 60.0)).to_dict())
-        assert analyzer.calibration_checking
+        assert analyzer.calibration_check.pending
         analyzer.process(drive[:2000])
-        assert analyzer.calibration_checking and not analyzer.indication(2.0).known.any()
+        assert analyzer.calibration_check.pending and not analyzer.indication(2.0).known.any()
         analyzer.process(drive[2000:])
-        assert not analyzer.calibration_checking
+        assert not analyzer.calibration_check.pending
         if fits:
-            assert analyzer.calibration is not None and analyzer.calibration_misfit == ''
+            assert analyzer.calibration is not None and analyzer.calibration_check.misfit == ''
             assert analyzer.indication(20.0).known.all()
         else:
             assert analyzer.calibration is None
-            assert 'does not fit these tires' in analyzer.calibration_misfit
-            assert 'FL 4' in analyzer.calibration_misfit and '30.0' in analyzer.calibration_misfit
+            misfit = analyzer.calibration_check.misfit
+            assert 'does not fit these tires' in misfit
+            assert 'FL 4' in misfit and '30.0' in misfit
             assert not analyzer.indication(20.0).known.any()
     # a calibration made here needs no check
     fresh = VibrationAnalyzer(params, tooth_correction=False)
     fresh.start_calibration()
     fresh.process(drive)
     fresh.finish_calibration()
-    assert not fresh.calibration_checking
+    assert not fresh.calibration_check.pending

@@ -348,16 +348,21 @@ def test_vibration_corrupt_calibration_file_is_reported(
                              '/tpms/indication/vibration': TpmsIndication})
     WheelFeeder(tester, out, spin_until).feed(_resonant_wheel_speeds(200, NOMINAL_HZ, seed=7))
     assert not any(out.msgs['/tpms/indication/vibration'][-1].known)
-    status = None
+    status = _vibration_status_saying(out, spin_until, 'recalibration required')
+    assert status.level == b'\x01' and _values(status)['calibration_state'] == 'file_corrupt'
+
+
+def _vibration_status_saying(out: Collector, spin_until: Callable[..., bool], text: str) -> Any:
+    """The vibration analyzer's first /diagnostics status whose message has ``text``."""
+    found: list[Any] = []
 
     def reported() -> bool:
-        nonlocal status
-        status = out.diag('/vibration_analyzer',
-                          lambda s: 'recalibration required' in s.message)
+        status = out.diag('/vibration_analyzer', lambda s: text in s.message)
+        found.append(status)
         return status is not None
 
     assert spin_until(reported, 5.0)
-    assert status.level == b'\x01' and _values(status)['calibration_state'] == 'file_corrupt'
+    return found[-1]
 
 
 @pytest.mark.parametrize('calibrate_on_start', [False, True])
@@ -388,15 +393,7 @@ def test_vibration_calibration_from_other_tires_is_refused(
         assert all(indications[-1].known)
     else:
         assert node.processor.calibration.state == 'refused'
-        status = None
-
-        def reported() -> bool:
-            nonlocal status
-            status = out.diag('/vibration_analyzer',
-                              lambda s: 'does not fit these tires' in s.message)
-            return status is not None
-
-        assert spin_until(reported, 5.0)
+        status = _vibration_status_saying(out, spin_until, 'does not fit these tires')
         assert status.level == b'\x02' and 'recalibrate' in status.message
         assert 'does not fit' in _values(status)['calibration_file_problem']
         assert not any(indications[-1].known)

@@ -248,7 +248,7 @@ def test_calibration_from_other_tires_is_refused_on_the_status(short_bag: Path,
         for output in processor.process('vehicle/wheel_speeds', data):
             if output.topic != STIFFNESS:
                 assert not any(output.fields['underinflated'])
-        if processor.observer.calibration_checking:
+        if processor.observer.calibration_check.pending:
             checking_seen |= 'checking the stored calibration' in processor.status(0).message
     assert checking_seen
     # calibrate_on_start: recalibrated on these tires and saved over the refused file

@@ -162,15 +162,22 @@ class StoredCalibrationCheck:
     time-weighted sum of its resonance ratio, until one tire has ``calibration_check_s``."""
 
     def __init__(self, n_tires: int) -> None:
-        self.pending = False
+        self.pending = False            # a stored calibration in force, not checked yet
+        self.misfit = ''                # why the last stored calibration was refused
         self._seconds = np.zeros(n_tires)
         self._ratio_s = np.zeros(n_tires)
 
     def start(self, params: StoredCalibrationCheckParams) -> None:
         """A stored calibration was put in force: check it (unless the check is off)."""
         self.pending = params.calibration_check_s > 0.0
+        self.misfit = ''
         self._seconds[:] = 0.0
         self._ratio_s[:] = 0.0
+
+    def cancel(self) -> None:
+        """A calibration run started: nothing stored to check any more."""
+        self.pending = False
+        self.misfit = ''
 
     def progress_s(self) -> float:
         """Data time of estimates so far (the tire with the most), s."""

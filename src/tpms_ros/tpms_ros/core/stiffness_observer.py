@@ -553,8 +553,7 @@ class TireStiffnessObserver:
         self._calibration: _Calibration | None = None
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
         self._k_nominal = np.full(N_WHEELS, np.nan)
-        self._check = StoredCalibrationCheck(N_WHEELS)
-        self.calibration_misfit = ''         # why the last stored calibration was refused
+        self.calibration_check = StoredCalibrationCheck(N_WHEELS)
         self._k_block_std = np.full(N_WHEELS, np.nan)
         self.reset()
 
@@ -633,8 +632,7 @@ class TireStiffnessObserver:
         if not (math.isfinite(duration) and duration > 0):
             raise ValueError(f'duration_s must be finite and > 0, got {duration}')
         needed = max(2, int(math.ceil(duration / self.params.block_s)))
-        self._check.pending = False
-        self.calibration_misfit = ''
+        self.calibration_check.cancel()
         self._calibration = _Calibration(
             [np.zeros((f.wheels.shape[0], f.n_params, f.n_params)) for f in self._families],
             [np.zeros((f.wheels.shape[0], f.n_params)) for f in self._families],
@@ -722,17 +720,7 @@ class TireStiffnessObserver:
         self._wheel_calibrated = np.ones(N_WHEELS, dtype=bool)
         self._calibration = None
         self._cached = None
-        self.calibration_misfit = ''
-        self._check.start(self.params)
-
-    @property
-    def calibration_checking(self) -> bool:
-        """A stored calibration is in force but not yet checked against the tires."""
-        return self._check.pending
-
-    def calibration_check_progress_s(self) -> float:
-        """Data time of estimates the pending check has (the tire with the most), s."""
-        return self._check.progress_s()
+        self.calibration_check.start(self.params)
 
     def _check_calibration(self, samples: int) -> None:
         """Add the estimate after ``samples`` new samples to the pending check of a stored
@@ -742,19 +730,19 @@ class TireStiffnessObserver:
         checked = np.array([status == CHECKING for status in est.status])
         with np.errstate(invalid='ignore'):
             ratio = np.where(checked, np.sqrt(est.stiffness_ratio), np.nan)
-        decided = self._check.add(ratio[None, :], samples / self.params.sample_rate_hz,
+        decided = self.calibration_check.add(ratio[None, :], samples / self.params.sample_rate_hz,
                                   self.params)
         if decided is None:
             return
         self._cached = None
-        if self._check.fits(decided[0], self.params):
+        if self.calibration_check.fits(decided[0], self.params):
             return
         median, mean = decided
         k0 = self._k_nominal
         measured = ', '.join(f'{TIRE_NAMES[w]} {m * m * k:.0f}' for w, (m, k) in
                              enumerate(zip(mean, k0, strict=True)) if np.isfinite(m))
         fit = self.params.calibration_fit_ratio
-        self.calibration_misfit = (
+        self.calibration_check.misfit = (
             f'stored calibration does not fit these tires: stiffness {measured} against '
             f'{", ".join(f"{k:.0f}" for k in k0)} N m/rad stored (median resonance ratio '
             f'{median:.2f}, outside 1/{fit:g}..{fit:g}): made on other tires?')
@@ -933,7 +921,7 @@ class TireStiffnessObserver:
             self._timing_pending = False
         self._counters['timing_breaks'] += int(np.count_nonzero(timing_break))
         self._process(omega, timing_break, wheel_torque, steering_angle)
-        if self._check.pending:
+        if self.calibration_check.pending:
             self._check_calibration(n)
         return self.estimate()
 
@@ -1239,7 +1227,7 @@ class TireStiffnessObserver:
                 status.append('converging')
             elif untrusted[w]:
                 status.append(untrusted[w])
-            elif calibrated[w] and self._check.pending:
+            elif calibrated[w] and self.calibration_check.pending:
                 status.append(CHECKING)
             else:
                 status.append('ok')

@@ -346,8 +346,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
                                  self._guard_samples], dtype=np.int64)
         self._calibration: VibrationCalibration | None = None
         self._calibrating = False
-        self._check = StoredCalibrationCheck(N_TIRES)
-        self.calibration_misfit = ''         # why the last stored calibration was refused
+        self.calibration_check = StoredCalibrationCheck(N_TIRES)
         self.rejected = np.zeros(N_TIRES, dtype=np.int64)
         self.gated = np.zeros(N_TIRES, dtype=np.int64)
         self.reset_filters()
@@ -412,8 +411,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     def start_calibration(self) -> None:
         """Start learning the nominal frequencies from the data processed from now on."""
         self._calibrating = True
-        self._check.pending = False
-        self.calibration_misfit = ''
+        self.calibration_check.cancel()
         self._cal_sum[:] = 0.0
         self._cal_seen = 0
 
@@ -438,26 +436,16 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
             raise ValueError(f'calibration state: nominal_frequency_hz {f} outside the '
                              f'passband {low:.1f}..{high:.1f} Hz')
         self._calibration = calibration
-        self.calibration_misfit = ''
-        self._check.start(self.params)
-
-    @property
-    def calibration_checking(self) -> bool:
-        """A stored calibration is in force but not yet checked against the tires."""
-        return self._check.pending
-
-    def calibration_check_progress_s(self) -> float:
-        """Data time of estimates the pending check has (the tire with the most), s."""
-        return self._check.progress_s()
+        self.calibration_check.start(self.params)
 
     def _check_calibration(self, trace_hz: np.ndarray) -> None:
         """Add the chunk's estimates to the pending check; refuse the calibration when the
         tires' resonances do not fit it."""
         cal = self._calibration
         assert cal is not None
-        decided = self._check.add(trace_hz / cal.nominal_frequency_hz,
+        decided = self.calibration_check.add(trace_hz / cal.nominal_frequency_hz,
                                   1.0 / self.params.effective_rate_hz, self.params)
-        if decided is None or self._check.fits(decided[0], self.params):
+        if decided is None or self.calibration_check.fits(decided[0], self.params):
             return
         ratio, mean = decided
         resonance = ', '.join(f'{TIRE_NAMES[w]} {m * f0:.1f} Hz' for w, (m, f0) in
@@ -465,7 +453,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
                               if np.isfinite(m))
         stored = ', '.join(f'{f0:.1f}' for f0 in cal.nominal_frequency_hz)
         fit = self.params.calibration_fit_ratio
-        self.calibration_misfit = (
+        self.calibration_check.misfit = (
             f'stored calibration does not fit these tires: resonance {resonance} against '
             f'{stored} Hz stored (median ratio {ratio:.2f}, outside 1/{fit:g}..{fit:g}): made '
             'on other tires?')
@@ -506,7 +494,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
             self._latest = trace_hz[-1].copy()
             if self._calibrating:
                 self._accumulate_calibration(trace_hz)
-            elif self._check.pending:
+            elif self.calibration_check.pending:
                 self._check_calibration(trace_hz)
         return self._estimate(trace_hz, keep)
 
@@ -535,7 +523,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
     def frequency_drop_sigma(self) -> np.ndarray:
         """(4,) frequency drop below nominal in noise sigmas (NaN where unknown)."""
         cal = self._calibration
-        if cal is None or self._check.pending:
+        if cal is None or self.calibration_check.pending:
             return np.full(N_TIRES, np.nan)
         sigma = np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
         return np.where(self._latest_known, (cal.nominal_frequency_hz - self._latest) / sigma,

@@ -348,9 +348,9 @@ class TireStiffnessObserverProcessor:
         event = self._calibration.update(float(t[0]), float(t[-1]))
         if event:
             self.events.append(event)
-        if self.observer.calibration_misfit and self._calibration.state == 'loaded':
+        if self.observer.calibration_check.misfit and self._calibration.state == 'loaded':
             # the tires are uncalibrated now; a recalibration asked for starts next chunk
-            self._calibration.refuse(self.observer.calibration_misfit)
+            self._calibration.refuse(self.observer.calibration_check.misfit)
             self.events.append(self._calibration.detail)
             if self.node_params.calibrate_on_start:
                 self._calibration.request(self.params.calibration_s)
@@ -461,9 +461,9 @@ class TireStiffnessObserverProcessor:
             problems.append(f'calibration file unusable ({calibration.file_problem})')
         if calibration.state in ('uncalibrated', 'failed'):
             problems.append(calibration.detail)
-        elif self.observer.calibration_checking:
+        elif self.observer.calibration_check.pending:
             problems.append(f'checking the stored calibration against the tires '
-                            f'({self.observer.calibration_check_progress_s():.1f} / '
+                            f'({self.observer.calibration_check.progress_s():.1f} / '
                             f'{p.calibration_check_s:g} s of estimates): tires unknown until '
                             'then')
         elif calibration.state == 'calibrating':

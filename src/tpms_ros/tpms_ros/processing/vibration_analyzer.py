@@ -222,8 +222,8 @@ class VibrationAnalyzerProcessor(
         self._calibration_event(first_s, last_s)
         # after the calibration's bookkeeping of this block: a recalibration it asks for
         # starts with the next block
-        if self.core.calibration_misfit and self._calibration.state == 'loaded':
-            self._refuse_stored_calibration(self.core.calibration_misfit)
+        if self.core.calibration_check.misfit and self._calibration.state == 'loaded':
+            self._refuse_stored_calibration(self.core.calibration_check.misfit)
         self._last_stamp_s = last_s
         if last_s - self._last_publish_s >= 1.0 / self.node_params.publish_rate_hz - 1e-9:
             return self._outputs(estimate, self._buffer_last_ns, last_s)
@@ -346,9 +346,9 @@ class VibrationAnalyzerProcessor(
         new_rejections = self._new_rejections.text(rejected)
         if new_rejections:
             problems.warn('wheel-speed messages rejected: ' + new_rejections)
-        if self.core.calibration_checking:
+        if self.core.calibration_check.pending:
             problems.warn(f'checking the stored calibration against the tires '
-                          f'({self.core.calibration_check_progress_s():.1f} / '
+                          f'({self.core.calibration_check.progress_s():.1f} / '
                           f'{p.calibration_check_s:g} s of estimates): tires unknown until then')
         problems.extend(tire_problems)
         rejected_total = sum(rejected.values()) + int(rejected_values.sum())
