@@ -141,10 +141,14 @@ class _SelfTimedEstimator(_FakeEstimator):
     def calibration_complete(self) -> bool:
         return self.complete
 
+    def calibration_missing(self) -> str:
+        return '' if self.complete else 'FL 3.0 of 10 s of valid data'
+
 
 def test_manager_self_timed_run_ends_when_the_estimator_says(tmp_path: Path) -> None:
-    """A self-timed estimator's run does not end on data time, only when it is complete; a
-    file problem found at load is kept until a calibration is saved over the file."""
+    """A self-timed estimator's run does not end on data time alone, only once it is complete
+    too (the status says what is missing); a file problem found at load is kept until a
+    calibration is saved over the file."""
     path = tmp_path / 'cal.yaml'
     path.write_text('- not\n- a mapping\n')
     estimator = _SelfTimedEstimator()
@@ -154,6 +158,8 @@ def test_manager_self_timed_run_ends_when_the_estimator_says(tmp_path: Path) -> 
     manager.request(1.0)
     manager.before_chunk()
     assert manager.update(0.0, 50.0) == '' and manager.state == 'calibrating'
+    assert manager.detail == ('calibrating: 50.0 / 1 s of data; still missing: FL 3.0 of 10 s '
+                              'of valid data')
     assert 'mapping' in manager.file_problem
     estimator.complete = True
     manager.before_chunk()

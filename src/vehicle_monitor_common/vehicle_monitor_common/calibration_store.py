@@ -116,8 +116,9 @@ class Calibratable(Protocol):
     """What a calibrating estimator offers (the TPMS cores' method names).
 
     By default the calibration window is data time, counted by :class:`CalibrationManager`; an
-    estimator that counts its own window (valid data per tire, not data time) also offers
-    ``calibration_complete`` (:class:`SelfTimedCalibratable`).
+    estimator that also counts valid data itself offers ``calibration_complete`` and
+    ``calibration_missing`` (:class:`SelfTimedCalibratable`): its window goes on, collecting
+    valid data as it comes, until it is complete.
     """
 
     def start_calibration(self) -> None:
@@ -135,10 +136,13 @@ class Calibratable(Protocol):
 
 @runtime_checkable
 class SelfTimedCalibratable(Calibratable, Protocol):
-    """A calibrating estimator that decides itself when its run has enough data."""
+    """A calibrating estimator that decides itself when its run has enough valid data."""
 
     def calibration_complete(self) -> bool:
         """The running calibration has collected what it needs (then ``finish_calibration``)."""
+
+    def calibration_missing(self) -> str:
+        """What the running calibration still lacks, for the status ('' when complete)."""
 
 
 class CalibrationManager:
@@ -157,8 +161,9 @@ class CalibrationManager:
     and a recalibration is required). Why the file was unusable or refused stays in
     :attr:`file_problem` until a calibration is saved over it, whatever the state.
 
-    The run ends after ``duration_s`` of data, or, for a :class:`SelfTimedCalibratable`, when
-    the estimator says it has collected enough (``duration_s`` is then the estimator's own).
+    The run ends after ``duration_s`` of data; for a :class:`SelfTimedCalibratable` not before
+    the estimator says it has collected enough valid data either (an ordinary drive with stops,
+    curves and speed changes: the window goes on, and the status says what is still missing).
     """
 
     def __init__(self, estimator: Calibratable, path: str, label: str) -> None:
@@ -236,14 +241,13 @@ class CalibrationManager:
             return ''
         if self._start_s is None:
             self._start_s = first_stamp_s
-        if isinstance(self._estimator, SelfTimedCalibratable):
-            if not self._estimator.calibration_complete():
-                self.detail = (f'calibrating: {last_stamp_s - self._start_s:.1f} s of data so '
-                               f'far, until {self._duration_s:g} s of valid data')
-                return ''
-        elif last_stamp_s - self._start_s < self._duration_s:
-            self.detail = (f'calibrating: {last_stamp_s - self._start_s:.1f} / '
-                           f'{self._duration_s:g} s of data')
+        elapsed = last_stamp_s - self._start_s
+        missing = (self._estimator.calibration_missing()
+                   if isinstance(self._estimator, SelfTimedCalibratable) else '')
+        if elapsed < self._duration_s or missing:
+            self.detail = f'calibrating: {elapsed:.1f} / {self._duration_s:g} s of data'
+            if missing:
+                self.detail += f'; still missing: {missing}'
             return ''
         self._pending = False
         try:

@@ -42,6 +42,8 @@ class CalibratedCore(Generic[Cal]):
     #: what a calibration window counts per channel, for the error (e.g. ``known estimates
     #: per tire``)
     calibration_counts: ClassVar[str]
+    #: the channels' names (tires or tire pairs), for what a window still lacks
+    calibration_channels: ClassVar[tuple[str, ...]]
     params: Any
     _calibration: Cal | None
     _calibrating: bool
@@ -67,6 +69,21 @@ class CalibratedCore(Generic[Cal]):
     def calibration_rate_hz(self) -> float:
         """The rate the calibration window's counts are at, Hz."""
         raise NotImplementedError
+
+    def calibration_missing(self) -> str:
+        """The channels with less than ``min_calibration_s`` of valid data in the running
+        window ('' when none): a window goes on collecting valid data as it comes until every
+        channel has it (the manager's ``calibration_duration_s`` is the least it lasts)."""
+        valid_s = self._cal_sum[0] / self.calibration_rate_hz
+        need = self.params.min_calibration_s
+        short = [f'{name} {s:.1f}' for name, s in zip(self.calibration_channels, valid_s,
+                                                     strict=True) if s < need]
+        return (f'{", ".join(short)} of {need:g} s of {self.calibration_counts}'
+                if short else '')
+
+    def calibration_complete(self) -> bool:
+        """Every channel has ``min_calibration_s`` of valid data in the running window."""
+        return not self.calibration_missing()
 
     def finish_calibration(self) -> Cal:
         """End calibration and put it in force.

@@ -651,6 +651,18 @@ class TireStiffnessObserver:
         rather than counting data time."""
         return bool(np.all(self._wheel_calibrated))
 
+    def calibration_missing(self) -> str:
+        """The tires still collecting their valid data in the running calibration ('' when
+        none), with the valid data they have."""
+        cal = self._calibration
+        if cal is None:
+            return ''
+        block_s = self.params.block_s
+        short = [f'{TIRE_NAMES[w]} {cal.blocks[w] * block_s:.1f}'
+                 for w in np.flatnonzero(~self._wheel_calibrated)]
+        return (f'{", ".join(short)} of {cal.needed_blocks * block_s:g} s of valid data'
+                if short else '')
+
     def finish_calibration(self) -> None:
         """Confirm a finished run (each tire's calibration went into force as it completed).
 

@@ -416,6 +416,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._cal_seen = 0
 
     calibration_counts = 'known estimates per tire'
+    calibration_channels = TIRE_NAMES
 
     @property
     def calibration_rate_hz(self) -> float:

@@ -677,6 +677,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self._cal_start = None
 
     calibration_counts = f'valid updates for {PAIR_NAMES}'
+    calibration_channels = PAIR_NAMES
 
     @property
     def calibration_rate_hz(self) -> float:
