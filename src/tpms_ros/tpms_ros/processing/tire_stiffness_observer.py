@@ -467,7 +467,7 @@ class TireStiffnessObserverProcessor:
                             f'{p.calibration_check_s:g} s of estimates): tires unknown until '
                             'then')
         elif calibration.state == 'calibrating':
-            notes.append('calibrating')
+            notes.append(calibration.detail)
         # Rejections are reported while they are recent: the counts stay in the values, the
         # warning clears once a whole output period passed without one.
         recent = self.rejected - self._rejected_at_last_status
