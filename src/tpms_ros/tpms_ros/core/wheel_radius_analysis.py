@@ -676,7 +676,7 @@ class WheelRadiusAnalyzer(CalibratedCore[WheelRadiusCalibration]):
         self._cal_noise[:] = 0.0
         self._cal_start = None
 
-    calibration_counts = f'valid updates for {PAIR_NAMES}'
+    calibration_counts = 'valid updates per tire pair'
     calibration_channels = PAIR_NAMES
 
     @property
