@@ -213,11 +213,17 @@ class CalibrationManager:
         self.state = 'loaded'
         self.detail = 'calibration loaded'
 
-    def refuse(self, why: str) -> None:
-        """The estimator dropped the loaded calibration as not fitting the data (``why``)."""
+    def refuse(self, why: str, recalibrate_s: float | None) -> str:
+        """The estimator dropped the loaded calibration as not fitting the data (``why``);
+        with ``recalibrate_s`` a new run over that much data is requested at once (it starts
+        with the next chunk). Returns the event for the node's log."""
         self.state = 'refused'
         self.file_problem = why
         self.detail = f'{why}: not used, recalibrate at nominal tire pressures (~/calibrate)'
+        event = self.detail
+        if recalibrate_s is not None:
+            self.request(recalibrate_s)
+        return event
 
     def request(self, duration_s: float) -> tuple[bool, str]:
         """Ask for a calibration over the next ``duration_s`` of data; (accepted, message)."""

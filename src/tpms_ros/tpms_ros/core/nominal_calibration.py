@@ -226,3 +226,17 @@ class StoredCalibrationCheck:
         """Whether a median resonance ratio lies within the band."""
         fit = params.calibration_fit_ratio
         return 1.0 / fit <= median_ratio <= fit
+
+    def refuse(self, measured: str, stored: str, median_ratio: float,
+               params: StoredCalibrationCheckParams) -> None:
+        """Record why the stored calibration is refused (the core then drops it): what was
+        measured and what was stored, each as the core words it."""
+        fit = params.calibration_fit_ratio
+        self.misfit = (f'stored calibration does not fit these tires: {measured} against '
+                       f'{stored} stored (median resonance ratio {median_ratio:.2f}, outside '
+                       f'1/{fit:g}..{fit:g}): made on other tires?')
+
+    def status(self, params: StoredCalibrationCheckParams) -> str:
+        """The status line while the check is pending."""
+        return (f'checking the stored calibration against the tires ({self.progress_s():.1f} / '
+                f'{params.calibration_check_s:g} s of estimates): tires unknown until then')

@@ -742,8 +742,8 @@ class TireStiffnessObserver:
         checked = np.array([status == CHECKING for status in est.status])
         with np.errstate(invalid='ignore'):
             ratio = np.where(checked, np.sqrt(est.stiffness_ratio), np.nan)
-        decided = self.calibration_check.add(ratio[None, :], samples / self.params.sample_rate_hz,
-                                  self.params)
+        decided = self.calibration_check.add(ratio[None, :],
+                                             samples / self.params.sample_rate_hz, self.params)
         if decided is None:
             return
         self._cached = None
@@ -753,11 +753,9 @@ class TireStiffnessObserver:
         k0 = self._k_nominal
         measured = ', '.join(f'{TIRE_NAMES[w]} {m * m * k:.0f}' for w, (m, k) in
                              enumerate(zip(mean, k0, strict=True)) if np.isfinite(m))
-        fit = self.params.calibration_fit_ratio
-        self.calibration_check.misfit = (
-            f'stored calibration does not fit these tires: stiffness {measured} against '
-            f'{", ".join(f"{k:.0f}" for k in k0)} N m/rad stored (median resonance ratio '
-            f'{median:.2f}, outside 1/{fit:g}..{fit:g}): made on other tires?')
+        stored = ', '.join(f'{k:.0f}' for k in k0)
+        self.calibration_check.refuse(f'stiffness {measured}', f'{stored} N m/rad', median,
+                                      self.params)
         self._k_nominal = np.full(N_WHEELS, np.nan)
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
 

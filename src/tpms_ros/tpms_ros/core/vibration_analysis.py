@@ -105,6 +105,7 @@ class VibrationParams(StoredCalibrationCheckParams):
     - ``calibration_check_s``, ``calibration_fit_ratio``: the check of a stored calibration
       against the tires (:class:`~tpms_ros.core.nominal_calibration.StoredCalibrationCheckParams`);
       the resonance ratio is the estimate over the stored nominal.
+    - ``driveline_compensation`` (VEHICLE-SPECIFIC): driveline and suspension-member modes
       (e.g. 25 and 52 Hz, moving with speed) reach both driven rims in phase and pull each
       driven wheel's AR(2) by several Hz, a bias a calibration at one speed does not absorb.
       Their contribution to each wheel's covariances is the left-right cross-covariance (the
@@ -445,19 +446,16 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         cal = self._calibration
         assert cal is not None
         decided = self.calibration_check.add(trace_hz / cal.nominal_frequency_hz,
-                                  1.0 / self.params.effective_rate_hz, self.params)
+                                             1.0 / self.params.effective_rate_hz, self.params)
         if decided is None or self.calibration_check.fits(decided[0], self.params):
             return
-        ratio, mean = decided
+        median, mean = decided
         resonance = ', '.join(f'{TIRE_NAMES[w]} {m * f0:.1f} Hz' for w, (m, f0) in
                               enumerate(zip(mean, cal.nominal_frequency_hz, strict=True))
                               if np.isfinite(m))
         stored = ', '.join(f'{f0:.1f}' for f0 in cal.nominal_frequency_hz)
-        fit = self.params.calibration_fit_ratio
-        self.calibration_check.misfit = (
-            f'stored calibration does not fit these tires: resonance {resonance} against '
-            f'{stored} Hz stored (median ratio {ratio:.2f}, outside 1/{fit:g}..{fit:g}): made '
-            'on other tires?')
+        self.calibration_check.refuse(f'resonance {resonance}', f'{stored} Hz', median,
+                                      self.params)
         self._calibration = None
 
     # ---------------------------------------------------------- processing

@@ -17,6 +17,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
+from tpms_ros.core.nominal_calibration import StoredCalibrationCheck
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
 from vehicle_monitor_common.calibration_store import Calibratable, CalibrationManager
 from vehicle_monitor_common.parameters import param
@@ -176,15 +177,6 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         """Put a stored calibration in force; ValueError when it does not fit."""
         self._calibration.put_in_force(state)
 
-    def _refuse_stored_calibration(self, why: str) -> None:
-        """The core refused the stored calibration in force (``why``): the node runs
-        uncalibrated and says so; with ``calibrate_on_start`` a new calibration starts at once
-        (the recalibration the refusal asks for)."""
-        self._calibration.refuse(why)
-        self.events.append(self._calibration.detail)
-        if self.node_params.calibrate_on_start:
-            self._calibration.request(self._calibration_duration_s())
-
     def _calibration_event(self, first_s: float, last_s: float) -> None:
         event = self._calibration.update(first_s, last_s)
         if event:
@@ -267,6 +259,18 @@ class CalibratingTpmsProcessor(Generic[C, N, E]):
         if self._last_flags.any():
             problems.warn(f'low tires indicated: {", ".join(low)}')
         return values, problems
+
+
+def follow_calibration_check(manager: CalibrationManager, check: StoredCalibrationCheck,
+                             recalibrate_s: float | None) -> str:
+    """After a chunk: when the core has just refused the stored calibration in force (made
+    on other tires), the manager says so and, with ``recalibrate_s`` (the node's
+    ``calibrate_on_start``), starts the recalibration the refusal asks for. Returns the event
+    for the node's log ('' when nothing happened). Call it after the manager's ``update`` of
+    the chunk, so a new run starts with the next chunk."""
+    if not check.misfit or manager.state != 'loaded':
+        return ''
+    return manager.refuse(check.misfit, recalibrate_s)
 
 
 P = TypeVar('P', bound=CalibratingTpmsProcessor[Any, Any, Any])

@@ -54,6 +54,7 @@ from tpms_ros.core.tires import TIRE_NAMES
 from tpms_ros.processing.calibrating_tpms import (
     CalibratingTpmsParams,
     ProcessAhead,
+    follow_calibration_check,
     offline_calibration_file,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
@@ -348,12 +349,11 @@ class TireStiffnessObserverProcessor:
         event = self._calibration.update(float(t[0]), float(t[-1]))
         if event:
             self.events.append(event)
-        if self.observer.calibration_check.misfit and self._calibration.state == 'loaded':
-            # the tires are uncalibrated now; a recalibration asked for starts next chunk
-            self._calibration.refuse(self.observer.calibration_check.misfit)
-            self.events.append(self._calibration.detail)
-            if self.node_params.calibrate_on_start:
-                self._calibration.request(self.params.calibration_s)
+        event = follow_calibration_check(
+            self._calibration, self.observer.calibration_check,
+            self.params.calibration_s if self.node_params.calibrate_on_start else None)
+        if event:
+            self.events.append(event)
         self._estimate = estimate
         self._last_t = float(t[-1])
         self._follow_faults(estimate)
@@ -452,20 +452,17 @@ class TireStiffnessObserverProcessor:
         }
         for reason, count in self.rejected.items():
             values[f'rejected_messages_{reason}'] = count
+        if calibration.file_problem:
+            values['calibration_file_problem'] = calibration.file_problem
         if calibration.state == 'refused':
             level = ERROR
-            values['calibration_file_problem'] = calibration.file_problem
             problems.append(calibration.detail)
         elif calibration.file_problem:
-            values['calibration_file_problem'] = calibration.file_problem
             problems.append(f'calibration file unusable ({calibration.file_problem})')
         if calibration.state in ('uncalibrated', 'failed'):
             problems.append(calibration.detail)
         elif self.observer.calibration_check.pending:
-            problems.append(f'checking the stored calibration against the tires '
-                            f'({self.observer.calibration_check.progress_s():.1f} / '
-                            f'{p.calibration_check_s:g} s of estimates): tires unknown until '
-                            'then')
+            problems.append(self.observer.calibration_check.status(p))
         elif calibration.state == 'calibrating':
             notes.append(calibration.detail)
         # Rejections are reported while they are recent: the counts stay in the values, the

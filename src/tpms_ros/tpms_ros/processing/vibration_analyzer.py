@@ -53,6 +53,7 @@ from tpms_ros.processing.calibrating_tpms import (
     INDICATION_TYPE,
     CalibratingTpmsParams,
     CalibratingTpmsProcessor,
+    follow_calibration_check,
     from_parameters,
 )
 from tpms_ros.processing.wheel_speeds import WHEEL_SPEEDS_TYPE, decode_wheel_speeds
@@ -220,10 +221,11 @@ class VibrationAnalyzerProcessor(
         self._last_bad_s[faulty] = last_s
         self._follow_faults(faulty, first_s, last_s)
         self._calibration_event(first_s, last_s)
-        # after the calibration's bookkeeping of this block: a recalibration it asks for
-        # starts with the next block
-        if self.core.calibration_check.misfit and self._calibration.state == 'loaded':
-            self._refuse_stored_calibration(self.core.calibration_check.misfit)
+        event = follow_calibration_check(
+            self._calibration, self.core.calibration_check,
+            self._calibration_duration_s() if self.node_params.calibrate_on_start else None)
+        if event:
+            self.events.append(event)
         self._last_stamp_s = last_s
         if last_s - self._last_publish_s >= 1.0 / self.node_params.publish_rate_hz - 1e-9:
             return self._outputs(estimate, self._buffer_last_ns, last_s)
@@ -347,9 +349,7 @@ class VibrationAnalyzerProcessor(
         if new_rejections:
             problems.warn('wheel-speed messages rejected: ' + new_rejections)
         if self.core.calibration_check.pending:
-            problems.warn(f'checking the stored calibration against the tires '
-                          f'({self.core.calibration_check.progress_s():.1f} / '
-                          f'{p.calibration_check_s:g} s of estimates): tires unknown until then')
+            problems.warn(self.core.calibration_check.status(p))
         problems.extend(tire_problems)
         rejected_total = sum(rejected.values()) + int(rejected_values.sum())
         return problems.status(values, f'ok ({rejected_total} samples rejected so far)'
