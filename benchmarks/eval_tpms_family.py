@@ -34,6 +34,8 @@ also writes one row per target of the issue (pass rate, worst case) as the main 
 scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
 ``docs/results/tpms_family.json``), after a run or from saved runs:
 ``python benchmarks/eval_tpms_family.py --report RUNS.json --scoreboard PATH [--commit SHA]``.
+``--traces DIR`` keeps each run's indications as the voter got them, tick by tick, so another
+voting rule can be judged on the same runs without replaying them (:func:`revote`).
 """
 
 from __future__ import annotations
@@ -113,6 +115,10 @@ class Settings:
     # Where simulated drives are kept ('' = not kept): a replay with other method settings
     # then costs ~6 s instead of ~46 s (the drive depends only on the car, case and timing).
     sim_cache: str = ''
+    # Where each run's traces are written ('' = not written): the methods' indications as the
+    # voter saw them at each tick, so voting rules can be compared without replaying
+    # (:func:`revote`).
+    traces: str = ''
 
 
 @dataclass(frozen=True)
@@ -201,6 +207,10 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
     chunk = max(1, round(STIFFNESS_CHUNK_S * fs))
     n_ticks = t_w.size // block
     conf = {m: np.zeros((n_ticks, 4)) for m in METHODS}
+    # the indications as the voter got them (stamp, flags, confidences, known), per tick
+    seen = {m: {'stamp': np.full(n_ticks, np.nan), 'flags': np.zeros((n_ticks, 4), bool),
+                'conf': np.zeros((n_ticks, 4)), 'known': np.zeros((n_ticks, 4), bool)}
+            for m in METHODS}
     warnings = {s: np.zeros((n_ticks, 4), dtype=bool) for s in voters}
     pressure = np.full((n_ticks, 4), np.nan)
     valid = np.zeros((n_ticks, 4), dtype=bool)
@@ -260,6 +270,10 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
             ind = latest.get(m)
             if ind is not None:
                 conf[m][k] = np.where(ind.known, ind.confidence, 0.0)
+                row = seen[m]
+                row['stamp'][k] = ind.stamp_s
+                row['flags'][k], row['conf'][k], row['known'][k] = (
+                    ind.underinflated, ind.confidence, ind.known)
         for name, voter in voters.items():
             use = [latest[m] for m in voter.params.method_thresholds if m in latest]
             warnings[name][k] = voter.evaluate(now, use).warning
@@ -274,7 +288,22 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
     return {'t': ticks, 'conf': conf, 'warnings': warnings, 'pressure': pressure,
             'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors,
             'calibrated_at_s': calibrated_at, 'trust': trust,
-            'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0}
+            'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0,
+            'indications': seen}
+
+
+def revote(tr: dict[str, Any], params: VoterParams) -> np.ndarray:
+    """(ticks, 4) warnings of a voter with ``params`` on a run's recorded indications (the
+    ``indications`` of :func:`replay`): what that voter would have warned in the run."""
+    voter = TpmsVoter(params)
+    seen = tr['indications']
+    out = np.zeros((tr['t'].size, 4), dtype=bool)
+    for k, now in enumerate(tr['t']):
+        use = [TpmsIndication(m, float(seen[m]['stamp'][k]), seen[m]['flags'][k],
+                              seen[m]['conf'][k], seen[m]['known'][k])
+               for m in params.method_thresholds if np.isfinite(seen[m]['stamp'][k])]
+        out[k] = voter.evaluate(float(now), use).warning
+    return out
 
 
 def _first_all(t: np.ndarray, warn: np.ndarray, tires: tuple[int, ...], after: float
@@ -377,6 +406,12 @@ def run_job(job: Job) -> dict[str, Any]:
     t_sim = time.perf_counter() - t0
     tr = replay(result, car, job.settings)
     rec = score(job, car, tr, tires, reached)
+    if job.settings.traces:
+        path = Path(job.settings.traces) / f'car{job.seed}_{job.case}_{job.drive}.pkl'
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open('wb') as f:
+            pickle.dump({'job': job, 'tires': tires, 'reached_s': reached, 'trace': tr}, f,
+                        protocol=pickle.HIGHEST_PROTOCOL)
     rec['car'] = car.describe()
     rec['wall_s'] = [t_sim, time.perf_counter() - t0 - t_sim]
     return rec
@@ -631,6 +666,8 @@ def main() -> None:
                              '(tire data) instead of the default line')
     parser.add_argument('--sim-cache', default='',
                         help='directory keeping the simulated drives for later replays')
+    parser.add_argument('--traces', default='',
+                        help="directory for each run's traces (the voter's inputs per tick)")
     parser.add_argument('--workers', type=int, default=1)
     parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
     parser.add_argument('--report', type=Path, nargs='+',
@@ -654,7 +691,7 @@ def main() -> None:
         return
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
-                        args.law_given, args.sim_cache)
+                        args.law_given, args.sim_cache, args.traces)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])
