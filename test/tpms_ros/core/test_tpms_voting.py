@@ -6,15 +6,18 @@ import numpy as np
 import pytest
 
 from tpms_ros.core.tires import TpmsIndication
-from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams, method_votes_params
+from vehicle_monitor_common.parameters import parameter_specs
 
 H0, H_VIB, H_RAD = 0.5, 0.8, 0.7
 
 
 def make_voter(**kw: float) -> TpmsVoter:
-    """Voter with two methods, no hold-off unless asked."""
+    """Voter with two methods by the paper's rule (no method needs support), no hold-off
+    unless asked."""
     params = dict(h0=H0, method_thresholds={'vibration': H_VIB, 'wheel_radius': H_RAD},
-                  max_age_s=2.0, set_on_s=0.0, set_off_s=0.0, clear_ratio=0.7)
+                  method_support={}, max_age_s=2.0, set_on_s=0.0, set_off_s=0.0,
+                  clear_ratio=0.7)
     params.update(kw)
     return TpmsVoter(VoterParams(**params))  # type: ignore[arg-type]
 
@@ -52,6 +55,53 @@ def test_truth_table_of_the_paper_rule(vib: tuple[int, float], rad: tuple[int, f
     assert not result.warning[1:].any()
     assert result.active is expected
     assert set(result.methods_used) == {'vibration', 'wheel_radius'}
+
+
+@pytest.mark.parametrize(('radius', 'expected'), [
+    ((0, 0.1, 1), False),   # counted and confidently not low: no support
+    ((0, 0.29, 1), False),  # just below the support
+    ((0, 0.35, 1), True),   # some evidence, though it does not flag the tire
+    ((0, 0.0, 0), True),    # the tire unknown to the other method: vibration decides alone
+])
+def test_a_method_needing_support_warns_alone_only_with_it(
+        radius: tuple[int, float, int], expected: bool) -> None:
+    """Vibration at 0.95 (> its h 0.8) against the wheel radius method's view of the tire,
+    with vibration's support 0.3."""
+    voter = make_voter(method_support={'vibration': 0.3})
+    flag, conf, known = radius
+    result = voter.evaluate(1.0, [
+        ind('vibration', 1.0, [1, 0, 0, 0], [0.95, 0, 0, 0]),
+        ind('wheel_radius', 1.0, [flag, 0, 0, 0], [conf, 0, 0, 0], [known, 1, 1, 1])])
+    assert bool(result.warning[0]) is expected
+    assert result.confidence[0] == pytest.approx(0.95)
+    assert any('without support' in r for r in result.reasons) is not expected
+
+
+def test_only_the_vibration_method_needs_support_by_default() -> None:
+    """The node's per-method parameters and the core's defaults say the same."""
+    specs = {p.name: p.default for p in parameter_specs(
+        method_votes_params(['stiffness', 'vibration', 'wheel_radius']))}
+    assert specs['vibration.support'] == 0.3
+    assert specs['stiffness.support'] == specs['wheel_radius.support'] == 0.0
+    assert VoterParams().method_support == {'vibration': 0.3}
+    assert VoterParams().only(['stiffness']).method_support == {}
+
+
+def test_support_sets_a_warning_it_need_not_hold() -> None:
+    """Once set with support, the warning is held by the method's own evidence when the
+    support goes (no flickering as the other method's confidence wanders), and the method
+    needing no support (radius) still warns alone."""
+    voter = make_voter(method_support={'vibration': 0.3}, set_off_s=1.0)
+    vib = [1, 0, 0, 0], [0.95, 0, 0, 0]
+    assert voter.evaluate(1.0, [ind('vibration', 1.0, *vib),
+                                ind('wheel_radius', 1.0, [0] * 4, [0.4, 0, 0, 0])]).warning[0]
+    for t in (2.0, 3.0, 4.0, 5.0):
+        held = voter.evaluate(t, [ind('vibration', t, *vib),
+                                  ind('wheel_radius', t, [0] * 4, [0.05, 0, 0, 0])])
+        assert held.warning[0]
+    alone = voter.evaluate(6.0, [ind('vibration', 6.0, [0] * 4, [0.0] * 4),
+                                 ind('wheel_radius', 6.0, [0, 1, 0, 0], [0, 0.75, 0, 0])])
+    assert alone.warning[1]
 
 
 def test_agreement_warns_on_smaller_losses_than_either_alone() -> None:

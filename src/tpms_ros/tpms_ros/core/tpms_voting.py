@@ -11,7 +11,14 @@ two methods, generalised here per tire and to any number of methods:
 * every counted method flags j and there are at least two of them (agreement, t1 = t2) ->
   condition if the mean confidence exceeds h0;
 * otherwise (disagreement, or a single method) -> condition if any flagging method's confidence
-  exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses.
+  exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses. Beyond the paper, a
+  method may need support to warn alone (its ``support`` s_i > 0): another counted method
+  must then show at least s_i for the tire (with no other method counted it warns alone as
+  before). It answers a method that is confidently wrong on some cars while
+  the others see nothing (issue 21: the vibration method on a driven axle, whose differential
+  couples the two rims, warned healthy tires at confidence 1.00 with the wheel radius and
+  stiffness methods below 0.6); unsupported, its evidence still holds a warning it helped to
+  set, it only cannot set one.
 
 The condition is turned into a warning with hold-off and hysteresis: the warning is set once the
 condition has held for ``set_on_s`` net (an up/down timer); it clears once the evidence has
@@ -26,7 +33,7 @@ No ROS import: ``tpms_voter`` converts ``TpmsIndication`` messages to :class:`Tp
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, make_dataclass, replace
+from dataclasses import dataclass, field, fields, make_dataclass, replace
 import math
 from typing import Any
 
@@ -46,19 +53,43 @@ class MethodVoteParams:
     threshold: float = param(
         0.8, 'own threshold h_i of the method, used when the methods disagree or only it is '
         'fresh (> h0)', low=0.0, high=1.0)
+    support: float = param(
+        0.0, 'to warn alone (the counted methods disagree), another counted method must show '
+        'at least this confidence for the tire (none counted: no support needed); 0: the '
+        "paper's rule", low=0.0, high=1.0)
 
 
 # The methods voted by default, in the order the voter iterates them.
 DEFAULT_METHODS = ('vibration', 'wheel_radius', 'stiffness')
+# The vibration method warns alone only with another method's confidence at least this
+# (chosen on the car family's tuning cars, docs/methods/tpms_voter.md): on a driven axle it
+# can be confidently wrong where the others see nothing. The others need no support: the
+# stiffness method alone must warn of diffusion, which the wheel radius method cannot see.
+DEFAULT_SUPPORT = {'vibration': 0.3}
+
+
+def _method_vote_params(method: str) -> type[MethodVoteParams]:
+    """:class:`MethodVoteParams` with the method's default support."""
+    support = DEFAULT_SUPPORT.get(method, 0.0)
+    if support == MethodVoteParams().support:
+        return MethodVoteParams
+    declared = next(f for f in fields(MethodVoteParams) if f.name == 'support')
+    return make_dataclass(
+        f'{method.title().replace("_", "")}VoteParams',
+        [('support', float, param(support, declared.metadata['description'],
+                                  low=declared.metadata['low'],
+                                  high=declared.metadata['high']))],
+        bases=(MethodVoteParams,), frozen=True)
 
 
 def method_votes_params(methods: Sequence[str]) -> type[Any]:
     """A parameter class with one :class:`MethodVoteParams` group per method: the method set
     is configuration (the node's ``methods``), so the class is built for it."""
+    groups = {m: _method_vote_params(m) for m in methods}
     return make_dataclass(
         'MethodVotesParams',
-        [(m, MethodVoteParams, group(MethodVoteParams, f'the {m} method in the vote'))
-         for m in methods], frozen=True)
+        [(m, cls, group(cls, f'the {m} method in the vote')) for m, cls in groups.items()],
+        frozen=True)
 
 
 @dataclass(frozen=True)
@@ -96,10 +127,14 @@ class VoterParams(VotingRuleParams):
     Attributes:
         method_thresholds: method name -> its own threshold h_i (each > h0), used when the
             methods disagree or only one is available. Only these methods are voted.
+        method_support: method name -> the confidence another counted method must show for
+            it to warn alone (missing or 0: none needed).
     """
 
     method_thresholds: Mapping[str, float] = field(
         default_factory=lambda: dict.fromkeys(DEFAULT_METHODS, MethodVoteParams().threshold))
+    method_support: Mapping[str, float] = field(
+        default_factory=lambda: dict(DEFAULT_SUPPORT))
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -111,11 +146,19 @@ class VoterParams(VotingRuleParams):
                     f'VoterParams.method_thresholds[{name!r}] must be in (h0={self.h0}, 1), '
                     f'got {h}')
         object.__setattr__(self, 'method_thresholds', dict(self.method_thresholds))
+        for name, support in self.method_support.items():
+            if not (math.isfinite(support) and 0.0 <= support <= 1.0):
+                raise ValueError(f'VoterParams.method_support[{name!r}] must be in [0, 1], '
+                                 f'got {support}')
+        object.__setattr__(self, 'method_support', dict(self.method_support))
 
     def only(self, methods: Iterable[str]) -> VoterParams:
         """The same parameters voting only ``methods`` (each with its own threshold): e.g. a
         method alone, as the paper's per-method time to warning."""
-        return replace(self, method_thresholds={m: self.method_thresholds[m] for m in methods})
+        methods = list(methods)
+        return replace(self, method_thresholds={m: self.method_thresholds[m] for m in methods},
+                       method_support={m: v for m, v in self.method_support.items()
+                                       if m in methods})
 
 
 @dataclass(frozen=True)
@@ -227,6 +270,17 @@ class TpmsVoter:
             (self._warning, self._on_time, self._off_time, self._last_eval_s,
              self._last_result) = held
 
+    def _supported(self, used: list[str], counted: np.ndarray, conf: np.ndarray) -> np.ndarray:
+        """(methods, 4): where each used method may warn alone: it needs no support, no other
+        method is counted for the tire, or another counted one shows at least its support."""
+        needed = np.array([self.params.method_support.get(m, 0.0) for m in used])
+        out = np.ones(counted.shape, dtype=bool)
+        for i in np.flatnonzero(needed > 0.0):
+            others = np.delete(counted, i, axis=0)
+            other_conf = np.where(others, np.delete(conf, i, axis=0), -1.0)
+            out[i] = ~others.any(axis=0) | (other_conf.max(axis=0, initial=-1.0) >= needed[i])
+        return out
+
     def _vote(self, now_s: float) -> TpmsWarningResult:
         """The vote at ``now_s`` (not before the last one): timers advanced, result kept."""
         dt = 0.0 if self._last_eval_s is None else now_s - self._last_eval_s
@@ -271,18 +325,21 @@ class TpmsVoter:
 
         mean_conf = np.where(counted, conf, 0.0).sum(axis=0) / np.maximum(n_counted, 1)
         # disagreement: each flagging method against its own threshold; the margin c/h tells
-        # which method is strongest relative to its threshold
+        # which method is strongest relative to its threshold (the one the reasons name)
         margin_own = np.where(flagging, conf / h_own[:, None], 0.0) if used else \
             np.zeros((0, N_TIRES))
-        best = margin_own.argmax(axis=0) if used else np.zeros(N_TIRES, dtype=int)
+        supported = self._supported(used, counted, conf)
+        # a method needing support sets a warning only with it; its evidence holds one anyway
+        margin_set = np.where(supported, margin_own, 0.0)
         max_flag_conf = np.where(flagging, conf, 0.0).max(axis=0) if used else \
             np.zeros(N_TIRES)
         best_margin = margin_own.max(axis=0) if used else np.zeros(N_TIRES)
+        best_set = margin_set.max(axis=0) if used else np.zeros(N_TIRES)
 
         confidence = np.where(agree, mean_conf, np.where(n_flagging > 0, max_flag_conf, 0.0))
         # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears
         ratio = np.where(agree, mean_conf / p.h0, best_margin)
-        condition = (n_flagging > 0) & (ratio > 1.0)
+        condition = (n_flagging > 0) & (np.where(agree, ratio, best_set) > 1.0)
         below_clear = (n_flagging == 0) | (ratio < p.clear_ratio)
         informed = n_counted > 0
 
@@ -318,9 +375,13 @@ class TpmsVoter:
                 rule = (f'{tire}: {" + ".join(names)} agree, mean confidence '
                         f'{mean_conf[j]:.2f} vs h0 {p.h0:.2f}')
             else:
-                m = used[best[j]]
+                i = int(margin_own[:, j].argmax())
+                m = used[i]
                 rule = (f'{tire}: flagged by {", ".join(names)} only, {m} confidence '
-                        f'{conf[best[j], j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
+                        f'{conf[i, j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
+                if not supported[i, j]:
+                    rule += (f', without support (another method at least '
+                             f'{p.method_support[m]:.2f} needed)')
             state = 'WARNING' if self._warning[j] else (
                 f'condition held {self._on_time[j]:.1f}/{p.set_on_s:.1f} s' if condition[j]
                 else 'below threshold')

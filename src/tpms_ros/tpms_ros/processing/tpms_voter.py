@@ -97,7 +97,8 @@ class TpmsVoterNodeParams(ProcessorParams):
 def voter_params(rule: VotingRuleParams, votes: Any) -> VoterParams:
     """The core's parameters from the rule and the per-method groups."""
     return VoterParams(**flatten(rule), method_thresholds={
-        m: vote.threshold for m, vote in vars(votes).items()})
+        m: vote.threshold for m, vote in vars(votes).items()}, method_support={
+        m: vote.support for m, vote in vars(votes).items()})
 
 
 class TpmsVoterProcessor:
