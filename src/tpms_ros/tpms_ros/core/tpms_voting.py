@@ -14,11 +14,11 @@ two methods, generalised here per tire and to any number of methods:
   exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses. Beyond the paper, a
   method may need support to warn alone (its ``support`` s_i > 0): another counted method
   must then show at least s_i for the tire (with no other method counted it warns alone as
-  before). It answers a method that is confidently wrong on some cars while
-  the others see nothing (issue 21: the vibration method on a driven axle, whose differential
-  couples the two rims, warned healthy tires at confidence 1.00 with the wheel radius and
-  stiffness methods below 0.6); unsupported, its evidence still holds a warning it helped to
-  set, it only cannot set one.
+  before). It answers a method that is confidently wrong on some cars while the others see
+  nothing (issue 21: the vibration method on a driven axle, whose differential couples the
+  two rims, warned healthy tires at confidence 1.00 with the wheel radius and stiffness
+  methods below 0.6). Unsupported, its evidence cannot set a warning but still holds one it
+  helped to set.
 
 The condition is turned into a warning with hold-off and hysteresis: the warning is set once the
 condition has held for ``set_on_s`` net (an up/down timer); it clears once the evidence has
