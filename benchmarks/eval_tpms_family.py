@@ -614,11 +614,13 @@ def scoreboard_rows(records: list[dict[str, Any]]) -> list[FamilyRow]:
 
 def write_scoreboard(path: Path, records: list[dict[str, Any]], commit: str, date: str,
                      settings: dict[str, Any]) -> None:
-    """The committed result file the main job's scoreboard shows."""
+    """The committed result file the main job's scoreboard shows (without the settings that
+    only say where files were kept: they change no result)."""
     seeds = tuple(sorted({int(r['seed']) for r in records}))
+    kept = {k: v for k, v in settings.items() if k not in ('sim_cache', 'traces')}
     results = FamilyResults('benchmarks/eval_tpms_family.py', commit, date, seeds,
                             all(s in HELD_OUT_SEEDS for s in seeds),
-                            tuple(scoreboard_rows(records)), settings)
+                            tuple(scoreboard_rows(records)), kept)
     write_family_results(path, results)
     print(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
 
