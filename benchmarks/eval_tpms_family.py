@@ -35,13 +35,14 @@ scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
 ``docs/results/tpms_family.json``), after a run or from saved runs:
 ``python benchmarks/eval_tpms_family.py --report RUNS.json --scoreboard PATH [--commit SHA]``.
 ``--traces DIR`` keeps each run's indications as the voter got them, tick by tick, so another
-voting rule can be judged on the same runs without replaying them (:func:`revote`).
+voting rule can be judged on the same runs without replaying them (:func:`load_trace`,
+:func:`revote`, :func:`score`).
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 import json
 import math
 import multiprocessing
@@ -206,7 +207,6 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
     block = max(1, round(VIBRATION_BLOCK_S * fs))
     chunk = max(1, round(STIFFNESS_CHUNK_S * fs))
     n_ticks = t_w.size // block
-    conf = {m: np.zeros((n_ticks, 4)) for m in METHODS}
     # the indications as the voter got them (stamp, flags, confidences, known), per tick
     seen = {m: {'stamp': np.full(n_ticks, np.nan), 'flags': np.zeros((n_ticks, 4), bool),
                 'conf': np.zeros((n_ticks, 4)), 'known': np.zeros((n_ticks, 4), bool)}
@@ -269,7 +269,6 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
         for m in METHODS:
             ind = latest.get(m)
             if ind is not None:
-                conf[m][k] = np.where(ind.known, ind.confidence, 0.0)
                 row = seen[m]
                 row['stamp'][k] = ind.stamp_s
                 row['flags'][k], row['conf'][k], row['known'][k] = (
@@ -285,11 +284,23 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
     truth = np.column_stack([np.interp(ticks, result.handling.t, result.pressure_kpa[:, w])
                              for w in range(4)])
     speed = np.interp(ticks, result.handling.t, np.asarray(result.handling.vx))
+    # each method's confidence where it knew the tire (0 where not, or before its first)
+    conf = {m: np.where(seen[m]['known'], seen[m]['conf'], 0.0) for m in METHODS}
     return {'t': ticks, 'conf': conf, 'warnings': warnings, 'pressure': pressure,
             'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors,
             'calibrated_at_s': calibrated_at, 'trust': trust,
             'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0,
             'indications': seen}
+
+
+def load_trace(path: Path) -> tuple[Job, tuple[int, ...], float, dict[str, Any]]:
+    """A run's traces written with ``--traces``: (job, faulty tires, time the loss reached its
+    level, the :func:`replay` traces), as :func:`score` takes them."""
+    with path.open('rb') as f:
+        saved = pickle.load(f)
+    job = dict(saved['job'])
+    job['settings'] = Settings(**job['settings'])
+    return Job(**job), tuple(saved['tires']), float(saved['reached_s']), saved['trace']
 
 
 def revote(tr: dict[str, Any], params: VoterParams) -> np.ndarray:
@@ -410,8 +421,9 @@ def run_job(job: Job) -> dict[str, Any]:
         path = Path(job.settings.traces) / f'car{job.seed}_{job.case}_{job.drive}.pkl'
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open('wb') as f:
-            pickle.dump({'job': job, 'tires': tires, 'reached_s': reached, 'trace': tr}, f,
-                        protocol=pickle.HIGHEST_PROTOCOL)
+            # plain data (no class of this script), so any process can load it: load_trace
+            pickle.dump({'job': asdict(job), 'tires': tires, 'reached_s': reached,
+                         'trace': tr}, f, protocol=pickle.HIGHEST_PROTOCOL)
     rec['car'] = car.describe()
     rec['wall_s'] = [t_sim, time.perf_counter() - t0 - t_sim]
     return rec
