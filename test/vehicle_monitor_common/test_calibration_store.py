@@ -138,9 +138,6 @@ class _SelfTimedEstimator(_FakeEstimator):
         super().__init__(enough=True)
         self.complete = False
 
-    def calibration_complete(self) -> bool:
-        return self.complete
-
     def calibration_missing(self) -> str:
         return '' if self.complete else 'FL 3.0 of 10 s of valid data'
 

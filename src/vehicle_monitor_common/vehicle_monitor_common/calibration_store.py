@@ -116,9 +116,9 @@ class Calibratable(Protocol):
     """What a calibrating estimator offers (the TPMS cores' method names).
 
     By default the calibration window is data time, counted by :class:`CalibrationManager`; an
-    estimator that also counts valid data itself offers ``calibration_complete`` and
-    ``calibration_missing`` (:class:`SelfTimedCalibratable`): its window goes on, collecting
-    valid data as it comes, until it is complete.
+    estimator that also counts valid data itself offers ``calibration_missing``
+    (:class:`SelfTimedCalibratable`): its window goes on, collecting valid data as it comes,
+    until nothing is missing.
     """
 
     def start_calibration(self) -> None:
@@ -137,9 +137,6 @@ class Calibratable(Protocol):
 @runtime_checkable
 class SelfTimedCalibratable(Calibratable, Protocol):
     """A calibrating estimator that decides itself when its run has enough valid data."""
-
-    def calibration_complete(self) -> bool:
-        """The running calibration has collected what it needs (then ``finish_calibration``)."""
 
     def calibration_missing(self) -> str:
         """What the running calibration still lacks, for the status ('' when complete)."""
