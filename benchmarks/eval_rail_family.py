@@ -52,7 +52,7 @@ import os
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+from collections.abc import Mapping, Sequence  # noqa: E402
 from dataclasses import dataclass, field, replace  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
@@ -61,6 +61,7 @@ import time  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+import yaml  # noqa: E402
 
 from rail_monitor_ros.core import suspension_imm as imm_module  # noqa: E402
 from rail_monitor_ros.core.creep_ekf import (  # noqa: E402
@@ -295,7 +296,8 @@ class ImmCase:
                 and self.false_declarations == 0)
 
 
-def imm_params(car: FamilyCar, speed: float) -> SuspensionImmParams:
+def imm_params(car: FamilyCar, speed: float, overrides: Mapping[str, Any] | None = None,
+               ) -> SuspensionImmParams:
     sensors = car.sensors
     spectrum = TRACK_SPECTRA[car.spectrum]
     values = {**vehicle_values(car, speed),
@@ -305,7 +307,7 @@ def imm_params(car: FamilyCar, speed: float) -> SuspensionImmParams:
               'bogie_accel_noise_mps2': sensors.bogie_accel_noise,
               'bogie_gyro_noise_rad_s': sensors.bogie_gyro_noise,
               'body_accel_noise_mps2': sensors.body_accel_noise,
-              'known_track_std_m': max(car.map_error_rms, 1e-5)}
+              'known_track_std_m': max(car.map_error_rms, 1e-5), **(overrides or {})}
     return build(SuspensionImmParams, values)
 
 
@@ -316,12 +318,13 @@ def _clear_shared_cache() -> None:
 
 
 def run_imm(car: FamilyCar, speed: float, result: RailSimulationResult,
-            ) -> tuple[ImmRunResult, float]:
+            overrides: Mapping[str, Any] | None = None) -> tuple[ImmRunResult, float]:
     _clear_shared_cache()
     z = np.column_stack([result.bogie_lateral_accel, result.bogie_yaw_rate,
                          result.body_lateral_accel])
     start = time.process_time()
-    run = run_suspension_imm(z, result.measured_track_alignment, imm_params(car, speed),
+    run = run_suspension_imm(z, result.measured_track_alignment,
+                             imm_params(car, speed, overrides),
                              time=result.time)
     return run, time.process_time() - start
 
@@ -338,12 +341,13 @@ def _rising(flags: np.ndarray) -> int:
     return int(np.count_nonzero(flags[1:] & ~flags[:-1]) + bool(flags[0]))
 
 
-def imm_fault_case(car: FamilyCar, speed: float, kind: str, key: int) -> ImmCase:
+def imm_fault_case(car: FamilyCar, speed: float, kind: str, key: int,
+                   overrides: Mapping[str, Any] | None = None) -> ImmCase:
     ratio = fault_ratio(car, kind, key)
     scenario = suspension_fault_scenario(car, speed, case_seed(car, 200 + key), kind, ratio,
                                          FAULT_ONSET_S, FAULT_DURATION_S)
     result = simulate(scenario)
-    run, cpu = run_imm(car, speed, result)
+    run, cpu = run_imm(car, speed, result, overrides)
     case = ImmCase(car.seed, speed, kind, ratio, seconds=cpu)
     t = result.time
     dt = float(t[1] - t[0])
@@ -365,9 +369,10 @@ def imm_fault_case(car: FamilyCar, speed: float, kind: str, key: int) -> ImmCase
     return case
 
 
-def imm_healthy_case(car: FamilyCar, speed: float, duration: float, key: int) -> ImmCase:
+def imm_healthy_case(car: FamilyCar, speed: float, duration: float, key: int,
+                     overrides: Mapping[str, Any] | None = None) -> ImmCase:
     result = simulate(healthy_scenario(car, speed, case_seed(car, 300 + key), duration))
-    run, cpu = run_imm(car, speed, result)
+    run, cpu = run_imm(car, speed, result, overrides)
     case = ImmCase(car.seed, speed, 'healthy', 1.0, seconds=cpu)
     dt = float(result.time[1] - result.time[0])
     case.false_declarations = _rising(run.fault_detected)
@@ -380,7 +385,7 @@ def imm_healthy_case(car: FamilyCar, speed: float, duration: float, key: int) ->
 
 
 def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
-                ) -> list[ImmCase]:
+                overrides: Mapping[str, Any] | None = None) -> list[ImmCase]:
     _say(f'\n== Suspension IMM: {len(cars)} cars x {n_speeds} speeds in '
          f'{IMM_SPEED_RANGE[0]:g}-{IMM_SPEED_RANGE[1]:g} m/s (spring, damper, healthy '
          f'{healthy_s:g} s)')
@@ -392,7 +397,7 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
                  f'{IMM_SPEED_RANGE} m/s below the margin')
         for index, speed in enumerate(speeds):
             for kind in ('spring', 'damper'):
-                case = imm_fault_case(car, speed, kind, index)
+                case = imm_fault_case(car, speed, kind, index, overrides)
                 cases.append(case)
                 _say(f'car {car.seed} {speed:5.1f} m/s {kind:6s} {100 * case.ratio:3.0f} %: '
                      f'p>0.5 after {case.delay:.3f} s, declared after '
@@ -402,7 +407,7 @@ def imm_section(cars: Sequence[FamilyCar], n_speeds: int, healthy_s: float,
                      f'{case.end_component}, false before {case.false_declarations} '
                      f'({case.seconds:.1f} s cpu){"" if case.passes() else "  FAIL"}')
             if healthy_s > 0:
-                case = imm_healthy_case(car, speed, healthy_s, index)
+                case = imm_healthy_case(car, speed, healthy_s, index, overrides)
                 cases.append(case)
                 _say(f'car {car.seed} {speed:5.1f} m/s healthy {healthy_s:g} s: '
                      f'{case.false_declarations} declared ({case.false_declared_s:.2f} s), '
@@ -555,6 +560,14 @@ def write_scoreboard(path: str, out: dict[str, Any], commit: str) -> None:
     _say(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
 
 
+def _name_value(text: str) -> tuple[str, Any]:
+    """``name=value`` with the value read as YAML (numbers, booleans, lists)."""
+    name, sep, value = text.partition('=')
+    if not sep:
+        raise SystemExit(f'--imm-set {text!r}: expected NAME=VALUE')
+    return name.strip(), yaml.safe_load(value)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', choices=('held-out', 'development'), default='held-out')
@@ -574,6 +587,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='ablation: the creep EKF without its sensor offset states')
     parser.add_argument('--no-offsets', action='store_true',
                         help='ablation: the cars without their constant sensor offsets')
+    parser.add_argument('--imm-set', action='append', default=[], metavar='NAME=VALUE',
+                        help='a suspension monitor parameter for every IMM run (repeatable), '
+                             'e.g. adaptation_freeze_s=0.25')
     parser.add_argument('--json', help='write the per-case figures here')
     parser.add_argument('--scoreboard', default=None,
                         help='also write the per-target result file the main job shows '
@@ -597,6 +613,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error('the --json file does not say its commit: give --commit')
         write_scoreboard(args.scoreboard, saved, commit)
         return 0
+    imm_overrides = dict(_name_value(item) for item in args.imm_set)
     seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS
     if args.cars > 0:
         seeds = seeds[:args.cars]
@@ -619,14 +636,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         'settings': {'speeds': args.speeds, 'healthy_s': args.healthy_s,
                      'creep_configs': configs, 'creep_track_model': args.creep_track_model,
                      'offset_states': not args.no_offset_states,
-                     'sensor_offsets': not args.no_offsets}}
+                     'sensor_offsets': not args.no_offsets, 'imm_set': imm_overrides}}
     start = time.time()
     if not args.skip_creep:
         out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs,
                                                      args.creep_track_model,
                                                      not args.no_offset_states)]
     if not args.skip_imm:
-        out['imm'] = [vars(c) for c in imm_section(cars, args.speeds, args.healthy_s)]
+        out['imm'] = [vars(c) for c in imm_section(cars, args.speeds, args.healthy_s,
+                                                   imm_overrides)]
     _say(f'\ntotal {time.time() - start:.0f} s wall')
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as handle:

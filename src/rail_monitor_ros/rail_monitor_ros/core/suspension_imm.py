@@ -312,7 +312,7 @@ class SuspensionImmParams:
                                        low=0.01, high=1e6, read_only=True)
     probability_floor: float = param(1e-9, 'lower bound of every mode probability, 1',
                                      low=0.0, high=0.009, read_only=True)
-    smoothing_window_s: float = param(0.1, 'moving-average window of the probabilities (at '
+    smoothing_window_s: float = param(0.05, 'moving-average window of the probabilities (at '
                                       'least one sample), s', low=1e-6, high=60.0,
                                       read_only=True)
     adaptive: bool = param(True, 'damper modes take the estimated spring ratio (compound '
