@@ -84,6 +84,24 @@ def test_compound_after_a_declared_spring_fault() -> None:
     assert _run(decision, keys, [0.1, 0.1, 0.8], 7)[-1] == 'spring+damper'
 
 
+def test_a_declared_compound_stands_when_the_bank_holds_no_compound() -> None:
+    """'spring+damper' declared, then the adaptive step moves the damper modes' spring back near
+    nominal, so no hypothesis is a compound any more (the main job's compound bag crashed here
+    with the 0.05 s smoothing): the declaration and its last size stand; confirmed normal
+    still clears it."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, clear_time_s=0.1,
+                             min_deviation=0.15)
+    keys = [NORMAL, SPRING_150, COMPOUND_150_50]
+    _run(decision, keys, [0.1, 0.9, 0.0], 7)
+    assert _run(decision, keys, [0.1, 0.1, 0.8], 7)[-1] == 'spring+damper'
+    moved = [NORMAL, SPRING_150, (1.1, 0.5)]
+    status = decision.update(moved, np.array([0.1, 0.1, 0.8]))
+    assert (status.component, status.spring_ratio, status.damper_ratio) == (
+        'spring+damper', 1.5, 0.5)
+    assert status.probability == 0.0
+    assert _run(decision, moved, [0.9, 0.05, 0.05], 12)[-1] == ''
+
+
 def test_state_round_trip_and_bad_arguments() -> None:
     decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
     keys = [NORMAL, SPRING_150]

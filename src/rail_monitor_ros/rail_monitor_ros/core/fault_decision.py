@@ -187,9 +187,12 @@ class FaultDecision:
         if declared == '':
             self._declared = NORMAL_HYPOTHESIS
             return NO_FAULT
-        # Sized by the most probable hypothesis of the declared component, every sample.
-        best_group = max((g for g, component in enumerate(group_components)
-                          if component == declared), key=totals.__getitem__)
-        self._declared = group_keys[best_group]
+        # Sized by the most probable hypothesis of the declared component, every sample. The
+        # bank may hold none for a while (the adaptive step moved the damper modes' spring
+        # back near nominal, so no hypothesis is a compound): the declaration and its last
+        # size stand, as through any other dip.
+        carrying = [g for g, component in enumerate(group_components) if component == declared]
+        if carrying:
+            self._declared = group_keys[max(carrying, key=totals.__getitem__)]
         return FaultStatus(True, declared, self._declared[0], self._declared[1],
-                           components[declared])
+                           components.get(declared, 0.0))
