@@ -1,6 +1,7 @@
 """Property-based layer of the fault injection (Hypothesis): random sequences of clean and
-faulty input on the cores and the stamp check. Whatever the sequence, nothing raises, nothing
-non-finite is reported as known, and probabilities stay probabilities."""
+faulty input on the cores, the stamp check and the suspension fault decision. Whatever the
+sequence, nothing raises, nothing non-finite is reported as known, and probabilities stay
+probabilities."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 
+from rail_monitor_ros.core.fault_decision import FAULT_COMPONENTS, FaultDecision, fault_component
 from vehicle_monitor_common.input_health import StampCheck
 
 MS = 1_000_000
@@ -139,3 +141,38 @@ def test_imm_probabilities_stay_probabilities(samples: list[tuple[str, int]]) ->
             assert np.all(np.isfinite(p)) and np.all((p >= 0) & (p <= 1 + 1e-12))
             assert abs(p.sum() - 1.0) < 1e-9
         assert np.all(np.isfinite(step.state))
+
+
+# One sample of the suspension decision: the bank's hypotheses (normal first, then ratios on
+# the default grid, changing as the adaptive step moves the damper modes) and weights that
+# become their smoothed probabilities.
+SPRING_GRID = [round(1.0 + 0.1 * k, 1) for k in range(8)]
+DAMPER_GRID = [round(1.0 - 0.1 * k, 1) for k in range(8)]
+DECISION_SAMPLES = st.lists(st.tuples(
+    st.lists(st.tuples(st.sampled_from(SPRING_GRID), st.sampled_from(DAMPER_GRID)),
+             min_size=1, max_size=5),
+    st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
+    st.integers(1, 40)), min_size=1, max_size=30)
+
+
+@SETTINGS
+@given(DECISION_SAMPLES)
+def test_fault_decision_always_names_a_component_it_can_size(
+        samples: list[tuple[list[tuple[float, float]], list[float], int]]) -> None:
+    """Whatever hypotheses the bank holds from one sample to the next and whatever their
+    probabilities, the decision never raises, and a declared fault is sized by a hypothesis of
+    its own component (the compound bank once crashed it when its compound vanished)."""
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01, clear_time_s=0.1,
+                             min_deviation=0.15)
+    for keys, weights, repeats in samples:
+        hypotheses = list(dict.fromkeys([(1.0, 1.0), *keys]))
+        w = np.array(weights[:len(hypotheses)])
+        probabilities = w / w.sum() if w.sum() > 0 else np.full(w.size, 1.0 / w.size)
+        for _ in range(repeats):
+            status = decision.update(hypotheses, probabilities)
+            assert status.component in FAULT_COMPONENTS
+            assert status.detected == (status.component != '')
+            if status.detected:
+                assert fault_component(status.spring_ratio, status.damper_ratio) == (
+                    status.component)
+            assert 0.0 <= status.probability <= 1.0 + 1e-9
