@@ -413,7 +413,7 @@ def test_runtime_decision_parameters_keep_a_declared_fault() -> None:
     fault (hysteresis on the decision): only what was pending is dropped."""
     imm = SuspensionImm()
     imm.decision.load_state(((1.5, 1.0), '', 7))
-    changed = replace(imm.params, hold_time_s=1.0, clear_time_s=3.0, min_fault_deviation=0.25)
+    changed = replace(imm.params, hold_time_s=1.0, clear_time_s=3.0, min_fault_deviation=0.35)
     imm.update_runtime_params(changed)
     assert imm.decision.state == ((1.5, 1.0), None, 0)
-    assert imm.decision.clear_samples == 600 and imm.decision.min_deviation == 0.25
+    assert imm.decision.clear_samples == 600 and imm.decision.min_deviation == 0.35

@@ -181,10 +181,12 @@ _SHARED_DISCRETIZATIONS_MAX = 512
 # (0.25 s: 6 false declarations there); clearing takes 1 s of confirmed normal (0.25-2 s gave
 # the same development figures: the margin is a choice); spring 110 % and damper 90 % are no
 # fault by themselves (min deviation 0, 0.1, 0.15 or 0.2: 49, 0, 0, 0 false declarations;
-# 0.15 sits between the grid's 0.1 steps).
+# 0.15 sits between the grid's 0.1 steps); nor, since 2026-12-01, spring 120 % and damper 80 %
+# (0.25: in 6 healthy development hours 1 -> 0 declarations, held out 6 -> 2; the faults the
+# targets name, spring 130-160 % and damper 30-70 %, are all still declared).
 HOLD_TIME_S = 0.5
 CLEAR_TIME_S = 1.0
-MIN_FAULT_DEVIATION = 0.15
+MIN_FAULT_DEVIATION = 0.25
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
 _SPD_TOLERANCE = 1e-9
 
