@@ -20,12 +20,15 @@ Prints (figures, not timed tests; docs/targets.md targets in brackets):
    its own and the estimators composed in one process or one process each.
    The sample's publish time is its bag time plus the player's schedule offset (the smallest
    receive-minus-stamp delay of any wheel-speed sample).
-4. Each estimator's offline throughput vs the plainest per-sample implementation of the same
+4. The CPU the estimators need per second of data at real rate, as on the vehicle: the
+   graph's estimators composed in one process, the player in its own, the estimators'
+   process CPU time (executor and middleware included) over each replay [<= 0.15].
+5. Each estimator's offline throughput vs the plainest per-sample implementation of the same
    maths, collected from the estimator benchmarks (benchmarks/bench_*.py, run as they are).
 
 Run under tools/env.sh: ``python benchmarks/bench_graph.py [--quick] [--skip-ceiling]
-[--skip-latency] [--skip-processes] [--skip-offline]``; ``--quick`` leaves out the 240 s
-puncture scenario.
+[--skip-latency] [--skip-processes] [--skip-real-rate-cpu] [--skip-offline]``; ``--quick``
+leaves out the 240 s puncture scenario.
 """
 
 from __future__ import annotations
@@ -405,18 +408,30 @@ def _node_process(node_spec: NodeSpec, use_sim_time: bool, executor: str,
         rclpy.try_shutdown(context=context)
 
 
-def _composed_process(spec: GraphSpec, stop: Any) -> None:
-    """Child: the nodes of ``spec`` composed on one executor until ``stop``."""
+def _composed_process(spec: GraphSpec, stop: Any, results: Any = None) -> None:
+    """Child: the nodes of ``spec`` composed on one executor until ``stop``; with ``results``,
+    the process's CPU time sampled every ``CPU_SAMPLE_S`` as (monotonic s, CPU s) pairs, put
+    there as ('cpu', pairs) at the end."""
     context = rclpy.Context()
     rclpy.init(context=context)
     graph = Graph(spec, context)
     never: Future = Future()
+    cpu: list[tuple[float, float]] = []
+
+    def sample() -> None:
+        while not stop.is_set():
+            cpu.append((time.monotonic(), time.process_time()))
+            time.sleep(CPU_SAMPLE_S)
+
+    threading.Thread(target=sample, daemon=True).start()
     try:
         while not stop.is_set():
             graph.executor.spin_until_future_complete(never, timeout_sec=0.2)
     finally:
         graph.destroy()
         rclpy.try_shutdown(context=context)
+        if results is not None:
+            results.put(('cpu', cpu))
 
 
 def _node_processes(spec: GraphSpec, player: str, expected: dict[str, int],
@@ -614,7 +629,67 @@ def latency(seconds: float, layout: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# 4. offline throughput vs the plainest implementation
+# 4. CPU of the estimators at real rate
+
+CPU_SAMPLE_S = 0.25
+CPU_WARM_UP_S = 2.0
+
+
+def real_rate_cpu(domain: Domain, scenario: Scenario) -> float | None:
+    """CPU the domain's estimators need per second of data at real rate, as on the vehicle:
+    every estimator node composed in one process (no recorder), the player in a process of its
+    own (the sensors), the estimators' process CPU time over the replay after
+    ``CPU_WARM_UP_S`` (start-up and first-call compilation left out). Includes the executor,
+    deserialisation and middleware of that process: everything but player and recorder."""
+    duration = bag_duration_s(scenario.bag)
+    spec = load_graph(domain.graph)
+    # No recorder: wait for the estimators' outputs (sync topics) only, not for a subscriber
+    # of every recorded topic (ground truth has none then).
+    replay = {'bag': str(scenario.bag), 'as_fast_as_possible': False, 'rate': 1.0,
+              'wait_for_subscribers': 0}
+    spec = with_parameters(GraphSpec(tuple(n for n in spec.nodes if n.name != domain.recorder),
+                                     spec.executor, spec.use_sim_time), {domain.player: replay})
+    player = GraphSpec(tuple(n for n in spec.nodes if n.name == domain.player), spec.executor,
+                       spec.use_sim_time)
+    estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != domain.player),
+                           spec.executor, spec.use_sim_time)
+    _, processes, stop, results = _node_processes(player, domain.player, {})
+    composed = multiprocessing.get_context('spawn').Process(
+        target=_composed_process, args=(estimators, stop, results), daemon=True)
+    composed.start()
+    for process in processes:
+        process.start()
+    done_at: float | None = None
+    cpu: list[tuple[float, float]] = []
+    deadline = time.monotonic() + 120.0 + 3.0 * duration
+    while time.monotonic() < deadline and not cpu:
+        try:
+            kind, payload = results.get(timeout=0.5)
+        except Exception:  # queue.Empty: keep waiting
+            continue
+        if kind == 'player_done':
+            done_at = time.monotonic()
+            stop.set()
+        elif kind == 'cpu':
+            cpu = payload
+    stop.set()
+    for process in [*processes, composed]:
+        process.join(timeout=10.0)
+    if done_at is None or len(cpu) < 2:
+        print(f'  {domain.name} graph on {scenario.name}: the replay did not finish')
+        return None
+    times = np.array([t for t, _ in cpu])
+    used = np.array([c for _, c in cpu])
+    start, end = done_at - duration + CPU_WARM_UP_S, min(done_at, float(times[-1]))
+    window = end - start
+    per_s = float(np.interp(end, times, used) - np.interp(start, times, used)) / window
+    print(f'  {domain.name} graph on {scenario.name} at real rate: the estimators\' process '
+          f'{per_s:.3f} CPU-s per s of data over {window:.1f} s [<= 0.15]')
+    return per_s
+
+
+# ---------------------------------------------------------------------------------------------
+# 5. offline throughput vs the plainest implementation
 
 
 OFFLINE = [
@@ -655,6 +730,7 @@ def main() -> None:
                         help='leave out the no-op topology replay of section 1')
     parser.add_argument('--skip-latency', action='store_true')
     parser.add_argument('--skip-processes', action='store_true')
+    parser.add_argument('--skip-real-rate-cpu', action='store_true')
     parser.add_argument('--skip-offline', action='store_true')
     parser.add_argument('--latency-seconds', type=float, default=30.0)
     args = parser.parse_args()
@@ -680,8 +756,12 @@ def main() -> None:
         print('3. input-to-warning latency at real rate')
         for layout in LATENCY_LAYOUTS:
             latency(args.latency_seconds, layout)
+    if not args.skip_real_rate_cpu:
+        print('4. CPU of the estimators at real rate (composed, no player or recorder)')
+        for domain, scenario in selected:
+            real_rate_cpu(domain, scenario)
     if not args.skip_offline:
-        print('4. offline throughput of each estimator vs its plainest implementation')
+        print('5. offline throughput of each estimator vs its plainest implementation')
         offline()
 
 
