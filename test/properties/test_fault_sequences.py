@@ -1,7 +1,7 @@
 """Property-based layer of the fault injection (Hypothesis): random sequences of clean and
-faulty input on the cores, the stamp check and the suspension fault decision. Whatever the
-sequence, nothing raises, nothing non-finite is reported as known, and probabilities stay
-probabilities."""
+faulty input on the cores, the stamp check, the suspension fault decision and the TPMS voter.
+Whatever the sequence, nothing raises, nothing non-finite is reported as known, probabilities
+stay probabilities, and no tire is warned that no method knew and flagged."""
 
 from __future__ import annotations
 
@@ -176,3 +176,38 @@ def test_fault_decision_always_names_a_component_it_can_size(
                 assert fault_component(status.spring_ratio, status.damper_ratio) == (
                     status.component)
             assert 0.0 <= status.probability <= 1.0 + 1e-9
+
+
+# One indication reaching the voter: its method, the time step since the last evaluation, and
+# per tire flag, confidence and known (a tire some method never knows is tire 3, RR).
+INDICATIONS = st.lists(st.tuples(
+    st.sampled_from(['vibration', 'wheel_radius', 'stiffness', 'other']),
+    st.sampled_from([0.0, 0.05, 0.5, 3.0, -1.0]),
+    st.lists(st.booleans(), min_size=4, max_size=4),
+    st.lists(st.floats(0.0, 1.0), min_size=4, max_size=4),
+    st.lists(st.booleans(), min_size=4, max_size=4)), min_size=1, max_size=60)
+
+
+@SETTINGS
+@given(INDICATIONS)
+def test_voter_never_warns_a_tire_no_method_knows_or_flags(
+        indications: list[tuple[str, float, list[bool], list[float], list[bool]]]) -> None:
+    """Any sequence of indications (unconfigured methods, repeats, time going back, unknown
+    tires, the vibration method needing support): the voter never raises, its output keeps
+    its shapes and ranges, and a tire that no method ever flagged while knowing it (here RR,
+    never known, and any tire never flagged) is never warned."""
+    from tpms_ros.core.tires import TpmsIndication
+    from tpms_ros.core.tpms_voting import TpmsVoter, VoterParams
+
+    voter = TpmsVoter(VoterParams(set_on_s=0.0, set_off_s=0.5))
+    now, flagged = 0.0, np.zeros(4, dtype=bool)
+    for method, step, flags, confidence, known in indications:
+        now += step
+        known_tires = np.array(known[:3] + [False])
+        flagged |= np.array(flags) & known_tires
+        result = voter.evaluate(now, [TpmsIndication(method, now, np.array(flags),
+                                                     np.array(confidence), known_tires)])
+        assert result.warning.shape == result.confidence.shape == (4,)
+        assert np.all((result.confidence >= 0.0) & (result.confidence <= 1.0))
+        assert result.active == bool(result.warning.any())
+        assert not np.any(result.warning & ~flagged)
