@@ -547,7 +547,23 @@ LATENCY_LAYOUTS = {
 LATENCY_WARM_UP_S = 2.0
 
 
-def latency(seconds: float, layout: str) -> None:
+def _real_rate_graph(domain: Domain, scenario: Scenario, work: Path,
+                     replay: dict[str, Any]) -> GraphSpec:
+    """The domain's graph without its recorder, the player replaying the scenario at real rate
+    (with ``replay`` on top), every node with the run's own parameters (calibration files
+    under ``work``, never the user's ``$ROS_HOME``), as in the main job."""
+    spec = load_graph(domain.graph)
+    spec = GraphSpec(tuple(n for n in spec.nodes if n.name != domain.recorder), spec.executor,
+                     spec.use_sim_time)
+    names = {n.name for n in spec.nodes}
+    parameters = {node: dict(values) for node, values in domain.run_parameters(work).items()
+                  if node in names}
+    parameters[domain.player] = {**parameters.get(domain.player, {}), 'bag': str(scenario.bag),
+                                 'as_fast_as_possible': False, 'rate': 1.0, **replay}
+    return with_parameters(spec, parameters)
+
+
+def latency(seconds: float, layout: str, work: Path) -> None:
     """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99.
 
     The player runs in a process of its own, as the sensor drivers of a vehicle do (in the
@@ -560,14 +576,11 @@ def latency(seconds: float, layout: str) -> None:
     ``LATENCY_WARM_UP_S`` of the first sample are left out (start-up, not steady state).
     """
     road = next(d for d in domains() if d.name == 'road')
-    spec = load_graph(road.graph)
-    nodes = tuple(n for n in spec.nodes if n.name != road.recorder)
-    replay = {'bag': str(road.scenarios[0].bag), 'as_fast_as_possible': False, 'rate': 1.0,
-              'topics': ['/vehicle/wheel_speeds', '/vehicle/imu', '/vehicle/driver_inputs']}
+    replay: dict[str, Any] = {
+        'topics': ['/vehicle/wheel_speeds', '/vehicle/imu', '/vehicle/driver_inputs']}
     if layout == 'no_estimators':
         replay['wait_timeout'] = 1.0     # no estimator subscribes, no sync topic will appear
-    spec = with_parameters(GraphSpec(nodes, spec.executor, spec.use_sim_time),
-                           {road.player: replay})
+    spec = _real_rate_graph(road, road.scenarios[0], work / f'latency_{layout}', replay)
     context = rclpy.Context()
     rclpy.init(context=context)
     if layout == 'per_process':
@@ -635,20 +648,18 @@ CPU_SAMPLE_S = 0.25
 CPU_WARM_UP_S = 2.0
 
 
-def real_rate_cpu(domain: Domain, scenario: Scenario) -> float | None:
+def real_rate_cpu(domain: Domain, scenario: Scenario, work: Path) -> float | None:
     """CPU the domain's estimators need per second of data at real rate, as on the vehicle:
     every estimator node composed in one process (no recorder), the player in a process of its
     own (the sensors), the estimators' process CPU time over the replay after
     ``CPU_WARM_UP_S`` (start-up and first-call compilation left out). Includes the executor,
-    deserialisation and middleware of that process: everything but player and recorder."""
+    deserialisation and middleware of that process: everything but player and recorder. The
+    run's own parameters (calibration files under ``work``) as in the main job."""
     duration = bag_duration_s(scenario.bag)
-    spec = load_graph(domain.graph)
     # No recorder: wait for the estimators' outputs (sync topics) only, not for a subscriber
     # of every recorded topic (ground truth has none then).
-    replay = {'bag': str(scenario.bag), 'as_fast_as_possible': False, 'rate': 1.0,
-              'wait_for_subscribers': 0}
-    spec = with_parameters(GraphSpec(tuple(n for n in spec.nodes if n.name != domain.recorder),
-                                     spec.executor, spec.use_sim_time), {domain.player: replay})
+    spec = _real_rate_graph(domain, scenario, work / f'real_rate_{scenario.name}',
+                            {'wait_for_subscribers': 0})
     player = GraphSpec(tuple(n for n in spec.nodes if n.name == domain.player), spec.executor,
                        spec.use_sim_time)
     estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != domain.player),
@@ -754,12 +765,14 @@ def main() -> None:
             process_per_node(domain, short)
     if not args.skip_latency:
         print('3. input-to-warning latency at real rate')
-        for layout in LATENCY_LAYOUTS:
-            latency(args.latency_seconds, layout)
+        with tempfile.TemporaryDirectory(prefix='bench_graph_') as work:
+            for layout in LATENCY_LAYOUTS:
+                latency(args.latency_seconds, layout, Path(work))
     if not args.skip_real_rate_cpu:
         print('4. CPU of the estimators at real rate (composed, no player or recorder)')
-        for domain, scenario in selected:
-            real_rate_cpu(domain, scenario)
+        with tempfile.TemporaryDirectory(prefix='bench_graph_') as work:
+            for domain, scenario in selected:
+                real_rate_cpu(domain, scenario, Path(work))
     if not args.skip_offline:
         print('5. offline throughput of each estimator vs its plainest implementation')
         offline()
