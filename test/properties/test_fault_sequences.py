@@ -1,7 +1,8 @@
 """Property-based layer of the fault injection (Hypothesis): random sequences of clean and
-faulty input on the cores, the stamp check, the suspension fault decision and the TPMS voter.
-Whatever the sequence, nothing raises, nothing non-finite is reported as known, probabilities
-stay probabilities, and no tire is warned that no method knew and flagged."""
+faulty input on the cores (vibration, suspension IMM and its fault decision, lateral force
+observer), the stamp check and the TPMS voter. Whatever the sequence, nothing raises, nothing
+non-finite is reported as known, probabilities stay probabilities, and no tire is warned that
+no method knew and flagged."""
 
 from __future__ import annotations
 
@@ -211,3 +212,57 @@ def test_voter_never_warns_a_tire_no_method_knows_or_flags(
         assert np.all((result.confidence >= 0.0) & (result.confidence <= 1.0))
         assert result.active == bool(result.warning.any())
         assert not np.any(result.warning & ~flagged)
+
+
+# One sample of the lateral force observer's inputs: clean driving, or one input broken
+# (non-finite, absurd, wrong shape, a zero, negative or huge time step).
+OBSERVER_SAMPLES = st.lists(st.tuples(
+    st.sampled_from(['clean', 'nan_accel', 'inf_omega', 'absurd_rate', 'short_omega',
+                     'zero_dt', 'negative_dt', 'gap_dt', 'absurd_torque', 'nan_steer']),
+    st.integers(0, 2**16)), min_size=1, max_size=80)
+
+
+@SETTINGS
+@given(OBSERVER_SAMPLES)
+def test_lateral_force_observer_publishes_only_finite_forces(
+        samples: list[tuple[str, int]]) -> None:
+    """Any sequence of clean and broken samples: the observer never raises, a broken sample
+    is not accepted (the last estimate is held), and every estimate it returns is finite."""
+    from tpms_ros.core.lateral_force_observer import LateralForceObserver
+
+    observer = LateralForceObserver()
+    accepted_any = False
+    for kind, seed in samples:
+        rng = np.random.default_rng(seed)
+        ax, ay, r, p = 0.2 * rng.standard_normal(4)
+        omega: list[float] = list(60.0 + 0.2 * rng.standard_normal(4))
+        torque, steer, dt = [40.0, 40.0, 0.0, 0.0], 0.01 * rng.standard_normal(), 0.01
+        if kind == 'nan_accel':
+            ay = math.nan
+        elif kind == 'inf_omega':
+            omega[2] = math.inf
+        elif kind == 'absurd_rate':
+            r = 1e6
+        elif kind == 'short_omega':
+            omega = omega[:3]
+        elif kind == 'zero_dt':
+            dt = 0.0
+        elif kind == 'negative_dt':
+            dt = -0.01
+        elif kind == 'gap_dt':
+            dt = 30.0
+        elif kind == 'absurd_torque':
+            torque = [1e9, 0.0, 0.0, 0.0]
+        elif kind == 'nan_steer':
+            steer = math.nan
+        estimate = observer.step(ax, ay, r, p, omega, torque, steer, dt)
+        broken = kind not in ('clean', 'gap_dt', 'zero_dt', 'negative_dt')
+        if estimate is None:
+            assert not accepted_any
+            continue
+        accepted_any = accepted_any or estimate.accepted
+        if broken:
+            assert not estimate.accepted
+        for values in (estimate.fx, estimate.fy, estimate.fz, estimate.state):
+            assert np.all(np.isfinite(values))
+        assert math.isfinite(estimate.fy_front) and math.isfinite(estimate.fy_rear)
