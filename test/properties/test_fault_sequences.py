@@ -1,8 +1,8 @@
 """Property-based layer of the fault injection (Hypothesis): random sequences of clean and
-faulty input on the cores (vibration, suspension IMM and its fault decision, lateral force
-observer), the stamp check and the TPMS voter. Whatever the sequence, nothing raises, nothing
-non-finite is reported as known, probabilities stay probabilities, and no tire is warned that
-no method knew and flagged."""
+faulty input on the cores (vibration, suspension IMM and its fault decision, creep EKF,
+lateral force observer), the stamp check and the TPMS voter. Whatever the sequence, nothing
+raises, nothing non-finite is reported as known, probabilities stay probabilities, and no
+tire is warned that no method knew and flagged."""
 
 from __future__ import annotations
 
@@ -266,3 +266,43 @@ def test_lateral_force_observer_publishes_only_finite_forces(
         for values in (estimate.fx, estimate.fy, estimate.fz, estimate.state):
             assert np.all(np.isfinite(values))
         assert math.isfinite(estimate.fy_front) and math.isfinite(estimate.fy_rear)
+
+
+# One sample of the creep estimator (pattern C): a clean measurement, a broken one, a missing
+# one, and the track sample beside it clean, broken or absent; now and then a new speed.
+CREEP_SAMPLES = st.lists(st.tuples(
+    st.sampled_from(['clean', 'nan', 'inf', 'short', 'missing', 'absurd']),
+    st.sampled_from(['none', 'clean', 'nan', 'short']),
+    st.sampled_from([None, None, None, 25.0, 40.0, 65.0]),
+    st.integers(0, 2**16)), min_size=1, max_size=60)
+
+
+@SETTINGS
+@given(CREEP_SAMPLES)
+def test_creep_estimator_keeps_a_finite_bounded_factor(
+        samples: list[tuple[str, str, float | None, int]]) -> None:
+    """Any sequence of clean, broken and missing measurements and track samples, with speed
+    changes: the creep EKF never raises, a broken measurement is named as such and not used,
+    and the factor and its uncertainty stay finite, the factor within its bounds."""
+    from rail_monitor_ros.core.creep_ekf import CreepEkf, measurement_channels
+
+    ekf = CreepEkf()
+    n = len(measurement_channels(ekf.params.pattern, ekf.params.model))
+    low, high = ekf.params.min_creep_factor, ekf.params.max_creep_factor
+    for kind, track_kind, speed, seed in samples:
+        rng = np.random.default_rng(seed)
+        clean = 1e-4 * rng.standard_normal(n)
+        z = {'clean': clean, 'nan': np.where(np.arange(n) == 0, math.nan, clean),
+             'inf': np.where(np.arange(n) == n - 1, -math.inf, clean), 'short': clean[:-1],
+             'missing': None, 'absurd': np.full(n, 1e6)}[kind]
+        track = {'none': None, 'clean': 1e-3 * rng.standard_normal(2),
+                 'nan': np.array([math.nan, 0.0]), 'short': np.zeros(1)}[track_kind]
+        estimate = ekf.step(z, track, speed)
+        if kind in ('nan', 'inf'):
+            assert estimate.status == 'non_finite'
+        elif kind == 'short':
+            assert estimate.status == 'wrong_shape'
+        elif kind == 'missing':
+            assert estimate.status == 'predicted'
+        assert math.isfinite(estimate.creep_factor) and low <= estimate.creep_factor <= high
+        assert math.isfinite(estimate.std_dev) and estimate.std_dev >= 0.0
