@@ -1,8 +1,8 @@
 """Property-based layer of the fault injection (Hypothesis): random sequences of clean and
-faulty input on the cores (vibration, suspension IMM and its fault decision, creep EKF,
-lateral force observer), the stamp check and the TPMS voter. Whatever the sequence, nothing
-raises, nothing non-finite is reported as known, probabilities stay probabilities, and no
-tire is warned that no method knew and flagged."""
+faulty input on the cores (vibration, wheel radius, suspension IMM and its fault decision,
+creep EKF, lateral force observer), the stamp check and the TPMS voter. Whatever the
+sequence, nothing raises, nothing non-finite is reported as known, probabilities stay
+probabilities, and no tire is warned that no method knew and flagged."""
 
 from __future__ import annotations
 
@@ -65,7 +65,8 @@ def test_stamp_check_never_adopts_a_lone_outlier(events: list[tuple[str, int]]) 
 
 # A block of four wheel speeds at 1 kHz: clean road excitation around 60 rad/s, or a fault
 # (NaN, inf, negative, zero, absurd, stuck) on some wheels.
-FAULTS = st.sampled_from(['clean', 'nan', 'inf', 'negative', 'dead', 'absurd', 'stuck'])
+FAULT_KINDS = ('clean', 'nan', 'inf', 'negative', 'dead', 'absurd', 'stuck')
+FAULTS = st.sampled_from(FAULT_KINDS)
 BLOCKS = st.lists(st.tuples(FAULTS, st.integers(0, 15), st.integers(0, 2**16)),
                   min_size=1, max_size=12)
 
@@ -306,3 +307,48 @@ def test_creep_estimator_keeps_a_finite_bounded_factor(
             assert estimate.status == 'predicted'
         assert math.isfinite(estimate.creep_factor) and low <= estimate.creep_factor <= high
         assert math.isfinite(estimate.std_dev) and estimate.std_dev >= 0.0
+
+
+# A chunk of the wheel radius analysis at 100 Hz: clean straight driving, or a fault on some
+# wheels (as the vibration blocks), a bad gyro or a bad torque.
+RADIUS_CHUNKS = st.lists(st.tuples(
+    st.sampled_from(['clean', 'nan', 'inf', 'negative', 'dead', 'absurd', 'stuck',
+                     'gyro_nan', 'torque_inf']),
+    st.integers(0, 15), st.integers(0, 2**16)), min_size=1, max_size=12)
+
+
+@SETTINGS
+@given(RADIUS_CHUNKS)
+def test_wheel_radius_analysis_keeps_finite_offsets(
+        chunks: list[tuple[str, int, int]]) -> None:
+    """Any sequence of clean and faulty chunks: the wheel radius analysis never raises, counts
+    every bad wheel speed, gyro and torque sample it refuses, and its offsets, their
+    uncertainties and the gyro offset stay finite."""
+    from tpms_ros.core.wheel_radius_analysis import WheelRadiusAnalyzer
+
+    analyzer = WheelRadiusAnalyzer()
+    t, n = 0.0, 100
+    refused = {'bad_wheel_speed': 0, 'bad_gyro': 0, 'bad_torque': 0}
+    for kind, wheels, seed in chunks:
+        omega = _block(kind if kind in FAULT_KINDS else 'clean', wheels, seed, n)
+        stamps = t + 0.01 * np.arange(1, n + 1)
+        t = stamps[-1]
+        gyro = 1e-3 * np.random.default_rng(seed).standard_normal(n)
+        torque = np.zeros((n, 4))
+        if kind == 'gyro_nan':
+            gyro[:] = math.nan
+        elif kind == 'torque_inf':
+            torque[:, 0] = math.inf
+        estimate = analyzer.process(stamps, omega, gyro, torque)
+        reason = {'nan': 'bad_wheel_speed', 'inf': 'bad_wheel_speed', 'absurd': 'bad_wheel_speed',
+                  'negative': 'bad_wheel_speed', 'gyro_nan': 'bad_gyro',
+                  'torque_inf': 'bad_torque'}.get(kind)
+        if reason is not None:
+            # counted per wheel for the wheel speeds, per sample for gyro and torque
+            refused[reason] += n * (bin(wheels).count('1') if reason == 'bad_wheel_speed'
+                                    else 1)
+        for name, count in refused.items():
+            assert estimate.counts[name] == count, name
+        assert np.all(np.isfinite(estimate.offsets))
+        assert np.all(np.isfinite(estimate.offsets_std))
+        assert math.isfinite(estimate.gyro_offset)
