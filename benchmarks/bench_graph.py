@@ -420,15 +420,15 @@ def _composed_process(spec: GraphSpec, stop: Any, results: Any = None) -> None:
     never: Future = Future()
     cpu: list[tuple[float, float, float]] = []
     clock = CallbackClock()
-    if results is not None:
-        clock.instrument(graph)
 
     def sample() -> None:
         while not stop.is_set():
             cpu.append((time.monotonic(), time.process_time(), sum(clock.cpu_s.values())))
             time.sleep(CPU_SAMPLE_S)
 
-    threading.Thread(target=sample, daemon=True).start()
+    if results is not None:
+        clock.instrument(graph)
+        threading.Thread(target=sample, daemon=True).start()
     try:
         while not stop.is_set():
             graph.executor.spin_until_future_complete(never, timeout_sec=0.2)
@@ -568,6 +568,15 @@ def _real_rate_graph(domain: Domain, scenario: Scenario, work: Path,
     return with_parameters(spec, parameters)
 
 
+def _player_apart(spec: GraphSpec, player: str) -> tuple[GraphSpec, GraphSpec]:
+    """(the player alone, every other node): for a player process beside the estimators'."""
+    def part(keep: Callable[[NodeSpec], bool]) -> GraphSpec:
+        return GraphSpec(tuple(n for n in spec.nodes if keep(n)), spec.executor,
+                         spec.use_sim_time)
+
+    return part(lambda n: n.name == player), part(lambda n: n.name != player)
+
+
 def latency(seconds: float, layout: str, work: Path) -> None:
     """Road graph at real rate: wheel-speed sample -> tpms/warning (and indications), p50/p99.
 
@@ -588,15 +597,12 @@ def latency(seconds: float, layout: str, work: Path) -> None:
     spec = _real_rate_graph(road, road.scenarios[0], work / f'latency_{layout}', replay)
     context = rclpy.Context()
     rclpy.init(context=context)
+    player, estimators = _player_apart(spec, road.player)
     if layout == 'per_process':
         _, processes, stop, _ = _node_processes(spec, road.player, {})
     else:
-        player = GraphSpec(tuple(n for n in spec.nodes if n.name == road.player),
-                           spec.executor, spec.use_sim_time)
         _, processes, stop, _ = _node_processes(player, road.player, {})
     if layout == 'composed':
-        estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != road.player),
-                               spec.executor, spec.use_sim_time)
         processes.insert(0, multiprocessing.get_context('spawn').Process(
             target=_composed_process, args=(estimators, stop), daemon=True))
     executor: Any = EXECUTORS[spec.executor](context)
@@ -665,10 +671,7 @@ def real_rate_cpu(domain: Domain, scenario: Scenario, work: Path) -> float | Non
     # of every recorded topic (ground truth has none then).
     spec = _real_rate_graph(domain, scenario, work / f'real_rate_{scenario.name}',
                             {'wait_for_subscribers': 0})
-    player = GraphSpec(tuple(n for n in spec.nodes if n.name == domain.player), spec.executor,
-                       spec.use_sim_time)
-    estimators = GraphSpec(tuple(n for n in spec.nodes if n.name != domain.player),
-                           spec.executor, spec.use_sim_time)
+    player, estimators = _player_apart(spec, domain.player)
     _, processes, stop, results = _node_processes(player, domain.player, {})
     composed = multiprocessing.get_context('spawn').Process(
         target=_composed_process, args=(estimators, stop, results), daemon=True)
