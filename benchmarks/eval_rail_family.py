@@ -589,7 +589,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='ablation: the cars without their constant sensor offsets')
     parser.add_argument('--imm-set', action='append', default=[], metavar='NAME=VALUE',
                         help='a suspension monitor parameter for every IMM run (repeatable), '
-                             'e.g. adaptation_freeze_s=0.25')
+                             'e.g. smoothing_window_s=0.1')
     parser.add_argument('--json', help='write the per-case figures here')
     parser.add_argument('--scoreboard', default=None,
                         help='also write the per-target result file the main job shows '
