@@ -120,6 +120,9 @@ class Settings:
     # voter saw them at each tick, so voting rules can be compared without replaying
     # (:func:`revote`).
     traces: str = ''
+    # Each car's encoder tooth-spacing error times this (0: perfect rings). The drives are
+    # otherwise the same: the ring's draw only scales, every random stream stays where it was.
+    ring_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -388,6 +391,8 @@ def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
     depends on)."""
     s = job.settings
     name = f'car{job.seed}_{job.case}_{job.drive}'
+    if s.ring_scale != 1.0:
+        name += f'_ring{s.ring_scale:g}'
     path = None
     if s.sim_cache:
         key = f'{name}_f{s.fault_s:g}_o{s.observe_s:g}_d{s.diffusion_pct_per_min:g}.pkl'
@@ -408,10 +413,20 @@ def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
     return result
 
 
+def family_car(job: Job) -> FamilyCar:
+    """The job's car, its rings' tooth-spacing error scaled as the settings say."""
+    car = sample_car(job.seed)
+    scale = job.settings.ring_scale
+    if scale == 1.0:
+        return car
+    return replace(car, sensors=replace(car.sensors,
+                                        tooth_error_rms=scale * car.sensors.tooth_error_rms))
+
+
 def run_job(job: Job) -> dict[str, Any]:
     """Simulate (or load) and replay one job (worker)."""
     t0 = time.perf_counter()
-    car = sample_car(job.seed)
+    car = family_car(job)
     events, tires, _, reached = case_events(job, car)
     result = simulate_job(job, car, events, reached + job.settings.observe_s)
     t_sim = time.perf_counter() - t0
@@ -675,6 +690,9 @@ def main() -> None:
     parser.add_argument('--diffusion-pct-per-min', type=float,
                         default=Settings.diffusion_pct_per_min)
     parser.add_argument('--no-tooth-correction', action='store_true')
+    parser.add_argument('--ring-scale', type=float, default=1.0,
+                        help="each car's encoder tooth-spacing error times this (0: perfect "
+                             'rings; the drives are otherwise the same)')
     parser.add_argument('--law-given', action='store_true',
                         help="give the stiffness observer the tire's stiffness-pressure law "
                              '(tire data) instead of the default line')
@@ -705,7 +723,7 @@ def main() -> None:
         return
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
-                        args.law_given, args.sim_cache, args.traces)
+                        args.law_given, args.sim_cache, args.traces, args.ring_scale)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])

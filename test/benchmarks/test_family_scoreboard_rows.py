@@ -3,6 +3,7 @@ pass counts, worst cases and verdicts against the issues' targets."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -11,6 +12,7 @@ import sys
 from types import ModuleType
 from typing import Any
 
+import numpy as np
 import pytest
 
 from vehicle_monitor_common.family_results import load_family_results
@@ -127,3 +129,19 @@ def test_rail_rows() -> None:
     end = rows['IMM component at the end']
     assert (end.passed, end.cases) == (1, 2)
     assert end.worst_case == 'damper at 190001 at 35.0 m/s: ended none'
+
+
+def test_ring_scale_changes_only_the_ring() -> None:
+    """``--ring-scale 0``: the same car and drive with a perfect ring (every other draw where it
+    was), kept apart in the simulation cache."""
+    settings = tpms.Settings(ring_scale=0.0)
+    job = tpms.Job(21500, 'nominal', 'rural', settings)
+    car, perfect = tpms.sample_car(21500), tpms.family_car(job)
+    assert car.sensors.tooth_error_rms > 0.0 and perfect.sensors.tooth_error_rms == 0.0
+    assert dataclasses.replace(perfect, sensors=car.sensors) == car
+    assert tpms.family_car(tpms.Job(21500, 'nominal', 'rural', tpms.Settings())) == car
+    runs = [tpms.simulate_scenario(tpms.car_scenario(c, 'rural', 1.0, [], seed=7, name='ring'))
+            for c in (car, perfect)]
+    assert np.abs(runs[0].tooth_error).max() > 0.0 and not runs[1].tooth_error.any()
+    np.testing.assert_array_equal(runs[0].rim_speed, runs[1].rim_speed)
+    assert not np.array_equal(runs[0].wheel_speed, runs[1].wheel_speed)
