@@ -416,11 +416,8 @@ def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
 def family_car(job: Job) -> FamilyCar:
     """The job's car, its rings' tooth-spacing error scaled as the settings say."""
     car = sample_car(job.seed)
-    scale = job.settings.ring_scale
-    if scale == 1.0:
-        return car
-    return replace(car, sensors=replace(car.sensors,
-                                        tooth_error_rms=scale * car.sensors.tooth_error_rms))
+    ring = job.settings.ring_scale * car.sensors.tooth_error_rms
+    return replace(car, sensors=replace(car.sensors, tooth_error_rms=ring))
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -690,7 +687,7 @@ def main() -> None:
     parser.add_argument('--diffusion-pct-per-min', type=float,
                         default=Settings.diffusion_pct_per_min)
     parser.add_argument('--no-tooth-correction', action='store_true')
-    parser.add_argument('--ring-scale', type=float, default=1.0,
+    parser.add_argument('--ring-scale', type=float, default=Settings.ring_scale,
                         help="each car's encoder tooth-spacing error times this (0: perfect "
                              'rings; the drives are otherwise the same)')
     parser.add_argument('--law-given', action='store_true',

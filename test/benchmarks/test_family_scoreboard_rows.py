@@ -133,7 +133,7 @@ def test_rail_rows() -> None:
 
 def test_ring_scale_changes_only_the_ring() -> None:
     """``--ring-scale 0``: the same car and drive with a perfect ring (every other draw where it
-    was), kept apart in the simulation cache."""
+    was); the default scale leaves the car as drawn."""
     settings = tpms.Settings(ring_scale=0.0)
     job = tpms.Job(21500, 'nominal', 'rural', settings)
     car, perfect = tpms.sample_car(21500), tpms.family_car(job)
