@@ -61,7 +61,6 @@ import time  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
 from rail_monitor_ros.core import suspension_imm as imm_module  # noqa: E402
 from rail_monitor_ros.core.creep_ekf import (  # noqa: E402
@@ -100,7 +99,13 @@ from vehicle_monitor_common.family_results import (  # noqa: E402
     today,
     write_family_results,
 )
-from vehicle_monitor_common.parameters import build, flatten  # noqa: E402
+from vehicle_monitor_common.parameters import (  # noqa: E402
+    ConfigurationError,
+    build,
+    flatten,
+    parse_assignment,
+    with_values,
+)
 
 CREEP_CONFIGS = ('C-spec/exact', 'C-spec/map0.3', 'C-all/exact', 'C-all/map0.3', 'D/none',
                  'D/exact')
@@ -560,14 +565,6 @@ def write_scoreboard(path: str, out: dict[str, Any], commit: str) -> None:
     _say(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
 
 
-def _name_value(text: str) -> tuple[str, Any]:
-    """``name=value`` with the value read as YAML (numbers, booleans, lists)."""
-    name, sep, value = text.partition('=')
-    if not sep:
-        raise SystemExit(f'--imm-set {text!r}: expected NAME=VALUE')
-    return name.strip(), yaml.safe_load(value)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', choices=('held-out', 'development'), default='held-out')
@@ -613,7 +610,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error('the --json file does not say its commit: give --commit')
         write_scoreboard(args.scoreboard, saved, commit)
         return 0
-    imm_overrides = dict(_name_value(item) for item in args.imm_set)
+    try:
+        imm_overrides = dict(parse_assignment(item) for item in args.imm_set)
+        with_values(SuspensionImmParams(), imm_overrides)     # a typo is an error, not a default
+    except ConfigurationError as exc:
+        parser.error(f'--imm-set: {exc}')
     seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS
     if args.cars > 0:
         seeds = seeds[:args.cars]

@@ -42,7 +42,7 @@ voting rule can be judged on the same runs without replaying them (:func:`load_t
 from __future__ import annotations
 
 import argparse
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 import json
 import math
 import multiprocessing
@@ -89,6 +89,7 @@ from vehicle_monitor_common.family_results import (
     today,
     write_family_results,
 )
+from vehicle_monitor_common.parameters import ConfigurationError, parse_assignment, with_values
 
 METHODS = ('vibration', 'wheel_radius', 'stiffness')
 CASES = ('diffusion20', 'puncture25', 'puncture15', 'nominal')
@@ -123,6 +124,8 @@ class Settings:
     # Each car's encoder tooth-spacing error times this (0: perfect rings). The drives are
     # otherwise the same: the ring's draw only scales, every random stream stays where it was.
     ring_scale: float = 1.0
+    # Stiffness observer parameters set for every run (dotted name -> value), for ablations.
+    stiffness_set: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -172,7 +175,7 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
         encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction,
         pressure_relation=(PressureRelation(**car.tire_law_parameters()) if settings.law_given
                            else PressureRelation()))
-    return vibration, radius, stiffness
+    return vibration, radius, with_values(stiffness, settings.stiffness_set)
 
 
 def _voters(voter_params: VoterParams) -> dict[str, TpmsVoter]:
@@ -693,6 +696,9 @@ def main() -> None:
     parser.add_argument('--law-given', action='store_true',
                         help="give the stiffness observer the tire's stiffness-pressure law "
                              '(tire data) instead of the default line')
+    parser.add_argument('--stiffness-set', action='append', default=[], metavar='NAME=VALUE',
+                        help='a stiffness observer parameter for every run (repeatable), e.g. '
+                             'forgetting_factor=0.995')
     parser.add_argument('--sim-cache', default='',
                         help='directory keeping the simulated drives for later replays')
     parser.add_argument('--traces', default='',
@@ -718,9 +724,15 @@ def main() -> None:
             write_scoreboard(args.scoreboard, saved, commit, header['date'],
                              header.get('settings', {}))
         return
+    try:
+        stiffness_set = dict(parse_assignment(item) for item in args.stiffness_set)
+        with_values(StiffnessObserverParams(), stiffness_set)  # a typo is an error, not a default
+    except ConfigurationError as exc:
+        parser.error(f'--stiffness-set: {exc}')
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
-                        args.law_given, args.sim_cache, args.traces, args.ring_scale)
+                        args.law_given, args.sim_cache, args.traces, args.ring_scale,
+                        stiffness_set)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])

@@ -17,6 +17,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import yaml
+
 
 class ConfigurationError(ValueError):
     """A user error in a node's or a graph's configuration: reported in one line, exit code 2."""
@@ -124,6 +126,37 @@ def flatten(instance: Any, prefix: str = '') -> dict[str, Any]:
         else:
             out[prefix + f.name] = value
     return out
+
+
+def with_values(instance: Any, values: Mapping[str, Any]) -> Any:
+    """A copy of a parameter dataclass instance with some of its dotted values replaced (an
+    evaluation's ``--...-set NAME=VALUE`` ablations).
+
+    Raises:
+        ConfigurationError: a name that is not one of the instance's parameters (a typo must
+            not pass for a run with the defaults), or a value its checks refuse.
+    """
+    current = flatten(instance)
+    unknown = sorted(set(values) - set(current))
+    if unknown:
+        raise ConfigurationError(f'{type(instance).__name__} has no parameter '
+                                 f'{", ".join(unknown)}')
+    try:
+        return build(type(instance), {**current, **values})
+    except (TypeError, ValueError) as exc:
+        raise ConfigurationError(f'{type(instance).__name__}: {exc}') from None
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE`` from a command line, the value read as YAML (numbers, booleans, lists).
+
+    Raises:
+        ConfigurationError: no ``=`` or no name.
+    """
+    name, sep, value = text.partition('=')
+    if not sep or not name.strip():
+        raise ConfigurationError(f'{text!r}: expected NAME=VALUE')
+    return name.strip(), yaml.safe_load(value)
 
 
 def check_choice(spec: ParameterSpec, value: Any) -> str | None:
