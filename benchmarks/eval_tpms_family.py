@@ -92,6 +92,9 @@ from vehicle_monitor_common.family_results import (
 from vehicle_monitor_common.parameters import ConfigurationError, parse_assignment, with_values
 
 METHODS = ('vibration', 'wheel_radius', 'stiffness')
+# Issue 21's detection targets: the fused warning within this long after the loss reached its
+# level, s.
+DETECTION_LIMIT_S = {'puncture25': 60.0, 'puncture15': 60.0, 'diffusion20': 120.0}
 CASES = ('diffusion20', 'puncture25', 'puncture15', 'nominal')
 # The fault cases (the scoreboard's rows); 'nominal' is a drive without a fault, every
 # second of it after the calibration nominal driving (--fault-s sets its length).
@@ -108,6 +111,8 @@ class Settings:
 
     calibration_s: float = 90.0
     fault_s: float = 150.0
+    # Driving after the loss reached its level; a case whose target allows longer (the 20 %
+    # diffusion: 2 minutes) is observed that long (observed_s).
     observe_s: float = 60.0
     diffusion_pct_per_min: float = 15.0
     tooth_correction: bool = True
@@ -156,6 +161,13 @@ def case_events(job: Job, car: FamilyCar) -> tuple[list, tuple[int, ...], float,
     event = pressure_event('pressure_step', s.fault_s, tires=tires, drop_percent=loss,
                            duration_s=STEP_S)
     return [event], tires, loss, s.fault_s + STEP_S
+
+
+def observed_s(job: Job) -> float:
+    """How long the run drives on after its loss reached its level: the settings' time, or
+    the case's detection limit where that is longer (a run shorter than its target's window
+    would count a detection inside the window as a miss)."""
+    return max(job.settings.observe_s, DETECTION_LIMIT_S.get(job.case, 0.0))
 
 
 def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
@@ -398,7 +410,7 @@ def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
         name += f'_ring{s.ring_scale:g}'
     path = None
     if s.sim_cache:
-        key = f'{name}_f{s.fault_s:g}_o{s.observe_s:g}_d{s.diffusion_pct_per_min:g}.pkl'
+        key = f'{name}_f{s.fault_s:g}_o{observed_s(job):g}_d{s.diffusion_pct_per_min:g}.pkl'
         path = Path(s.sim_cache) / key
         if path.exists():
             with path.open('rb') as f:
@@ -428,7 +440,7 @@ def run_job(job: Job) -> dict[str, Any]:
     t0 = time.perf_counter()
     car = family_car(job)
     events, tires, _, reached = case_events(job, car)
-    result = simulate_job(job, car, events, reached + job.settings.observe_s)
+    result = simulate_job(job, car, events, reached + observed_s(job))
     t_sim = time.perf_counter() - t0
     tr = replay(result, car, job.settings)
     rec = score(job, car, tr, tires, reached)
@@ -619,17 +631,17 @@ def scoreboard_rows(records: list[dict[str, Any]]) -> list[FamilyRow]:
     if by_case['puncture25']:
         rows.append(_detection_row(
             'fused: 25 % puncture', 'fused warning names a 25 % puncture within 60 s, every car',
-            by_case['puncture25'], 'fused_detect_s', 60.0, 1.0))
+            by_case['puncture25'], 'fused_detect_s', DETECTION_LIMIT_S['puncture25'], 1.0))
     if by_case['diffusion20']:
         rows.append(_detection_row(
             'fused: 20 % diffusion',
             'fused warning names all four tires of a 20 % diffusion within 2 min of reaching it',
-            by_case['diffusion20'], 'fused_detect_s', 120.0, 1.0))
+            by_case['diffusion20'], 'fused_detect_s', DETECTION_LIMIT_S['diffusion20'], 1.0))
     if by_case['puncture15']:
         rows.append(_detection_row(
             'fused: 15 % on 1-2 tires',
             'fused warning names a 15 % loss on one or two tires within 60 s',
-            by_case['puncture15'], 'fused_detect_s', 60.0, 0.9))
+            by_case['puncture15'], 'fused_detect_s', DETECTION_LIMIT_S['puncture15'], 0.9))
     if by_case['diffusion20']:
         rows.append(_detection_row(
             'stiffness alone: 20 % diffusion',

@@ -145,3 +145,28 @@ def test_ring_scale_changes_only_the_ring() -> None:
     assert np.abs(runs[0].tooth_error).max() > 0.0 and not runs[1].tooth_error.any()
     np.testing.assert_array_equal(runs[0].rim_speed, runs[1].rim_speed)
     assert not np.array_equal(runs[0].wheel_speed, runs[1].wheel_speed)
+
+
+def test_each_case_is_observed_for_its_targets_window() -> None:
+    """A run ends no sooner after its loss than its detection target allows (the diffusion's
+    2 minutes: a warning at 90 s must be seen, not counted a miss); nominal drives and
+    punctures drive on for the settings' time."""
+    settings = tpms.Settings(observe_s=60.0)
+    assert tpms.observed_s(tpms.Job(21500, 'diffusion20', 'rural', settings)) == 120.0
+    assert tpms.observed_s(tpms.Job(21500, 'puncture15', 'rural', settings)) == 60.0
+    assert tpms.observed_s(tpms.Job(21500, 'nominal', 'rural',
+                                    tpms.Settings(observe_s=0.0))) == 0.0
+    rows = _rows(tpms.scoreboard_rows(RECORDS))
+    assert rows['fused: 20 % diffusion'].text.endswith('within 2 min of reaching it')
+    assert tpms.DETECTION_LIMIT_S['diffusion20'] == 120.0
+
+
+def test_stiffness_settings_reach_the_observer() -> None:
+    """``--stiffness-set`` values are the observer's parameters in every run."""
+    car = tpms.sample_car(21500)
+    settings = tpms.Settings(stiffness_set={'forgetting_factor': 0.99, 'tooth_learning_s': 60.0})
+    stiffness = tpms.method_params(car, settings)[2]
+    assert (stiffness.forgetting_factor, stiffness.tooth_learning_s) == (0.99, 60.0)
+    default = tpms.method_params(car, tpms.Settings())[2]
+    assert dataclasses.replace(stiffness, forgetting_factor=default.forgetting_factor,
+                               tooth_learning_s=default.tooth_learning_s) == default
