@@ -690,7 +690,7 @@ def main() -> None:
     """Command line."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--cars', type=int, default=len(HELD_OUT_SEEDS),
-                        help='first N held-out cars')
+                        help='first N cars of the seed pool (held-out; tuning with --tuning)')
     parser.add_argument('--seeds', default='', help='comma-separated seeds instead')
     parser.add_argument('--tuning', action='store_true', help='use the tuning seeds')
     parser.add_argument('--cases', default=','.join(FAULT_CASES),
