@@ -656,25 +656,38 @@ def write_scoreboard(path: Path, records: list[dict[str, Any]], commit: str, dat
     """The committed result file the main job's scoreboard shows (without the settings that
     only say where files were kept: they change no result)."""
     seeds = tuple(sorted({int(r['seed']) for r in records}))
-    kept = {k: v for k, v in settings.items() if k not in ('sim_cache', 'traces')}
+
+    def kept(values: dict[str, Any]) -> dict[str, Any]:
+        return {k: kept(v) if isinstance(v, dict) else v for k, v in values.items()
+                if k not in ('sim_cache', 'traces')}
+
     results = FamilyResults('benchmarks/eval_tpms_family.py', commit, date, seeds,
                             all(s in HELD_OUT_SEEDS for s in seeds),
-                            tuple(scoreboard_rows(records)), kept)
+                            tuple(scoreboard_rows(records)), kept(settings))
     write_family_results(path, results)
     print(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
 
 
 def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Merge result files (later ones override the same car and case); the records and the
-    last file's header (settings, commit, date)."""
+    """Merge result files (later ones override the same car and case); the records and a
+    header: the last file's commit and date, and the settings, the files' own when they all
+    ran with the same, else per file by the cases it ran (``{'nominal': {...},
+    'diffusion20,puncture15': {...}}``: the 30-minute nominal drives run with other timing than
+    the fault cases)."""
     merged: dict[tuple[int, str], dict[str, Any]] = {}
     header: dict[str, Any] = {}
+    settings_by_cases: dict[str, dict[str, Any]] = {}
     for path in paths:
         data = json.loads(path.read_text())
-        header = {k: v for k, v in data.items() if k in ('settings', 'commit', 'date')}
+        header = {k: v for k, v in data.items() if k in ('commit', 'date')}
         header.setdefault('date', time.strftime('%Y-%m-%d', time.gmtime(path.stat().st_mtime)))
+        cases = ','.join(sorted({rec['case'] for rec in data['records']}))
+        settings_by_cases[cases] = data.get('settings', {})
         for rec in data['records']:
             merged[(rec['seed'], rec['case'])] = rec
+    distinct = {json.dumps(v, sort_keys=True) for v in settings_by_cases.values()}
+    header['settings'] = (next(iter(settings_by_cases.values()), {}) if len(distinct) <= 1
+                          else settings_by_cases)
     return list(merged.values()), header
 
 

@@ -131,6 +131,30 @@ def test_rail_rows() -> None:
     assert end.worst_case == 'damper at 190001 at 35.0 m/s: ended none'
 
 
+def test_scoreboard_of_files_run_with_other_settings_keeps_each(tmp_path: Path) -> None:
+    """Fault runs and long nominal drives run with other timing: the merged header keeps each
+    file's settings by the cases it ran (not the last file's for all), without the settings
+    that only say where files were kept."""
+    faults = tmp_path / 'faults.json'
+    faults.write_text(json.dumps({'settings': {'fault_s': 150.0, 'sim_cache': '/tmp/x'},
+                                  'commit': 'aaa', 'date': '2026-12-01', 'records': RECORDS}))
+    nominal = tmp_path / 'nominal.json'
+    nominal.write_text(json.dumps({'settings': {'fault_s': 1890.0}, 'commit': 'bbb',
+                                   'date': '2026-12-02',
+                                   'records': [_record(21002, 'nominal', nominal_s=1800.0)]}))
+    records, header = tpms.load_records([faults, nominal])
+    assert len(records) == 5 and (header['commit'], header['date']) == ('bbb', '2026-12-02')
+    assert header['settings'] == {
+        'diffusion20,puncture15,puncture25': {'fault_s': 150.0, 'sim_cache': '/tmp/x'},
+        'nominal': {'fault_s': 1890.0}}
+    out = tmp_path / 'tpms_family.json'
+    tpms.write_scoreboard(out, records, header['commit'], header['date'], header['settings'])
+    assert load_family_results(out).settings == {
+        'diffusion20,puncture15,puncture25': {'fault_s': 150.0}, 'nominal': {'fault_s': 1890.0}}
+    same = tpms.load_records([faults, faults])[1]['settings']
+    assert same == {'fault_s': 150.0, 'sim_cache': '/tmp/x'}
+
+
 def test_ring_scale_changes_only_the_ring() -> None:
     """``--ring-scale 0``: the same car and drive with a perfect ring (every other draw where it
     was); the default scale leaves the car as drawn."""
