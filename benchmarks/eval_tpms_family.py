@@ -13,7 +13,9 @@ on a drawn drive (urban / rural / motorway in turn) in up to three cases:
 
 Every case starts with all tires at placard: the three methods calibrate at the start of the
 drive (vibration and wheel radius over [0, ``--calibration-s``], the stiffness observer over its
-own 60 s of valid data), then [``--calibration-s``, ``--fault-s``] is nominal driving. Each
+own 60 s of valid data), then [``--calibration-s``, ``--fault-s``] is nominal driving. After
+the loss reached its level the drive goes on for ``--observe-s`` or the case's detection window
+where that is longer (``DETECTION_LIMIT_S``: the diffusion's 2 minutes). Each
 method gets only what a user of the car can know (``FamilyCar.user_parameters``): placard
 (stiffness ``nominal_pressure_kpa``), driven axle (``driven_axle``, vibration
 ``driveline_compensation``: front, rear or all), nominal radius, track,
@@ -33,7 +35,9 @@ Run (reduced first): ``python benchmarks/eval_tpms_family.py --cars 4 --cases di
 also writes one row per target of the issue (pass rate, worst case) as the main job's
 scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
 ``docs/results/tpms_family.json``), after a run or from saved runs:
-``python benchmarks/eval_tpms_family.py --report RUNS.json --scoreboard PATH [--commit SHA]``.
+``python benchmarks/eval_tpms_family.py --report RUNS.json [MORE.json] --scoreboard PATH
+[--commit SHA]``. ``--stiffness-set NAME=VALUE`` (repeatable) sets a stiffness observer
+parameter in every run, for ablations on the tuning cars (``--tuning``).
 ``--traces DIR`` keeps each run's indications as the voter got them, tick by tick, so another
 voting rule can be judged on the same runs without replaying them (:func:`load_trace`,
 :func:`revote`, :func:`score`).
