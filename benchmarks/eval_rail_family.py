@@ -103,8 +103,7 @@ from vehicle_monitor_common.parameters import (  # noqa: E402
     ConfigurationError,
     build,
     flatten,
-    parse_assignment,
-    with_values,
+    parse_assignments,
 )
 
 CREEP_CONFIGS = ('C-spec/exact', 'C-spec/map0.3', 'C-all/exact', 'C-all/map0.3', 'D/none',
@@ -611,8 +610,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         write_scoreboard(args.scoreboard, saved, commit)
         return 0
     try:
-        imm_overrides = dict(parse_assignment(item) for item in args.imm_set)
-        with_values(SuspensionImmParams(), imm_overrides)     # a typo is an error, not a default
+        imm_overrides = parse_assignments(args.imm_set, SuspensionImmParams())
     except ConfigurationError as exc:
         parser.error(f'--imm-set: {exc}')
     seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS

@@ -93,7 +93,7 @@ from vehicle_monitor_common.family_results import (
     today,
     write_family_results,
 )
-from vehicle_monitor_common.parameters import ConfigurationError, parse_assignment, with_values
+from vehicle_monitor_common.parameters import ConfigurationError, parse_assignments, with_values
 
 METHODS = ('vibration', 'wheel_radius', 'stiffness')
 # Issue 21's detection targets: the fused warning within this long after the loss reached its
@@ -754,8 +754,7 @@ def main() -> None:
                              header.get('settings', {}))
         return
     try:
-        stiffness_set = dict(parse_assignment(item) for item in args.stiffness_set)
-        with_values(StiffnessObserverParams(), stiffness_set)  # a typo is an error, not a default
+        stiffness_set = parse_assignments(args.stiffness_set, StiffnessObserverParams())
     except ConfigurationError as exc:
         parser.error(f'--stiffness-set: {exc}')
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,

@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 
 from tpms_ros.core.stiffness_observer import StiffnessObserverParams
-from vehicle_monitor_common.parameters import ConfigurationError, parse_assignment, with_values
+from vehicle_monitor_common.parameters import (
+    ConfigurationError,
+    parse_assignment,
+    parse_assignments,
+    with_values,
+)
 
 
 def test_assignment_value_is_yaml() -> None:
@@ -38,3 +43,16 @@ def test_unknown_name_is_an_error_not_a_default() -> None:
 def test_refused_value_names_the_parameter_class() -> None:
     with pytest.raises(ConfigurationError, match='StiffnessObserverParams'):
         with_values(StiffnessObserverParams(), {'forgetting_factor': 2.0})
+
+
+def test_assignments_are_checked_against_the_parameters() -> None:
+    """What the evaluations' ``--...-set`` options take: a typo is an error, not a default."""
+    assert parse_assignments(['forgetting_factor=0.99', 'trust_check=false'],
+                             StiffnessObserverParams()) == {'forgetting_factor': 0.99,
+                                                            'trust_check': False}
+    assert parse_assignments([], StiffnessObserverParams()) == {}
+    for texts, match in ((['forgeting_factor=0.99'], 'no parameter forgeting_factor'),
+                         (['forgetting_factor=2.0'], 'StiffnessObserverParams'),
+                         (['forgetting_factor'], 'expected NAME=VALUE')):
+        with pytest.raises(ConfigurationError, match=match):
+            parse_assignments(texts, StiffnessObserverParams())

@@ -12,7 +12,7 @@ A field whose default is itself such a dataclass is a group: its parameters are 
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 import dataclasses
 from dataclasses import dataclass
 from typing import Any
@@ -157,6 +157,19 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     if not sep or not name.strip():
         raise ConfigurationError(f'{text!r}: expected NAME=VALUE')
     return name.strip(), yaml.safe_load(value)
+
+
+def parse_assignments(texts: Iterable[str], instance: Any) -> dict[str, Any]:
+    """Command-line ``NAME=VALUE`` assignments (:func:`parse_assignment`) for parameters of
+    ``instance``, checked as :func:`with_values` would apply them.
+
+    Raises:
+        ConfigurationError: a malformed assignment, a name that is not a parameter, or a value
+            its checks refuse.
+    """
+    values = dict(parse_assignment(text) for text in texts)
+    with_values(instance, values)
+    return values
 
 
 def check_choice(spec: ParameterSpec, value: Any) -> str | None:
