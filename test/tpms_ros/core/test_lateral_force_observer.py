@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from tpms_ros.core.lateral_force_kernel import G, derivative, filter_step
 from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     ObserverTuningParams,
@@ -100,11 +101,88 @@ def test_zeta_is_the_model_steady_state() -> None:
     fyf, fyr = z1 * phi, z2 * phi
     assert params.lf * fyf == pytest.approx(params.lr * fyr, rel=1e-12)  # yaw balance
     x = np.array([20.0, 0.0, 0.0, phi, 0.0, fyf, fyr])
-    g, _ = obs._derivative(x, (0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0))
+    g, jacobian = np.empty(7), np.empty((7, 7))
+    derivative(x, np.array([0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]), obs._model, obs._se_inv,
+               obs._s_inv, g, jacobian)
     # with r = 0 the lateral row is 2(Fyf + Fyr)/m, and the roll row must then give p' = 0
     # zeta linearises sin(phi): the residual is the phi^3 term, ~1e-5 rad/s^2
     assert g[4] == pytest.approx(0.0, abs=1e-4)
     assert g[2] == pytest.approx(0.0, abs=1e-9)
+
+
+def _numpy_step(obs: LateralForceObserver, x: np.ndarray, p: np.ndarray, u: np.ndarray,
+                dt: float, z: np.ndarray, fx: np.ndarray, c: float, s: float,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One filter step written out with numpy, as the module docstring states it (the
+    observer's numpy implementation before the kernel)."""
+    v = obs.params
+    mse, kphi, cphi = v.ms * v.e, v.kphi_f + v.kphi_r, v.cphi_f + v.cphi_r
+    z1, z2 = obs.zeta
+    vx, vy, r, phi, pr, fyf, fyr = obs._s_inv * x
+    fx1, fx2, fx3, fx4, uc, us, drho = u
+    sum_front = us * (fx1 + fx2) + 2.0 * uc * fyf
+    f = np.array([
+        uc * (fx1 + fx2) - 2.0 * us * fyf + fx3 + fx4 + v.m * r * vy - mse * pr * r,
+        sum_front + 2.0 * fyr - v.m * r * vx,
+        v.lf * sum_front - 2.0 * v.lr * fyr + v.tf * uc * (fx2 - fx1) + v.tf * us * drho * fyf
+        + v.tr * (fx4 - fx3),
+        pr,
+        v.hf * sum_front + 2.0 * v.hr * fyr - kphi * phi - cphi * pr + mse * G * math.sin(phi)
+        + mse * r * vx,
+        z1 * pr, z2 * pr])
+    jac = np.zeros((7, 7))
+    jac[0, [1, 2, 4, 5]] = v.m * r, v.m * vy - mse * pr, -mse * r, -2.0 * us
+    jac[1, [0, 2, 5, 6]] = -v.m * r, -v.m * vx, 2.0 * uc, 2.0
+    jac[2, [5, 6]] = 2.0 * v.lf * uc + v.tf * us * drho, -2.0 * v.lr
+    jac[3, 4] = 1.0
+    jac[4, [0, 2, 3, 4, 5, 6]] = (mse * r, mse * vx, -kphi + mse * G * math.cos(phi), -cphi,
+                                  2.0 * v.hf * uc, 2.0 * v.hr)
+    jac[5, 4], jac[6, 4] = z1, z2
+    g = obs._se_inv @ f
+    a_dt = (obs._se_inv @ jac) * obs._s_inv[None, :] * dt
+    x = x + dt * (g + 0.5 * (a_dt @ g))
+    transition = np.eye(7) + a_dt + 0.5 * (a_dt @ a_dt)
+    p = transition @ p @ transition.T + obs._q * dt
+    xp = obs._s_inv * x
+    h = np.zeros((5, 7))
+    h[0, 5], h[1, 5], h[1, 6] = -2.0 * s / v.m, 2.0 * c / v.m, 2.0 / v.m
+    h[1, 3] = G * math.cos(xp[3])
+    h[2, 2] = h[3, 4] = h[4, 0] = 1.0
+    z_hat = np.array([(c * (fx[0] + fx[1]) - 2.0 * s * xp[5] + fx[2] + fx[3]) / v.m,
+                      (s * (fx[0] + fx[1]) + 2.0 * c * xp[5] + 2.0 * xp[6]) / v.m
+                      + G * math.sin(xp[3]), xp[2], xp[4], xp[0]])
+    h = h * obs._s_inv[None, :]
+    pht = p @ h.T
+    gain = np.linalg.solve(h @ pht + obs._r, pht.T).T
+    y = z - z_hat
+    i_kh = np.eye(7) - gain @ h
+    p = i_kh @ p @ i_kh.T + gain @ obs._r @ gain.T
+    return x + gain @ y + (dt * y[2]) * obs._gp, 0.5 * (p + p.T), y
+
+
+def test_compiled_step_is_the_models_numpy_step() -> None:
+    """The compiled filter step equals the model's equations written with numpy, on seeded
+    random states in a turn with braking (every term of the model non-zero)."""
+    obs = LateralForceObserver()
+    rng = np.random.default_rng(17)
+    for _ in range(20):
+        x = obs._s * np.array([25.0, 0.3, 0.2, 0.03, 0.05, 2500.0, 2200.0]) * (
+            1.0 + 0.2 * rng.standard_normal(7))
+        root = rng.standard_normal((7, 7))
+        p = 0.1 * root @ root.T + np.eye(7)
+        u = np.array([*rng.normal(-800.0, 200.0, 4), math.cos(0.05), math.sin(0.05), 0.12])
+        z = np.array([-2.0, 4.0, 0.2, 0.05, 25.0]) + 0.1 * rng.standard_normal(5)
+        fx = rng.normal(-800.0, 200.0, 4)
+        expected_x, expected_p, expected_y = _numpy_step(obs, x, p, u, 0.01, z, fx,
+                                                         math.cos(0.06), math.sin(0.06))
+        y = np.empty(5)
+        restarted = filter_step(x, p, u, True, 0.01, z, fx, math.cos(0.06), math.sin(0.06),
+                                obs._model, obs._se_inv, obs._s, obs._s_inv, obs._q, obs._r,
+                                obs._gp, True, obs._p0, y)
+        assert restarted == 0
+        np.testing.assert_allclose(x, expected_x, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(p, expected_p, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(y, expected_y, rtol=1e-10, atol=1e-12)
 
 
 def test_split_preserves_axle_sum() -> None:

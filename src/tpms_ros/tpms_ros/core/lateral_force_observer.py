@@ -78,17 +78,17 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from tpms_ros.core.lateral_force_kernel import N_X as _N_X
+from tpms_ros.core.lateral_force_kernel import N_Z as _N_Z
+from tpms_ros.core.lateral_force_kernel import G, filter_step, initial_state
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
-G = 9.81
 STATE_NAMES = ('vx', 'vy', 'r', 'phi', 'p', 'fyf', 'fyr')
 MEASUREMENT_NAMES = ('ax', 'ay', 'r', 'p', 'vx_wheel')
 PAPER_SCALING = (1e-1, 10.0, 10.0, 1e3, 1e2, 1e-3, 1e-3)
 # Q of the plain EKF (physical units per s) from the same search as the SKFMEC's defaults.
 PLAIN_Q_DIAG = (1e-2, 1e-1, 1e-1, 1e-1, 1e3, 3.0, 3.0)
-_N_X = 7
-_N_Z = 5
 _SPD_CHECK_EVERY = 10
 
 
@@ -317,9 +317,6 @@ class LateralForceObserver:
         p, tn = self.params, self.tuning
         self._s = np.asarray(tn.scaling if tn.scaled else (1.0,) * _N_X, dtype=float)
         self._s_inv = 1.0 / self._s
-        self._s_inv_row = self._s_inv[None, :]
-        # A* = S A S^-1 elementwise: A*_ij = A_ij s_i / s_j
-        self._s_ratio = self._s[:, None] / self._s[None, :]
         self._q = np.diag(np.asarray(tn.q_diag, dtype=float))
         self._p0 = np.diag(np.asarray(tn.p0_diag, dtype=float))
         self._r = np.diag(np.asarray(tn.r_std, dtype=float) ** 2)
@@ -337,7 +334,10 @@ class LateralForceObserver:
         if tn.mec:
             self._gp[5], self._gp[6] = tn.gp
             self._gy = (float(tn.gy[0]), float(tn.gy[1]))
-        self._eye = np.eye(_N_X)
+        self._model = np.array([p.m, p.ms * p.e, p.lf, p.lr, p.tf, p.tr, p.hf, p.hr,
+                                self._kphi, self._cphi, *self._zeta], dtype=float)
+        self._no_inputs = np.zeros(_N_X)    # the first sample predicts nothing
+        self._y = np.zeros(_N_Z)            # the last residual z - h(x-)
         self.health = ObserverHealth()
         self.reset()
 
@@ -346,7 +346,7 @@ class LateralForceObserver:
         """Forget the estimate; the next accepted sample initialises the filter."""
         self._x: np.ndarray | None = None       # scaled state
         self._P = self._p0.copy()
-        self._u_prev: tuple[float, ...] | None = None
+        self._u_prev: np.ndarray | None = None   # the held inputs of the next prediction
         self._omega_prev = np.zeros(4)
         self._omega_dot = np.zeros(4)
         self._pending_dt = 0.0
@@ -384,131 +384,41 @@ class LateralForceObserver:
         return (max(mean_f - d_f, floor_f), max(mean_f + d_f, floor_f),
                 max(mean_r - d_r, floor_r), max(mean_r + d_r, floor_r))
 
-    def _derivative(self, xp: np.ndarray, u: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Scaled derivative g(x*) = S E^-1 f(x, u) and its Jacobian A* (split ratios frozen)."""
-        p = self.params
-        vx, vy, r, phi, pr, fyf, fyr = (float(v) for v in xp)
-        fx1, fx2, fx3, fx4, c, s, drho_f = u
-        fxf = fx1 + fx2
-        mse = p.ms * p.e
-        sum_fy_front = s * fxf + 2.0 * c * fyf
-        f = np.array([
-            c * fxf - 2.0 * s * fyf + fx3 + fx4 + p.m * r * vy - mse * pr * r,
-            sum_fy_front + 2.0 * fyr - p.m * r * vx,
-            p.lf * sum_fy_front - 2.0 * p.lr * fyr + p.tf * c * (fx2 - fx1)
-            + p.tf * s * drho_f * fyf + p.tr * (fx4 - fx3),
-            pr,
-            p.hf * sum_fy_front + 2.0 * p.hr * fyr - self._kphi * phi - self._cphi * pr
-            + mse * G * math.sin(phi) + mse * r * vx,
-            self._zeta[0] * pr,
-            self._zeta[1] * pr,
-        ])
-        jac = np.zeros((_N_X, _N_X))
-        jac[0, 1] = p.m * r
-        jac[0, 2] = p.m * vy - mse * pr
-        jac[0, 4] = -mse * r
-        jac[0, 5] = -2.0 * s
-        jac[1, 0] = -p.m * r
-        jac[1, 2] = -p.m * vx
-        jac[1, 5] = 2.0 * c
-        jac[1, 6] = 2.0
-        jac[2, 5] = 2.0 * p.lf * c + p.tf * s * drho_f
-        jac[2, 6] = -2.0 * p.lr
-        jac[3, 4] = 1.0
-        jac[4, 0] = mse * r
-        jac[4, 2] = mse * vx
-        jac[4, 3] = -self._kphi + mse * G * math.cos(phi)
-        jac[4, 4] = -self._cphi
-        jac[4, 5] = 2.0 * p.hf * c
-        jac[4, 6] = 2.0 * p.hr
-        jac[5, 4] = self._zeta[0]
-        jac[6, 4] = self._zeta[1]
-        return self._se_inv @ f, (self._se_inv @ jac) * self._s_inv_row
-
-    def _measure(self, xp: np.ndarray, fx: Sequence[float], c: float,
-                 s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted measurement z_hat = h(x) and its Jacobian in scaled coordinates
-        H* = H S^-1."""
-        p = self.params
-        fxf = fx[0] + fx[1]
-        ay_hat = (s * fxf + 2.0 * c * xp[5] + 2.0 * xp[6]) / p.m
-        H = np.zeros((_N_Z, _N_X))
-        if self.tuning.imu_gravity_tilt:
-            # A body-fixed IMU on the rolled sprung mass also reads g sin(phi).
-            ay_hat += G * math.sin(xp[3])
-            H[1, 3] = G * math.cos(xp[3])
-        z_hat = np.array([
-            (c * fxf - 2.0 * s * xp[5] + fx[2] + fx[3]) / p.m, ay_hat, xp[2], xp[4], xp[0],
-        ])
-        H[0, 5] = -2.0 * s / p.m
-        H[1, 5] = 2.0 * c / p.m
-        H[1, 6] = 2.0 / p.m
-        H[2, 2] = H[3, 4] = H[4, 0] = 1.0
-        return z_hat, H * self._s_inv[None, :]
-
-    def _initial_state(self, ay: float, r: float, pr: float, vx: float) -> np.ndarray:
-        """Steady-turn start: forces from ay, roll angle from relation 1."""
-        p = self.params
-        wb = p.wheelbase
-        fyf = p.m * ay * p.lr / (2.0 * wb)
-        fyr = p.m * ay * p.lf / (2.0 * wb)
-        x = np.array([vx, 0.0, r, fyf / self._zeta[0], pr, fyf, fyr])
-        return self._s * x
-
     # ------------------------------------------------------------------ filter core
     def _filter_sample(self, dt: float, ax: float, ay: float, r: float, pr: float,
                        fx: tuple[float, float, float, float], steer: float,
                        vx_wheel: float) -> tuple[tuple[float, ...], np.ndarray]:
-        """Predict over dt with the held inputs, correct with this sample; returns (loads, x)."""
+        """Predict over dt with the held inputs, correct with this sample (the compiled
+        :func:`tpms_ros.core.lateral_force_kernel.filter_step`); returns (loads, x)."""
         c, s = math.cos(steer), math.sin(steer)
-        if self._x is None or self._u_prev is None:
-            self._x = self._initial_state(ay, r, pr, vx_wheel)
-            self._P = self._p0.copy()
-        else:
-            g, a_s = self._derivative(self._s_inv * self._x, self._u_prev)
-            a_dt = a_s * dt
-            self._x = self._x + dt * (g + 0.5 * (a_dt @ g))
-            F = self._eye + a_dt + 0.5 * (a_dt @ a_dt)
-            self._P = F @ self._P @ F.T + self._q * dt
-            if not math.isfinite(float(self._x.sum()) + float(self._P.sum())):
-                # A diverged prediction (e.g. an unstable tuning): restart from this sample
-                # rather than publish or propagate NaN; counted as a covariance reset.
-                self.health.covariance_resets += 1
-                self._x = self._initial_state(ay, r, pr, vx_wheel)
-                self._P = self._p0.copy()
         z = np.array([ax, ay, r, pr, vx_wheel])
-        xp = self._s_inv * self._x
-        z_hat, H = self._measure(xp, fx, c, s)
-        PHt = self._P @ H.T
-        try:
-            K = np.linalg.solve(H @ PHt + self._r, PHt.T).T
-        except np.linalg.LinAlgError:
-            # Numerically singular residual covariance (P blown up): restart, counted.
-            self.health.covariance_resets += 1
-            self._x = self._initial_state(ay, r, pr, vx_wheel)
+        x, held = self._x, self._u_prev
+        predict = x is not None and held is not None
+        if x is None or held is None:
+            x, held = np.empty(_N_X), self._no_inputs
+            initial_state(ay, r, pr, vx_wheel, self._model, self._s, x)
             self._P = self._p0.copy()
-            xp = self._s_inv * self._x
-            z_hat, H = self._measure(xp, fx, c, s)
-            PHt = self._P @ H.T
-            K = np.linalg.solve(H @ PHt + self._r, PHt.T).T
-        y = z - z_hat                     # residual
-        i_kh = self._eye - K @ H
-        self._P = i_kh @ self._P @ i_kh.T + K @ self._r @ K.T
-        self._P = 0.5 * (self._P + self._P.T)
-        self._x = self._x + K @ y + (dt * y[2]) * self._gp
+        restarted = filter_step(
+            x, self._P, held, predict, dt, z, np.array(fx), c, s, self._model, self._se_inv,
+            self._s, self._s_inv, self._q, self._r, self._gp, self.tuning.imu_gravity_tilt,
+            self._p0, self._y)
+        self._x = x
+        # a diverged prediction (e.g. an unstable tuning) or a singular residual covariance
+        # restarted the filter from this sample rather than publish or propagate NaN
+        self.health.covariance_resets += bin(restarted).count('1')
         if not self._covariance_ok():
             self.health.covariance_resets += 1
             self._P = self._p0.copy()
-        xp = self._s_inv * self._x
+        xp = self._s_inv * x
         phi = float(xp[3])
         # The load transfer follows the kinematic lateral acceleration, not the IMU's tilt.
         ay_kin = ay - G * math.sin(phi) if self.tuning.imu_gravity_tilt else ay
-        loads = self._loads(ax, ay_kin, phi, float(y[1]))
+        loads = self._loads(ax, ay_kin, phi, float(self._y[1]))
         # The yaw moment of the steered front forces needs the left/right split of relation 2.
         w_left = loads[0] ** self.params.split_exponent
         w_right = loads[1] ** self.params.split_exponent
-        self._u_prev = (fx[0], fx[1], fx[2], fx[3], c, s,
-                        2.0 * (w_left - w_right) / (w_left + w_right))
+        self._u_prev = np.array([fx[0], fx[1], fx[2], fx[3], c, s,
+                                 2.0 * (w_left - w_right) / (w_left + w_right)])
         return loads, xp
 
     def _covariance_ok(self) -> bool:
