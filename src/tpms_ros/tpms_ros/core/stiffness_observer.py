@@ -44,8 +44,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 import math
+from statistics import median
 from typing import Any, Literal
 
+from numba import njit, types
 import numpy as np
 import scipy.signal as sig
 from scipy.special import ndtr
@@ -474,6 +476,107 @@ def _row_median(values: np.ndarray) -> np.ndarray:
     return np.where(count > 0, mid, np.nan)
 
 
+# The codes the sensor kernel sets, as plain ints (compile-time constants to numba); a tooth-rate
+# overrun reads as 'speed_band'.
+_INVALID, _DEAD, _STUCK = _CODE['invalid_sample'], _CODE['dead_sensor'], _CODE['stuck_sensor']
+_TIMING, _SETTLING, _OVERRUN = _CODE['timing'], _CODE['settling'], _CODE['speed_band']
+_F1, _F2 = types.float64[:], types.float64[:, :]
+_B1, _B2 = types.boolean[:], types.boolean[:, :]
+_I1, _I2 = types.int64[:], types.int64[:, :]
+
+
+@njit(types.void(_F2, _B1, _F1, types.int64, types.int64, types.boolean,
+                 _F1, _I1, _B1, _I1, _F1, _I1, _I1, _I2, _B2, _B2, _F2, _I2),
+      cache=True, error_model='numpy')
+def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarray,
+                  stuck_samples: int, settle_samples: int, tooth_correction: bool,
+                  last_value: np.ndarray, run: np.ndarray, prev_good: np.ndarray,
+                  prev_code: np.ndarray, hold: np.ndarray, since_reset: np.ndarray,
+                  reset_cause: np.ndarray, code: np.ndarray, good: np.ndarray,
+                  reset: np.ndarray, filled: np.ndarray, counts: np.ndarray) -> None:
+    """The per-sample sensor checks of :meth:`TireStiffnessObserver._process`, compiled
+    (numba): validity, dead and stuck sensors, tooth-rate overrun, filter resets and their
+    causes, the hold of bad samples and the settling after a reset; states updated in place.
+
+    Why compiled: as numpy these were some fifty small-array calls per chunk (run lengths and
+    last-index fills by accumulate, per-wheel maxima of the other wheels), most of each call's
+    cost overhead. Only comparisons, copies and integer counts: the same results as numpy's.
+
+    Args:
+        omega: (n, 4) wheel speeds as received.
+        timing_break: (n,) samples that break the time line (gap, rate change).
+        limits: max_omega_rad_s, dead_omega_rad_s, the speed another wheel must reach for a
+            slow wheel to be dead, rad/s, teeth per radian, the tooth-edge rate limit, 1/s.
+        stuck_samples, settle_samples: run of equal readings that is a stuck sensor; samples
+            not used after a reset.
+        tooth_correction: the tooth-rate overrun check is on.
+        last_value, run, prev_good, prev_code, hold, since_reset, reset_cause: (4,) carried
+            per wheel: last reading, its run of equal readings, last sample good and its code
+            (before settling), held speed, samples since the last reset and its cause.
+        code: (n, 4) out, reason codes after settling (the gates come later).
+        good: (n, 4) out, valid sensor samples (before settling).
+        reset: (n, 4) out, filter resets.
+        filled: (n, 4) out, speeds with bad samples held at the last good one.
+        counts: (4, 4) out, per wheel invalid, dead, stuck and settling samples.
+    """
+    max_omega, dead_omega, others_min = limits[0], limits[1], limits[2]
+    teeth_per_rad, tooth_limit = limits[3], limits[4]
+    plausible = np.empty(N_WHEELS)
+    invalid = np.empty(N_WHEELS, dtype=np.bool_)
+    for w in range(N_WHEELS):
+        if not math.isfinite(hold[w]):
+            hold[w] = 0.0
+    for i in range(omega.shape[0]):
+        for w in range(N_WHEELS):
+            value = omega[i, w]
+            invalid[w] = not (math.isfinite(value) and 0.0 <= value <= max_omega)
+            plausible[w] = 0.0 if invalid[w] else value
+        for w in range(N_WHEELS):
+            value = omega[i, w]
+            others_max = -math.inf
+            for other in range(N_WHEELS):
+                if other != w and plausible[other] > others_max:
+                    others_max = plausible[other]
+            dead = not invalid[w] and value < dead_omega and others_max >= others_min
+            # Stuck: identical consecutive readings for stuck_s (a quantised ABS speed holds a
+            # value only for one tooth period, a few ms at speed).
+            run[w] = run[w] + 1 if value == last_value[w] else 0
+            last_value[w] = value
+            sample_code = OK
+            if invalid[w]:
+                sample_code = _INVALID
+                counts[0, w] += 1
+            elif dead:
+                sample_code = _DEAD
+                counts[1, w] += 1
+            elif run[w] >= stuck_samples:
+                sample_code = _STUCK
+                counts[2, w] += 1
+            elif tooth_correction and plausible[w] * teeth_per_rad > tooth_limit:
+                # Edges faster than the samples: the tooth count (and the correction) is lost, so
+                # the wheel is treated as unusable and its tracking restarts when it slows down.
+                sample_code = _OVERRUN
+            is_good = sample_code == OK
+            is_reset = is_good and (not prev_good[w] or timing_break[i])
+            if is_reset:
+                since_reset[w] = 0
+                reset_cause[w] = (_TIMING if timing_break[i] else
+                                  _SETTLING if prev_code[w] == OK else prev_code[w])
+            else:
+                since_reset[w] += 1
+            prev_good[w] = is_good
+            prev_code[w] = sample_code
+            if is_good:
+                hold[w] = value
+                if since_reset[w] < settle_samples:
+                    sample_code = reset_cause[w]
+                    counts[3, w] += 1
+            code[i, w] = sample_code
+            good[i, w] = is_good
+            reset[i, w] = is_reset
+            filled[i, w] = hold[w]
+
+
 class _TrustWindow:
     """The last ``size`` counted block stiffnesses of each wheel, for the trust measure (how
     the blocks behind the estimate compare with the calibration's)."""
@@ -749,12 +852,12 @@ class TireStiffnessObserver:
         self._cached = None
         if self.calibration_check.fits(decided[0], self.params):
             return
-        median, mean = decided
+        median_ratio, mean = decided
         k0 = self._k_nominal
         measured = ', '.join(f'{TIRE_NAMES[w]} {m * m * k:.0f}' for w, (m, k) in
                              enumerate(zip(mean, k0, strict=True)) if np.isfinite(m))
         stored = ', '.join(f'{k:.0f}' for k in k0)
-        self.calibration_check.refuse(f'stiffness {measured}', f'{stored} N m/rad', median,
+        self.calibration_check.refuse(f'stiffness {measured}', f'{stored} N m/rad', median_ratio,
                                       self.params)
         self._k_nominal = np.full(N_WHEELS, np.nan)
         self._wheel_calibrated = np.zeros(N_WHEELS, dtype=bool)
@@ -939,61 +1042,27 @@ class TireStiffnessObserver:
                  wheel_torque: np.ndarray | None, steering_angle: np.ndarray | None) -> None:
         p = self.params
         n = omega.shape[0]
-        idx = np.arange(n)[:, None]
         fs = p.sample_rate_hz
 
-        # --- per-sample sensor validity --------------------------------------------------
-        code = np.zeros((n, N_WHEELS), dtype=np.int64)
-        finite = np.isfinite(omega)
-        invalid = ~finite | (np.where(finite, omega, 0.0) < 0.0) | (
-            np.where(finite, omega, 0.0) > p.max_omega_rad_s)
-        speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
-        plausible = np.where(invalid, 0.0, omega)
-        others_max = np.stack([np.delete(plausible, w, axis=1).max(axis=1)
-                               for w in range(N_WHEELS)], axis=1)
-        dead = ~invalid & (omega < p.dead_omega_rad_s) & (others_max >= max(speed_min, 1e-9))
-        # Stuck: identical consecutive readings for stuck_s (a quantised ABS speed holds a
-        # value only for one tooth period, a few ms at speed).
-        prev = np.concatenate((self._last_value[None], omega[:-1]))
-        same = omega == prev
-        change = np.where(same, -1, idx)
-        last_change = np.maximum.accumulate(change, axis=0)
-        run = np.where(last_change >= 0, idx - last_change, idx + 1 + self._run[None])
-        stuck = ~invalid & ~dead & (run >= int(round(p.stuck_s * fs)))
-        self._run = run[-1].copy()
-        self._last_value = omega[-1].copy()
-        code[stuck] = _CODE['stuck_sensor']
-        code[dead] = _CODE['dead_sensor']
-        code[invalid] = _CODE['invalid_sample']
-        if p.tooth_correction:
-            # Edges faster than the samples: the tooth count (and the correction) is lost, so
-            # the wheel is treated as unusable and its tracking restarts when it slows down.
-            tooth_rate = plausible * (p.encoder_teeth / (2.0 * np.pi))
-            overrun = (code == OK) & (tooth_rate > p.max_tooth_rate_fraction * fs)
-            code[overrun] = _CODE['speed_band']
-        bad = code != OK
-        for name in ('invalid_sample', 'dead_sensor', 'stuck_sensor'):
-            self._counters[name] += (code == _CODE[name]).sum(axis=0)
-        good = ~bad
-
-        # --- resets: on resuming after bad data, on a timing break, and at the start --------
-        prev_good = np.concatenate((self._prev_good[None], good[:-1]))
-        prev_code = np.concatenate((self._prev_code[None], code[:-1]))
-        resume = good & ~prev_good
-        reset = good & (resume | timing_break[:, None])
-        cause = np.where(timing_break[:, None], _CODE['timing'],
-                         np.where(prev_code == OK, _CODE['settling'], prev_code))
-        self._prev_good = good[-1].copy()
-        self._prev_code = code[-1].copy()
-
+        # --- per-sample sensor validity, resets, hold of bad samples, settling ---------------
         # Held values for bad samples keep the filters finite; they are masked and the wheel
         # is reset when good data resumes, so they never reach an estimate.
-        last_good_idx = np.maximum.accumulate(np.where(good, idx, -1), axis=0)
-        hold = np.where(np.isfinite(self._hold), self._hold, 0.0)
-        filled = np.where(last_good_idx >= 0,
-                          np.take_along_axis(omega, np.maximum(last_good_idx, 0), axis=0),
-                          hold[None])
-        self._hold = filled[-1].copy()
+        code = np.empty((n, N_WHEELS), dtype=np.int64)
+        good = np.empty((n, N_WHEELS), dtype=bool)
+        reset = np.empty((n, N_WHEELS), dtype=bool)
+        filled = np.empty((n, N_WHEELS))
+        counts = np.zeros((4, N_WHEELS), dtype=np.int64)
+        speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
+        settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
+        _sensor_chunk(omega, timing_break, np.array([
+            p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
+            p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs]),
+            int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
+            self._last_value, self._run, self._prev_good, self._prev_code, self._hold,
+            self._since_reset, self._reset_cause, code, good, reset, filled, counts)
+        for row, name in enumerate(('invalid_sample', 'dead_sensor', 'stuck_sensor',
+                                    'settling')):
+            self._counters[name] += counts[row]
 
         # --- filters, split at reset rows ----------------------------------------------------
         outputs = np.empty((n, N_WHEELS, 4))
@@ -1009,19 +1078,6 @@ class TireStiffnessObserver:
         # (the derivative at a reset row is masked by the settling anyway).
         prev_low = np.concatenate((self._prev_lowpass[None], lowpass[:-1]))
         self._prev_lowpass = lowpass[-1].copy()
-
-        # --- settling after resets ------------------------------------------------------
-        last_reset = np.maximum.accumulate(np.where(reset, idx, -1), axis=0)
-        since = np.where(last_reset >= 0, idx - last_reset, idx + 1 + self._since_reset[None])
-        settle_cause = np.where(last_reset >= 0,
-                                np.take_along_axis(cause, np.maximum(last_reset, 0), axis=0),
-                                self._reset_cause[None])
-        self._since_reset = since[-1].copy()
-        self._reset_cause = settle_cause[-1].copy()
-        settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
-        settling = good & (since < int(round(settle_s * fs)))
-        code = np.where(settling, settle_cause, code)
-        self._counters['settling'] += settling.sum(axis=0)
 
         # --- validity gates (the data are fine, the method is not valid here) ---------------
         accel = (lowpass - prev_low) * fs * p.rolling_radius_m
@@ -1170,24 +1226,25 @@ class TireStiffnessObserver:
         blocks = np.zeros(N_WHEELS)
         spread_ratio = np.full(N_WHEELS, np.nan)
         for w in range(N_WHEELS):
-            k = self._trust.last(w, self._trust.size)
-            blocks[w] = k.size
-            if k.size >= 4 and self._wheel_calibrated[w] and self._k_block_std[w] > 0:
-                spread_ratio[w] = 1.4826 * float(np.median(np.abs(
-                    k - np.median(k)))) / self._k_block_std[w]
+            k = self._trust.last(w, self._trust.size).tolist()
+            blocks[w] = len(k)
+            if len(k) >= 4 and self._wheel_calibrated[w] and self._k_block_std[w] > 0:
+                centre = median(k)
+                spread_ratio[w] = 1.4826 * median([abs(v - centre) for v in k]) \
+                    / self._k_block_std[w]
         return {'blocks': blocks, 'spread_ratio': spread_ratio}
 
-    def _recent_block_std(self) -> np.ndarray:
-        """(4,) robust spread of each wheel's last memory of block stiffnesses (NaN: < 4)."""
-        return self.trust_features()['spread_ratio'] * self._k_block_std
+    def _untrusted(self, calibrated: np.ndarray, features: dict[str, np.ndarray]) -> list[str]:
+        """Per tire: the 'uncertain_*' reason its estimate is not trusted, or ''.
 
-    def _untrusted(self, calibrated: np.ndarray) -> list[str]:
-        """Per tire: the 'uncertain_*' reason its estimate is not trusted, or ''."""
+        Args:
+            calibrated: (4,) tires with a calibration in force.
+            features: :meth:`trust_features` now.
+        """
         p = self.params
         reasons = [''] * N_WHEELS
         if not p.trust_check:
             return reasons
-        features = self.trust_features()
         for w in range(N_WHEELS):
             if not calibrated[w]:
                 continue
@@ -1215,7 +1272,8 @@ class TireStiffnessObserver:
         pressure = p0 * pressure_ratio
         # The noise of the blocks behind the estimate: the calibration's, or the recent blocks'
         # where they spread wider.
-        block_std = np.fmax(self._k_block_std, self._recent_block_std())
+        features = self.trust_features()
+        block_std = np.fmax(self._k_block_std, features['spread_ratio'] * self._k_block_std)
         sigma_ratio = block_std / math.sqrt(p.effective_blocks) / k_nominal
         # The noise is that of the stiffness ratio, through the law's local slope (at placard
         # while the ratio is unknown).
@@ -1223,7 +1281,7 @@ class TireStiffnessObserver:
             np.where(np.isfinite(ratio), ratio, 1.0))
         pressure_std = np.where(calibrated, p0 * sigma_ratio * gain, np.nan)
         converged = self._converged()
-        untrusted = self._untrusted(calibrated)
+        untrusted = self._untrusted(calibrated, features)
         status = []
         for w in range(N_WHEELS):
             code = int(self._last_block_code[w])
