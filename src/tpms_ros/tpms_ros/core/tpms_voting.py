@@ -200,9 +200,11 @@ class TpmsVoter:
         self.params = params if params is not None else VoterParams()
         self._latest: dict[str, TpmsIndication] = {}
         self._enabled = dict.fromkeys(self.params.method_thresholds, True)
-        self._warning = np.zeros(N_TIRES, dtype=bool)
-        self._on_time = np.zeros(N_TIRES)     # how long the set condition has held, s
-        self._off_time = np.zeros(N_TIRES)    # how long the evidence has stayed below clear, s
+        # Per tire, as Python lists: the vote works on a few methods x 4 tires, where numpy's
+        # per-call overhead cost ten times the arithmetic.
+        self._warning = [False] * N_TIRES
+        self._on_time = [0.0] * N_TIRES     # how long the set condition has held, s
+        self._off_time = [0.0] * N_TIRES    # how long the evidence has stayed below clear, s
         self._last_eval_s: float | None = None
         self._last_result: TpmsWarningResult | None = None
         self.rejected: dict[str, int] = {'unknown_method': 0, 'out_of_order': 0,
@@ -229,9 +231,9 @@ class TpmsVoter:
     def reset(self) -> None:
         """Forget indications, warnings and timers (e.g. after the driver re-calibrates)."""
         self._latest.clear()
-        self._warning[:] = False
-        self._on_time[:] = 0.0
-        self._off_time[:] = 0.0
+        self._warning = [False] * N_TIRES
+        self._on_time = [0.0] * N_TIRES
+        self._off_time = [0.0] * N_TIRES
         self._last_eval_s = None
         self._last_result = None
 
@@ -270,16 +272,23 @@ class TpmsVoter:
             (self._warning, self._on_time, self._off_time, self._last_eval_s,
              self._last_result) = held
 
-    def _supported(self, used: list[str], counted: np.ndarray, conf: np.ndarray) -> np.ndarray:
-        """(methods, 4): where each used method may warn alone: it needs no support, no other
+    def _supported(self, used: list[str], counted: list[list[bool]],
+                   conf: list[list[float]]) -> list[list[bool]]:
+        """[method][tire]: where each used method may warn alone: it needs no support, no other
         method is counted for the tire, or another counted one shows at least its support."""
-        needed = np.array([self.params.method_support.get(m, 0.0) for m in used])
-        out = np.ones(counted.shape, dtype=bool)
-        for i in np.flatnonzero(needed > 0.0):
-            others = np.delete(counted, i, axis=0)
-            other_conf = np.where(others, np.delete(conf, i, axis=0), -1.0)
-            out[i] = ~others.any(axis=0) | (other_conf.max(axis=0, initial=-1.0) >= needed[i])
-        return out
+        supported = []
+        for i, method in enumerate(used):
+            needed = self.params.method_support.get(method, 0.0)
+            if not needed > 0.0:
+                supported.append([True] * N_TIRES)
+                continue
+            others = [k for k in range(len(used)) if k != i]
+            row = []
+            for j in range(N_TIRES):
+                shown = [conf[k][j] for k in others if counted[k][j]]
+                row.append(not shown or max(shown) >= needed)
+            supported.append(row)
+        return supported
 
     def _vote(self, now_s: float) -> TpmsWarningResult:
         """The vote at ``now_s`` (not before the last one): timers advanced, result kept."""
@@ -308,56 +317,78 @@ class TpmsVoter:
             reasons.append('rejected inputs: ' + ', '.join(
                 f'{k}={v}' for k, v in self.rejected.items() if v))
 
-        # (n_methods, 4) arrays of the fresh, enabled indications
-        if used:
-            flags = np.array([self._latest[m].underinflated for m in used])
-            conf = np.array([self._latest[m].confidence for m in used])
-            known = np.array([self._latest[m].known for m in used])
-            h_own = np.array([p.method_thresholds[m] for m in used])
-        else:
-            flags = conf = known = np.zeros((0, N_TIRES))
-            h_own = np.zeros(0)
-        counted = known.astype(bool)
-        flagging = counted & flags.astype(bool)
-        n_counted = counted.sum(axis=0)
-        n_flagging = flagging.sum(axis=0)
-        agree = (n_flagging == n_counted) & (n_counted >= 2)
-
-        mean_conf = np.where(counted, conf, 0.0).sum(axis=0) / np.maximum(n_counted, 1)
-        # disagreement: each flagging method against its own threshold; the margin c/h tells
-        # which method is strongest relative to its threshold (the one the reasons name)
-        margin_own = np.where(flagging, conf / h_own[:, None], 0.0) if used else \
-            np.zeros((0, N_TIRES))
+        # [method][tire] of the fresh, enabled indications
+        latest = [self._latest[m] for m in used]
+        conf = [ind.confidence.tolist() for ind in latest]
+        counted = [ind.known.tolist() for ind in latest]
+        flagging = [[c and f for c, f in zip(known, ind.underinflated.tolist(), strict=True)]
+                    for known, ind in zip(counted, latest, strict=True)]
+        h_own = [p.method_thresholds[m] for m in used]
         supported = self._supported(used, counted, conf)
-        # a method needing support sets a warning only with it; its evidence holds one anyway
-        margin_set = np.where(supported, margin_own, 0.0)
-        max_flag_conf = np.where(flagging, conf, 0.0).max(axis=0) if used else \
-            np.zeros(N_TIRES)
-        best_margin = margin_own.max(axis=0) if used else np.zeros(N_TIRES)
-        best_set = margin_set.max(axis=0) if used else np.zeros(N_TIRES)
 
-        confidence = np.where(agree, mean_conf, np.where(n_flagging > 0, max_flag_conf, 0.0))
-        # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears
-        ratio = np.where(agree, mean_conf / p.h0, best_margin)
-        condition = (n_flagging > 0) & (np.where(agree, ratio, best_set) > 1.0)
-        below_clear = (n_flagging == 0) | (ratio < p.clear_ratio)
-        informed = n_counted > 0
+        # Per tire, over the methods in order. Sums and maxima are bit for bit numpy's over
+        # (methods, 4) arrays: the sum starts at 0.0 and adds a 0.0 for an uncounted method, a
+        # tie in the maximum takes the later method (only the sign of a zero can tell).
+        n_flagging = [0] * N_TIRES
+        informed = [False] * N_TIRES
+        agree = [False] * N_TIRES
+        mean_conf = [0.0] * N_TIRES
+        confidence = [0.0] * N_TIRES
+        condition = [False] * N_TIRES
+        strongest = [0] * N_TIRES    # the first method of the largest margin: the reasons name it
+        for j in range(N_TIRES):
+            n_counted = 0
+            conf_sum = 0.0
+            max_flag_conf = best_margin = best_set = 0.0
+            for i in range(len(used)):
+                n_counted += counted[i][j]
+                n_flagging[j] += flagging[i][j]
+                conf_sum += conf[i][j] if counted[i][j] else 0.0
+                # disagreement: each flagging method against its own threshold; the margin c/h
+                # tells which method is strongest relative to its threshold (the one the reasons
+                # name)
+                flag_conf = conf[i][j] if flagging[i][j] else 0.0
+                margin = conf[i][j] / h_own[i] if flagging[i][j] else 0.0
+                # a method needing support sets a warning only with it; its evidence holds one
+                # anyway
+                margin_set = margin if supported[i][j] else 0.0
+                if i == 0 or flag_conf >= max_flag_conf:
+                    max_flag_conf = flag_conf
+                if i == 0 or margin > best_margin:
+                    strongest[j] = i
+                if i == 0 or margin >= best_margin:
+                    best_margin = margin
+                if i == 0 or margin_set >= best_set:
+                    best_set = margin_set
+            informed[j] = n_counted > 0
+            agree[j] = n_flagging[j] == n_counted and n_counted >= 2
+            mean_conf[j] = conf_sum / max(n_counted, 1)
+            if agree[j]:
+                confidence[j] = mean_conf[j]
+            elif n_flagging[j] > 0:
+                confidence[j] = max_flag_conf
+            # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears
+            ratio = mean_conf[j] / p.h0 if agree[j] else best_margin
+            condition[j] = n_flagging[j] > 0 and (ratio if agree[j] else best_set) > 1.0
+            below_clear = n_flagging[j] == 0 or ratio < p.clear_ratio
 
-        # hold-off and hysteresis as up/down timers: they count up while their condition holds
-        # and down (not to zero) otherwise, so a noisy confidence that is mostly above the
-        # threshold still warns, and one dropping out for a sample does not restart the wait.
-        # A tire with no information keeps state and timers.
-        self._on_time = np.where(
-            informed, np.maximum(self._on_time + np.where(condition, dt, -dt), 0.0),
-            self._on_time)
-        self._off_time = np.where(
-            informed, np.maximum(self._off_time + np.where(below_clear, dt, -dt), 0.0),
-            self._off_time)
-        set_now = ~self._warning & condition & (self._on_time >= p.set_on_s)
-        clear_now = self._warning & below_clear & (self._off_time >= p.set_off_s)
-        self._warning = (self._warning | set_now) & ~clear_now
-        self._on_time[self._warning] = 0.0
-        self._off_time[~self._warning] = 0.0
+            # hold-off and hysteresis as up/down timers: they count up while their condition
+            # holds and down (not to zero) otherwise, so a noisy confidence that is mostly above
+            # the threshold still warns, and one dropping out for a sample does not restart the
+            # wait. A tire with no information keeps state and timers.
+            if informed[j]:
+                on_time = self._on_time[j] + (dt if condition[j] else -dt)
+                self._on_time[j] = on_time if on_time > 0.0 else 0.0
+                off_time = self._off_time[j] + (dt if below_clear else -dt)
+                self._off_time[j] = off_time if off_time > 0.0 else 0.0
+            warned = self._warning[j]
+            set_now = not warned and condition[j] and self._on_time[j] >= p.set_on_s
+            clear_now = warned and below_clear and self._off_time[j] >= p.set_off_s
+            self._warning[j] = (warned or set_now) and not clear_now
+            if self._warning[j]:
+                self._on_time[j] = 0.0
+            else:
+                self._off_time[j] = 0.0
 
         for j in range(N_TIRES):
             tire = TIRE_NAMES[j]
@@ -370,16 +401,16 @@ class TpmsVoter:
                     reasons.append(f'{tire}: warning held, clearing in '
                                    f'{max(p.set_off_s - self._off_time[j], 0.0):.1f} s')
                 continue
-            names = [m for i, m in enumerate(used) if flagging[i, j]]
+            names = [m for i, m in enumerate(used) if flagging[i][j]]
             if agree[j]:
                 rule = (f'{tire}: {" + ".join(names)} agree, mean confidence '
                         f'{mean_conf[j]:.2f} vs h0 {p.h0:.2f}')
             else:
-                i = int(margin_own[:, j].argmax())
+                i = strongest[j]
                 m = used[i]
                 rule = (f'{tire}: flagged by {", ".join(names)} only, {m} confidence '
-                        f'{conf[i, j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
-                if not supported[i, j]:
+                        f'{conf[i][j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
+                if not supported[i][j]:
                     rule += (f', without support (another method at least '
                              f'{p.method_support[m]:.2f} needed)')
             state = 'WARNING' if self._warning[j] else (
@@ -389,10 +420,10 @@ class TpmsVoter:
 
         result = TpmsWarningResult(
             stamp_s=now_s,
-            warning=self._warning.copy(),
-            active=bool(self._warning.any()),
-            confidence=confidence,
-            condition=condition,
+            warning=np.array(self._warning),
+            active=any(self._warning),
+            confidence=np.array(confidence),
+            condition=np.array(condition),
             reasons=tuple(reasons),
             methods_used=tuple(used),
             stale_methods=tuple(stale),
