@@ -37,7 +37,9 @@ when it is right again, the filters (fed at the wrong rate) restart.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 import math
+from statistics import median
 from typing import Any
 
 import numpy as np
@@ -177,8 +179,9 @@ class VibrationAnalyzerProcessor(
                 self._last_bad_s[:] = -math.inf
                 self._fault_since_s[:] = math.nan
             self._recovering_since_s[:] = stamp * 1e-9
-        elif self._buffer_last_ns:
-            # bridge a few missing samples with NaN rows: the block stays uniformly sampled
+        elif self._buffer_last_ns and stamp - self._buffer_last_ns != self._period_ns:
+            # bridge a few missing samples with NaN rows: the block stays uniformly sampled (a
+            # sample one period after the last, the usual one, misses none: no division)
             missing = round((stamp - self._buffer_last_ns) / self._period_ns) - 1
             if missing > 0:
                 self.counts['missing_samples'] += missing
@@ -236,7 +239,7 @@ class VibrationAnalyzerProcessor(
         samples do not move it); kept from the previous block when this one is too short. When
         a wrong rate ends, the filters, fed at the wrong rate, restart."""
         if len(stamps) >= 3:
-            interval_ns = float(np.median(np.diff(np.asarray(stamps, dtype=np.int64))))
+            interval_ns = median([later - earlier for earlier, later in pairwise(stamps)])
             if interval_ns > 0.0:
                 self._input_rate_hz = 1e9 / interval_ns
         mismatch = self.rate_mismatch()
