@@ -15,7 +15,7 @@ from tpms_ros.core.stiffness_observer import (
     N_WHEELS,
     OK,
     StiffnessObserverParams,
-    _sensor_chunk,
+    sensor_checks,
 )
 
 COUNTED = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'settling')
@@ -97,23 +97,9 @@ class KernelSensorChecks(NumpySensorChecks):
 
     def __call__(self, omega: np.ndarray, timing_break: np.ndarray,
                  ) -> tuple[np.ndarray, ...]:
-        p = self.p
-        n = omega.shape[0]
-        fs = p.sample_rate_hz
-        code = np.empty((n, N_WHEELS), dtype=np.int64)
-        good = np.empty((n, N_WHEELS), dtype=bool)
-        reset = np.empty((n, N_WHEELS), dtype=bool)
-        filled = np.empty((n, N_WHEELS))
-        counts = np.zeros((4, N_WHEELS), dtype=np.int64)
-        speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
-        settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
-        _sensor_chunk(omega, timing_break, np.array([
-            p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
-            p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs]),
-            int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
+        return sensor_checks(self.p, omega, timing_break, (
             self.last_value, self.run, self.prev_good, self.prev_code, self.hold,
-            self.since_reset, self.reset_cause, code, good, reset, filled, counts)
-        return code, good, reset, filled, counts
+            self.since_reset, self.reset_cause))
 
 
 def _faulty_speeds(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

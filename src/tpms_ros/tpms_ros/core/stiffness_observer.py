@@ -577,6 +577,42 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             filled[i, w] = hold[w]
 
 
+def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: np.ndarray,
+                  carried: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """The per-sample sensor checks of a chunk (:func:`_sensor_chunk` with the parameters'
+    limits).
+
+    Args:
+        p: the observer's parameters.
+        omega: (n, 4) wheel speeds as received; timing_break: (n,) samples that break the
+            time line.
+        carried: the per-wheel state carried across chunks, updated in place: last reading,
+            its run of equal readings, last sample good, its code, held speed, samples since
+            the last reset and its cause.
+
+    Returns:
+        code, good, reset, filled (each (n, 4)) and the (4, 4) counts of invalid, dead, stuck
+        and settling samples per wheel.
+    """
+    n = omega.shape[0]
+    fs = p.sample_rate_hz
+    code = np.empty((n, N_WHEELS), dtype=np.int64)
+    good = np.empty((n, N_WHEELS), dtype=bool)
+    reset = np.empty((n, N_WHEELS), dtype=bool)
+    filled = np.empty((n, N_WHEELS))
+    counts = np.zeros((4, N_WHEELS), dtype=np.int64)
+    speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
+    settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
+    last_value, run, prev_good, prev_code, hold, since_reset, reset_cause = carried
+    _sensor_chunk(omega, timing_break, np.array([
+        p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
+        p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs]),
+        int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
+        last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
+        reset, filled, counts)
+    return code, good, reset, filled, counts
+
+
 class _TrustWindow:
     """The last ``size`` counted block stiffnesses of each wheel, for the trust measure (how
     the blocks behind the estimate compare with the calibration's)."""
@@ -1047,19 +1083,9 @@ class TireStiffnessObserver:
         # --- per-sample sensor validity, resets, hold of bad samples, settling ---------------
         # Held values for bad samples keep the filters finite; they are masked and the wheel
         # is reset when good data resumes, so they never reach an estimate.
-        code = np.empty((n, N_WHEELS), dtype=np.int64)
-        good = np.empty((n, N_WHEELS), dtype=bool)
-        reset = np.empty((n, N_WHEELS), dtype=bool)
-        filled = np.empty((n, N_WHEELS))
-        counts = np.zeros((4, N_WHEELS), dtype=np.int64)
-        speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
-        settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
-        _sensor_chunk(omega, timing_break, np.array([
-            p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
-            p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs]),
-            int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
+        code, good, reset, filled, counts = sensor_checks(p, omega, timing_break, (
             self._last_value, self._run, self._prev_good, self._prev_code, self._hold,
-            self._since_reset, self._reset_cause, code, good, reset, filled, counts)
+            self._since_reset, self._reset_cause))
         for row, name in enumerate(('invalid_sample', 'dead_sensor', 'stuck_sensor',
                                     'settling')):
             self._counters[name] += counts[row]
