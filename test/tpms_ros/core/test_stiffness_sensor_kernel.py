@@ -16,6 +16,7 @@ from tpms_ros.core.stiffness_observer import (
     OK,
     StiffnessObserverParams,
     sensor_checks,
+    sensor_state,
 )
 
 COUNTED = ('invalid_sample', 'dead_sensor', 'stuck_sensor', 'settling')
@@ -26,13 +27,8 @@ class NumpySensorChecks:
 
     def __init__(self, p: StiffnessObserverParams) -> None:
         self.p = p
-        self.prev_good = np.zeros(N_WHEELS, dtype=bool)
-        self.prev_code = np.full(N_WHEELS, _CODE['settling'])
-        self.hold = np.full(N_WHEELS, np.nan)
-        self.last_value = np.full(N_WHEELS, np.nan)
-        self.run = np.zeros(N_WHEELS, dtype=np.int64)
-        self.since_reset = np.zeros(N_WHEELS, dtype=np.int64)
-        self.reset_cause = np.full(N_WHEELS, _CODE['settling'])
+        (self.last_value, self.run, self.prev_good, self.prev_code, self.hold,
+         self.since_reset, self.reset_cause) = sensor_state()
 
     def __call__(self, omega: np.ndarray, timing_break: np.ndarray,
                  ) -> tuple[np.ndarray, ...]:

@@ -577,6 +577,16 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             filled[i, w] = hold[w]
 
 
+def sensor_state() -> tuple[np.ndarray, ...]:
+    """The per-wheel state :func:`sensor_checks` carries, at a start: last reading (none), its
+    run of equal readings, last sample good, its code, held speed (none), samples since the
+    last reset and its cause (settling)."""
+    return (np.full(N_WHEELS, np.nan), np.zeros(N_WHEELS, dtype=np.int64),
+            np.zeros(N_WHEELS, dtype=bool), np.full(N_WHEELS, _CODE['settling']),
+            np.full(N_WHEELS, np.nan), np.zeros(N_WHEELS, dtype=np.int64),
+            np.full(N_WHEELS, _CODE['settling']))
+
+
 def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: np.ndarray,
                   carried: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     """The per-sample sensor checks of a chunk (:func:`_sensor_chunk` with the parameters'
@@ -586,9 +596,8 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
         p: the observer's parameters.
         omega: (n, 4) wheel speeds as received; timing_break: (n,) samples that break the
             time line.
-        carried: the per-wheel state carried across chunks, updated in place: last reading,
-            its run of equal readings, last sample good, its code, held speed, samples since
-            the last reset and its cause.
+        carried: the per-wheel state carried across chunks (:func:`sensor_state`), updated in
+            place.
 
     Returns:
         code, good, reset, filled (each (n, 4)) and the (4, 4) counts of invalid, dead, stuck
@@ -707,13 +716,8 @@ class TireStiffnessObserver:
         self._obs_zi = [np.zeros((3, design.denominator.size - 1, wheels.size))
                         for wheels, design, _ in self._groups]
         self._prev_lowpass = np.zeros(N_WHEELS)
-        self._prev_good = np.zeros(N_WHEELS, dtype=bool)
-        self._prev_code = np.full(N_WHEELS, _CODE['settling'])
-        self._hold = np.full(N_WHEELS, np.nan)
-        self._last_value = np.full(N_WHEELS, np.nan)
-        self._run = np.zeros(N_WHEELS, dtype=np.int64)
-        self._since_reset = np.zeros(N_WHEELS, dtype=np.int64)
-        self._reset_cause = np.full(N_WHEELS, _CODE['settling'])
+        (self._last_value, self._run, self._prev_good, self._prev_code, self._hold,
+         self._since_reset, self._reset_cause) = sensor_state()
         self._last_stamp = -math.inf
         self._timing_pending = False
         # Partial block carried between chunks: per-sample arrays of the unfinished block
