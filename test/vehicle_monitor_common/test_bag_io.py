@@ -23,6 +23,7 @@ from vehicle_monitor_common.bag_io import (
     compare_bags,
     default_message,
     iter_raw,
+    message_from_fields,
     msg_definition_dir,
     read_series,
     series_messages,
@@ -274,3 +275,33 @@ def test_compare_bags_names_exact_differences(
     assert len(problems) == 1
     assert re.search(match, problems[0]), problems[0]
     assert '\n' not in problems[0]
+
+
+def test_message_from_fields_converts_as_the_field_types_say() -> None:
+    """Each field's value is converted once by its type: numpy scalars to Python numbers, an int
+    in range kept, arrays to the field's dtype and length, nested messages built, the rest
+    defaulted; a value the type refuses is an error naming the field, never a silent NaN."""
+    store = typestore()
+    msg = message_from_fields(store, 'vehicle_monitor_msgs/msg/TpmsWarning', {
+        'header': {'stamp': {'sec': np.int64(3), 'nanosec': 7}},
+        'warning': [1, 0, 0, 1], 'active': np.bool_(True),
+        'confidence': np.array([0.5, 0.25, 0.0, 1.0], dtype=np.float32),
+        'reasons': ['FL: low'],
+    })
+    assert msg.header.stamp.sec == 3 and type(msg.header.stamp.sec) is int
+    assert msg.header.stamp.nanosec == 7 and msg.header.frame_id == ''
+    assert msg.warning.dtype == np.bool_ and msg.warning.tolist() == [True, False, False, True]
+    assert msg.active is True
+    assert msg.confidence.dtype == np.float64 and msg.confidence.tolist() == [0.5, 0.25, 0.0, 1.0]
+    assert msg.reasons == ['FL: low'] and msg.methods == []
+    offsets = message_from_fields(store, 'vehicle_monitor_msgs/msg/WheelRadiusOffsets',
+                                  {'delta_13': np.float32(0.5), 'longitudinal_valid': 1})
+    assert type(offsets.delta_13) is float and offsets.delta_13 == 0.5
+    assert offsets.longitudinal_valid is True
+    for fields, match in (
+            ({'delta_13': None}, 'WheelRadiusOffsets.delta_13'),
+            ({'nominal': [1.0, 2.0]}, 'WheelRadiusOffsets.nominal: expected 4 values'),
+            ({'header': {'stamp': {'sec': 2 ** 40}}}, 'Time.sec'),
+            ({'no_such_field': 1.0}, "no field 'no_such_field'")):
+        with pytest.raises(ValueError, match=match):
+            message_from_fields(store, 'vehicle_monitor_msgs/msg/WheelRadiusOffsets', fields)

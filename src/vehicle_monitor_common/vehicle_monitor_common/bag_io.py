@@ -151,7 +151,8 @@ def message_from_fields(store: Typestore, msgtype: str, fields: Mapping[str, Any
     defaulted. (The offline engine builds every output this way, without dotted paths.)
 
     Raises:
-        ValueError: a field the message does not have, or a value of the wrong shape.
+        ValueError: a field the message does not have, or a value of the wrong shape, type or
+            range, naming the field.
     """
     cls, plan = _build_plan(store, msgtype)
     kwargs: dict[str, Any] = {}
@@ -169,7 +170,7 @@ def message_from_fields(store: Typestore, msgtype: str, fields: Mapping[str, Any
             continue
         try:
             kwargs[name] = convert(value)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise ValueError(f'{msgtype}.{name}: {exc}') from None
     if given < len(fields):
         unknown = sorted(set(fields) - {name for name, _, _ in plan})
