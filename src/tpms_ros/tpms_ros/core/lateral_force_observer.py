@@ -78,9 +78,9 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from tpms_ros.core.lateral_force_kernel import MODEL_FIELDS, G, filter_step, initial_state
 from tpms_ros.core.lateral_force_kernel import N_X as _N_X
 from tpms_ros.core.lateral_force_kernel import N_Z as _N_Z
-from tpms_ros.core.lateral_force_kernel import G, filter_step, initial_state
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
@@ -334,8 +334,10 @@ class LateralForceObserver:
         if tn.mec:
             self._gp[5], self._gp[6] = tn.gp
             self._gy = (float(tn.gy[0]), float(tn.gy[1]))
-        self._model = np.array([p.m, p.ms * p.e, p.lf, p.lr, p.tf, p.tr, p.hf, p.hr,
-                                self._kphi, self._cphi, *self._zeta], dtype=float)
+        constants = {'m': p.m, 'mse': p.ms * p.e, 'lf': p.lf, 'lr': p.lr, 'tf': p.tf,
+                     'tr': p.tr, 'hf': p.hf, 'hr': p.hr, 'kphi': self._kphi,
+                     'cphi': self._cphi, 'zeta_f': self._zeta[0], 'zeta_r': self._zeta[1]}
+        self._model = np.array([constants[name] for name in MODEL_FIELDS], dtype=float)
         self._no_inputs = np.zeros(_N_X)    # the first sample predicts nothing
         self._y = np.zeros(_N_Z)            # the last residual z - h(x-)
         self.health = ObserverHealth()
