@@ -109,23 +109,6 @@ def default_message(msgtype: str, store: Typestore | None = None) -> Any:
     return cls(**{name: _default_value(store, node) for name, node in fields})
 
 
-def _column_value(store: Typestore, node: tuple[Any, Any], value: Any) -> Any:
-    """Convert one sample of a column to the field's rosbags representation."""
-    nodetype, detail = node
-    if nodetype == Nodetype.BASE:
-        name = detail[0]
-        return str(value) if name == 'string' else _NUMPY_DTYPES[name](value).item()
-    if nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE):
-        inner, length = detail
-        if inner[0] == Nodetype.BASE and inner[1][0] in _NUMPY_DTYPES:
-            array: np.ndarray = np.ascontiguousarray(value, dtype=_NUMPY_DTYPES[inner[1][0]])
-            if nodetype == Nodetype.ARRAY and array.shape != (length,):
-                raise ValueError(f'expected {length} values, got shape {array.shape}')
-            return array
-        return [_column_value(store, inner, item) for item in value]
-    raise ValueError(f'cannot set a {detail} field from a column')
-
-
 def build_message(store: Typestore, msgtype: str, values: Mapping[str, Any]) -> Any:
     """A rosbags message whose dotted-path fields (``header.stamp.sec``) are taken from
     ``values`` (numbers, sequences, numpy arrays), the rest defaulted.
@@ -179,8 +162,8 @@ def message_from_fields(store: Typestore, msgtype: str, fields: Mapping[str, Any
 
 
 # (id of the typestore, message type) -> the message class and, per field, its name, type node
-# and the conversion of a given value (what _column_value does, decided once per field: the
-# engine builds every output message through here, tens of thousands per recording).
+# and the conversion of a given value, decided once per field: the engine builds every output
+# message through here, tens of thousands per recording.
 _BUILD_PLANS: dict[tuple[int, str], tuple[Any, list[tuple[str, Any, Any]]]] = {}
 
 
@@ -197,8 +180,9 @@ def _build_plan(store: Typestore, msgtype: str,
 
 
 def _converter(store: Typestore, node: tuple[Any, Any]) -> Any:
-    """The conversion of a given value to the field's rosbags representation: what
-    :func:`_column_value` does, with its dispatch decided once."""
+    """The conversion of a given value (a number, a sequence, a numpy array) to the field's
+    rosbags representation, decided once per field. Raises ValueError (or TypeError) for a
+    value the field cannot take."""
     nodetype, detail = node
     if nodetype == Nodetype.BASE:
         name = detail[0]
@@ -208,30 +192,39 @@ def _converter(store: Typestore, node: tuple[Any, Any]) -> Any:
             return float      # np.float64(value).item() for every real value, cheaper
         if name == 'bool':
             return bool
-        dtype = _NUMPY_DTYPES[name]
-        if np.issubdtype(dtype, np.integer):
+        if name in _NUMPY_DTYPES:
+            dtype = _NUMPY_DTYPES[name]
+            if not np.issubdtype(dtype, np.integer):
+                return lambda value: dtype(value).item()
             low, high = int(np.iinfo(dtype).min), int(np.iinfo(dtype).max)
 
             def integer(value: Any) -> Any:
-                # an int in range is its own value; anything else as _column_value converts it
+                # an int in range is its own value; numpy refuses one out of range
                 if type(value) is int and low <= value <= high:
                     return value
                 return dtype(value).item()
 
             return integer
-    elif nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE) and (
-            detail[0][0] == Nodetype.BASE and detail[0][1][0] in _NUMPY_DTYPES):
-        dtype = _NUMPY_DTYPES[detail[0][1][0]]
-        shape = (detail[1],) if nodetype == Nodetype.ARRAY else None
+    elif nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+        inner, length = detail
+        if inner[0] == Nodetype.BASE and inner[1][0] in _NUMPY_DTYPES:
+            item_dtype = _NUMPY_DTYPES[inner[1][0]]
+            shape = (length,) if nodetype == Nodetype.ARRAY else None
 
-        def array(value: Any) -> np.ndarray:
-            converted: np.ndarray = np.ascontiguousarray(value, dtype=dtype)
-            if shape is not None and converted.shape != shape:
-                raise ValueError(f'expected {shape[0]} values, got shape {converted.shape}')
-            return converted
+            def array(value: Any) -> np.ndarray:
+                converted: np.ndarray = np.ascontiguousarray(value, dtype=item_dtype)
+                if shape is not None and converted.shape != shape:
+                    raise ValueError(f'expected {shape[0]} values, got shape {converted.shape}')
+                return converted
 
-        return array
-    return functools.partial(_column_value, store, node)
+            return array
+        convert_item = _converter(store, inner)
+        return lambda value: [convert_item(item) for item in value]
+
+    def refuse(value: Any) -> Any:
+        raise ValueError(f'cannot set a {detail} field from a column')
+
+    return refuse
 
 
 def series_messages(series: TopicSeries, store: Typestore | None = None) -> Iterator[Any]:
