@@ -1195,7 +1195,7 @@ def _wheel_acceleration_filter(omega: np.ndarray, wheel_ok: np.ndarray, dt: np.n
     Why compiled: as numpy (a forward fill of the bad samples, ``sosfilt``, the difference)
     it was some twenty array calls, ~50 us a chunk of five samples, a quarter of the core's
     time. Every operation is the one numpy and scipy did, in the same order (no fast-math), so
-    the results are the same to the bit.
+    the results are the same to rounding (bit for bit on this project's machines).
 
     Args:
         omega, wheel_ok: (N, 4) wheel speeds and whether each is good.
