@@ -161,22 +161,23 @@ def message_from_fields(store: Typestore, msgtype: str, fields: Mapping[str, Any
     return cls(**kwargs)
 
 
-# (id of the typestore, message type) -> the message class and, per field, its name, type node
-# and the conversion of a given value, decided once per field: the engine builds every output
-# message through here, tens of thousands per recording.
-_BUILD_PLANS: dict[tuple[int, str], tuple[Any, list[tuple[str, Any, Any]]]] = {}
+# (id of the typestore, message type) -> the typestore itself (kept alive, so that its id is
+# never another store's), the message class and, per field, its name, type node and the
+# conversion of a given value, decided once per field: the engine builds every output message
+# through here, tens of thousands per recording.
+_BUILD_PLANS: dict[tuple[int, str], tuple[Typestore, Any, list[tuple[str, Any, Any]]]] = {}
 
 
 def _build_plan(store: Typestore, msgtype: str,
                 ) -> tuple[Any, list[tuple[str, Any, Any]]]:
     key = (id(store), msgtype)
-    plan = _BUILD_PLANS.get(key)
-    if plan is None:
+    cached = _BUILD_PLANS.get(key)
+    if cached is None:
         _, definitions = store.fielddefs[msgtype]
-        plan = (store.types[msgtype],
-                [(name, node, _converter(store, node)) for name, node in definitions])
-        _BUILD_PLANS[key] = plan
-    return plan
+        cached = (store, store.types[msgtype],
+                  [(name, node, _converter(store, node)) for name, node in definitions])
+        _BUILD_PLANS[key] = cached
+    return cached[1], cached[2]
 
 
 def _converter(store: Typestore, node: tuple[Any, Any]) -> Any:
