@@ -40,6 +40,9 @@ class GraphSpec:
     nodes: tuple[NodeSpec, ...]
     executor: str = 'events'
     use_sim_time: bool = False
+    # The estimator nodes take each input through one subscription per process
+    # (vehicle_monitor_common.shared_inputs); never on the 'multi' executor.
+    share_inputs: bool = True
 
     def __post_init__(self) -> None:
         if self.executor not in EXECUTOR_NAMES:
@@ -53,7 +56,7 @@ def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
     """Validate a graph description (the YAML's content) into a GraphSpec."""
     if not isinstance(data, dict):
         raise ConfigurationError(f'{source}: expected a mapping with a nodes list')
-    unknown = set(data) - {'executor', 'use_sim_time', 'nodes'}
+    unknown = set(data) - {'executor', 'use_sim_time', 'share_inputs', 'nodes'}
     if unknown:
         raise ConfigurationError(f'{source}: unknown key {sorted(unknown)[0]!r}')
     nodes = []
@@ -70,7 +73,8 @@ def parse_graph(data: Any, source: str = 'graph') -> GraphSpec:
                               remappings={str(k): str(v) for k, v in
                                           (entry.get('remappings') or {}).items()}))
     return GraphSpec(nodes=tuple(nodes), executor=str(data.get('executor', 'events')),
-                     use_sim_time=bool(data.get('use_sim_time', False)))
+                     use_sim_time=bool(data.get('use_sim_time', False)),
+                     share_inputs=bool(data.get('share_inputs', True)))
 
 
 def read_yaml_file(path: str | os.PathLike[str], what: str) -> Any:

@@ -92,7 +92,7 @@ def with_parameters(spec: GraphSpec, parameters: Mapping[str, Mapping[str, Any]]
         replace(node, parameters={**node.parameters,
                                   **parameters.get(node.name or node.plugin.split('/')[-1], {})})
         for node in spec.nodes)
-    return GraphSpec(nodes, executor or spec.executor, spec.use_sim_time)
+    return replace(spec, nodes=nodes, executor=executor or spec.executor)
 
 
 def bag_duration_s(bag: str | os.PathLike[str]) -> float:

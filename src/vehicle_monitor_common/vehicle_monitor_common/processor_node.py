@@ -7,11 +7,12 @@ the processor method its changes go to, a rule across groups, and ``make_process
 fqn)``, which the offline engine runs too, so node and engine build the processor the same
 way). This class declares the parameters (``TypedParameters``: one definition each), builds the
 processor from their values and attaches it (:meth:`ProcessorNode.attach`): it subscribes every
-input of the processor (sensor QoS, overridable), hands each message over, publishes the
-outputs it returns (reliable, depth 10), publishes its status on ``/diagnostics`` from a timer,
-forwards parameter changes, and, for a calibrating processor, serves ``~/calibrate``, keeps the
-calibration in the node's own file (``node_helpers.calibration_path``) and logs the
-calibration's events.
+input of the processor (sensor QoS, overridable; composed with other nodes, through the
+process's one subscription of that input, ``shared_inputs``), hands each message over,
+publishes the outputs it returns (reliable, depth 10), publishes its status on
+``/diagnostics`` from a timer, forwards parameter changes, and, for a calibrating processor,
+serves ``~/calibrate``, keeps the calibration in the node's own file
+(``node_helpers.calibration_path``) and logs the calibration's events.
 
 Input silence is watched here, once for every node: each input's message count and the age of
 its last message (node clock) go on the diagnostics; an input silent for longer than
@@ -49,6 +50,7 @@ from vehicle_monitor_common.node_helpers import (
 )
 from vehicle_monitor_common.parameters import flatten
 from vehicle_monitor_common.processing import ERROR, WARN, Output, Processor, ProcessorSpec
+from vehicle_monitor_common.shared_inputs import SharedInputs
 
 P = TypeVar('P')
 
@@ -86,9 +88,11 @@ class ProcessorNode(Node):
         if spec is not None:
             cls.processor_spec = spec
 
-    def __init__(self, node_name: str = '', **kwargs: Any) -> None:
+    def __init__(self, node_name: str = '', *, shared_inputs: SharedInputs | None = None,
+                 **kwargs: Any) -> None:
         declared = self.processor_spec
         super().__init__(node_name or (declared.name if declared else ''), **kwargs)
+        self._shared_inputs = shared_inputs
         self.typed_parameters: list[TypedParameters[Any]] = []
         if declared is None:
             return
@@ -171,8 +175,12 @@ class ProcessorNode(Node):
             topic: self.create_publisher(cls, topic, OUTPUT_QOS)
             for topic, cls in self._message_classes.items()}
         for topic, spec in processor.inputs.items():
-            sensor_subscription(self, message_class(spec.msgtype), topic,
-                                self._input_callback(topic), raw=spec.raw)
+            if self._shared_inputs is None:
+                sensor_subscription(self, message_class(spec.msgtype), topic,
+                                    self._input_callback(topic), raw=spec.raw)
+            else:
+                self._shared_inputs.subscribe(self, message_class(spec.msgtype), topic,
+                                              self._input_callback(topic), raw=spec.raw)
         self._calibrating = hasattr(processor, 'request_calibration')
         if self._calibrating:
             self.create_service(Trigger, '~/calibrate', self._on_calibrate)
@@ -180,6 +188,11 @@ class ProcessorNode(Node):
                                         update=self._update_diagnostics)
         self._update_diagnostics()
         self._log_calibration_events()
+
+    def destroy_node(self) -> None:
+        if self._shared_inputs is not None:
+            self._shared_inputs.release(self)
+        super().destroy_node()
 
     def _input_callback(self, topic: str) -> Callable[[Any], None]:
         return lambda message: self.deliver(topic, message)

@@ -8,6 +8,9 @@ packages' setup.cfg (like rclcpp_components), or ``module:Class``. A graph file:
     executor: events            # events (rclpy's EventsExecutor, default: ~5x less overhead
                                 # per callback), single, or multi (one thread per core)
     use_sim_time: true          # applied to every node but the players, which publish /clock
+    share_inputs: true          # default: the estimators take each input topic through one
+                                # subscription (vehicle_monitor_common.shared_inputs); not
+                                # with the multi executor
     nodes:
       - plugin: tpms_ros/vehicle_simulator
         name: vehicle_simulator
@@ -52,7 +55,9 @@ from vehicle_monitor_common.graph_spec import GraphSpec, NodeSpec, load_graph
 from vehicle_monitor_common.node_helpers import refuse_unknown_parameters, run_main
 from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.player import ScenarioPlayer
+from vehicle_monitor_common.processor_node import ProcessorNode
 from vehicle_monitor_common.recorder import GraphRecorder
+from vehicle_monitor_common.shared_inputs import SharedInputs
 
 NODE_GROUP = 'vehicle_monitor.nodes'
 # The EventsExecutor (experimental in Jazzy) costs about a fifth of the SingleThreadedExecutor
@@ -89,6 +94,9 @@ class Graph:
         self.spec = spec
         self.context = context
         self.executor: Executor = EXECUTORS[spec.executor](context)
+        # One subscription per input for the estimators, where one callback runs at a time.
+        self.shared_inputs = (SharedInputs() if spec.share_inputs and spec.executor != 'multi'
+                              else None)
         self.nodes: list[Node] = []
         try:
             for node_spec in spec.nodes:
@@ -116,6 +124,8 @@ class Graph:
         }
         if node_spec.name:
             kwargs['node_name'] = node_spec.name
+        if issubclass(cls, ProcessorNode):  # type: ignore[arg-type]
+            kwargs['shared_inputs'] = self.shared_inputs
         node = cls(**{k: v for k, v in kwargs.items() if v is not None})
         try:
             refuse_unknown_parameters(node)
@@ -188,7 +198,7 @@ def _apply_overrides(spec: GraphSpec, overrides: list[str]) -> GraphSpec:
                                                 param_name: yaml.safe_load(raw)})
         nodes[nodes.index(original)] = updated
         by_name[node_name] = updated
-    return GraphSpec(tuple(nodes), spec.executor, spec.use_sim_time)
+    return replace(spec, nodes=tuple(nodes))
 
 
 def main(argv: list[str] | None = None) -> int:
