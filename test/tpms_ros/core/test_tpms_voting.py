@@ -77,45 +77,14 @@ def test_a_method_needing_support_warns_alone_only_with_it(
     assert any('without support' in r for r in result.reasons) is not expected
 
 
-def test_default_support_vibration_always_stiffness_on_one_or_two_tires() -> None:
-    """The node's per-method parameters and the core's defaults say the same: the vibration
-    method needs support on any number of tires, the stiffness method while it flags one or
-    two, the wheel radius method never."""
+def test_only_the_vibration_method_needs_support_by_default() -> None:
+    """The node's per-method parameters and the core's defaults say the same."""
     specs = {p.name: p.default for p in parameter_specs(
         method_votes_params(['stiffness', 'vibration', 'wheel_radius']))}
-    assert specs['vibration.support'] == specs['stiffness.support'] == 0.3
-    assert specs['wheel_radius.support'] == 0.0
-    assert (specs['stiffness.support_tires'], specs['vibration.support_tires'],
-            specs['wheel_radius.support_tires']) == (2, 4, 4)
-    assert VoterParams().method_support == {'vibration': 0.3, 'stiffness': 0.3}
-    assert VoterParams().method_support_tires == {'stiffness': 2}
-    assert VoterParams().only(['wheel_radius']).method_support == {}
-    assert VoterParams().only(['vibration']).method_support_tires == {}
-    with pytest.raises(ValueError, match='method_support_tires'):
-        VoterParams(method_support_tires={'stiffness': 0})
-
-
-@pytest.mark.parametrize(('flags', 'warned'), [
-    ([1, 0, 0, 0], [False, False, False, False]),   # one tire: needs support, has none
-    ([1, 1, 0, 0], [False, False, False, False]),   # two tires: still needs it
-    ([1, 1, 1, 0], [True, True, True, False]),      # three at once: warns alone
-    ([1, 1, 1, 1], [True, True, True, True]),       # a diffusion: warns alone
-])
-def test_support_needed_only_while_the_method_flags_few_tires(
-        flags: list[int], warned: list[bool]) -> None:
-    """Stiffness at 0.9 (> its h 0.8) on the flagged tires, the wheel radius method counted
-    and confidently not low on each (0.1 < support 0.3): with support_tires 2 the stiffness
-    method warns alone on three or four tires, not on one or two."""
-    voter = make_voter(method_thresholds={'stiffness': 0.8, 'wheel_radius': H_RAD},
-                       method_support={'stiffness': 0.3},
-                       method_support_tires={'stiffness': 2})
-    result = voter.evaluate(1.0, [
-        ind('stiffness', 1.0, flags, [0.9 * f for f in flags]),
-        ind('wheel_radius', 1.0, [0] * 4, [0.1] * 4)])
-    assert result.warning.tolist() == warned
-    unsupported = [r for r in result.reasons if 'without support' in r]
-    assert bool(unsupported) is not any(warned)
-    assert all('while stiffness flags at most 2 tires' in r for r in unsupported)
+    assert specs['vibration.support'] == 0.3
+    assert specs['stiffness.support'] == specs['wheel_radius.support'] == 0.0
+    assert VoterParams().method_support == {'vibration': 0.3}
+    assert VoterParams().only(['stiffness']).method_support == {}
 
 
 def test_support_sets_a_warning_it_need_not_hold() -> None:

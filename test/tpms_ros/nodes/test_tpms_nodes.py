@@ -786,19 +786,14 @@ def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., 
     (result,) = node.set_parameters([Parameter('wheel_radius.threshold', value=0.9)])
     assert result.successful
     assert node.processor.voter.params.method_thresholds['wheel_radius'] == 0.9
-    # the support a method needs to warn alone: the vibration and stiffness methods' by
-    # default and in the shipped file (the stiffness method's while it flags one or two
-    # tires), changeable at runtime, a fraction
+    # the support a method needs to warn alone: the vibration method's by default and in the
+    # shipped file, changeable at runtime, a fraction
     for voter in (node, shipped):
         assert voter.processor.voter.params.method_support == {
-            'stiffness': 0.3, 'vibration': 0.3, 'wheel_radius': 0.0}
-        assert voter.processor.voter.params.method_support_tires == {
-            'stiffness': 2, 'vibration': 4, 'wheel_radius': 4}
+            'stiffness': 0.0, 'vibration': 0.3, 'wheel_radius': 0.0}
     (result,) = node.set_parameters([Parameter('stiffness.support', value=0.2)])
     assert result.successful
     assert node.processor.voter.params.method_support['stiffness'] == 0.2
-    (result,) = node.set_parameters([Parameter('stiffness.support_tires', value=5)])
-    assert not result.successful
     (result,) = node.set_parameters([Parameter('vibration.support', value=1.5)])
     assert not result.successful
     assert node.processor.voter.params.method_support['vibration'] == 0.3

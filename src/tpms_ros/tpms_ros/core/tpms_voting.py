@@ -14,13 +14,11 @@ two methods, generalised here per tire and to any number of methods:
   exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses. Beyond the paper, a
   method may need support to warn alone (its ``support`` s_i > 0): another counted method
   must then show at least s_i for the tire (with no other method counted it warns alone as
-  before), while it flags at most ``support_tires`` tires (a loss on more tires at once warns
-  without). It answers a method that is confidently wrong on some cars while the others see
+  before). It answers a method that is confidently wrong on some cars while the others see
   nothing (issue 21: the vibration method on a driven axle, whose differential couples the
   two rims, warned healthy tires at confidence 1.00 with the wheel radius and stiffness
-  methods below 0.6; the stiffness method's false lows on one or two tires, where the wheel
-  radius comparison would see a true loss). Unsupported, its evidence cannot set a warning but
-  still holds one it helped to set.
+  methods below 0.6). Unsupported, its evidence cannot set a warning but still holds one it
+  helped to set.
 
 The condition is turned into a warning with hold-off and hysteresis: the warning is set once the
 condition has held for ``set_on_s`` net (an up/down timer); it clears once the evidence has
@@ -59,37 +57,28 @@ class MethodVoteParams:
         0.0, 'to warn alone (the counted methods disagree), another counted method must show '
         'at least this confidence for the tire (none counted: no support needed); 0: the '
         "paper's rule", low=0.0, high=1.0)
-    support_tires: int = param(
-        N_TIRES, 'the support is needed only while the method flags at most this many tires '
-        '(a loss it sees on more tires at once warns without)', low=1, high=N_TIRES)
 
 
 # The methods voted by default, in the order the voter iterates them.
 DEFAULT_METHODS = ('vibration', 'wheel_radius', 'stiffness')
-# Support to warn alone, chosen on the car family's tuning cars (docs/methods/tpms_voter.md).
-# The vibration method: on a driven axle it can be confidently wrong where the others see
-# nothing. The stiffness method, while it flags one or two tires: a true loss there changes
-# those wheels' rolling radii against the others', which the wheel radius method sees; on
-# three or four tires at once (a diffusion, which the radius comparison cannot see) it warns
-# alone. The wheel radius method needs none.
-DEFAULT_SUPPORT = {'vibration': 0.3, 'stiffness': 0.3}
-DEFAULT_SUPPORT_TIRES = {'stiffness': 2}
+# The vibration method warns alone only with another method's confidence at least this
+# (chosen on the car family's tuning cars, docs/methods/tpms_voter.md): on a driven axle it
+# can be confidently wrong where the others see nothing. The others need no support: the
+# stiffness method alone must warn of diffusion, which the wheel radius method cannot see.
+DEFAULT_SUPPORT = {'vibration': 0.3}
 
 
 def _method_vote_params(method: str) -> type[MethodVoteParams]:
     """:class:`MethodVoteParams` with the method's default support."""
-    defaults = {'support': DEFAULT_SUPPORT.get(method, MethodVoteParams().support),
-                'support_tires': DEFAULT_SUPPORT_TIRES.get(method,
-                                                           MethodVoteParams().support_tires)}
-    changed = [f for f in fields(MethodVoteParams)
-               if f.name in defaults and defaults[f.name] != f.default]
-    if not changed:
+    support = DEFAULT_SUPPORT.get(method, 0.0)
+    if support == MethodVoteParams().support:
         return MethodVoteParams
+    declared = next(f for f in fields(MethodVoteParams) if f.name == 'support')
     return make_dataclass(
         f'{method.title().replace("_", "")}VoteParams',
-        [(f.name, f.type, param(defaults[f.name], f.metadata['description'],
-                                low=f.metadata['low'], high=f.metadata['high']))
-         for f in changed],
+        [('support', float, param(support, declared.metadata['description'],
+                                  low=declared.metadata['low'],
+                                  high=declared.metadata['high']))],
         bases=(MethodVoteParams,), frozen=True)
 
 
@@ -140,16 +129,12 @@ class VoterParams(VotingRuleParams):
             methods disagree or only one is available. Only these methods are voted.
         method_support: method name -> the confidence another counted method must show for
             it to warn alone (missing or 0: none needed).
-        method_support_tires: method name -> the support is needed only while the method
-            flags at most this many tires (missing: always).
     """
 
     method_thresholds: Mapping[str, float] = field(
         default_factory=lambda: dict.fromkeys(DEFAULT_METHODS, MethodVoteParams().threshold))
     method_support: Mapping[str, float] = field(
         default_factory=lambda: dict(DEFAULT_SUPPORT))
-    method_support_tires: Mapping[str, int] = field(
-        default_factory=lambda: dict(DEFAULT_SUPPORT_TIRES))
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -166,11 +151,6 @@ class VoterParams(VotingRuleParams):
                 raise ValueError(f'VoterParams.method_support[{name!r}] must be in [0, 1], '
                                  f'got {support}')
         object.__setattr__(self, 'method_support', dict(self.method_support))
-        for name, tires in self.method_support_tires.items():
-            if not 1 <= tires <= N_TIRES:
-                raise ValueError(f'VoterParams.method_support_tires[{name!r}] must be in '
-                                 f'[1, {N_TIRES}], got {tires}')
-        object.__setattr__(self, 'method_support_tires', dict(self.method_support_tires))
 
     def only(self, methods: Iterable[str]) -> VoterParams:
         """The same parameters voting only ``methods`` (each with its own threshold): e.g. a
@@ -178,9 +158,7 @@ class VoterParams(VotingRuleParams):
         methods = list(methods)
         return replace(self, method_thresholds={m: self.method_thresholds[m] for m in methods},
                        method_support={m: v for m, v in self.method_support.items()
-                                       if m in methods},
-                       method_support_tires={m: v for m, v in self.method_support_tires.items()
-                                             if m in methods})
+                                       if m in methods})
 
 
 @dataclass(frozen=True)
@@ -294,16 +272,14 @@ class TpmsVoter:
             (self._warning, self._on_time, self._off_time, self._last_eval_s,
              self._last_result) = held
 
-    def _supported(self, used: list[str], counted: list[list[bool]], conf: list[list[float]],
-                   flagging: list[list[bool]]) -> list[list[bool]]:
-        """[method][tire]: where each used method may warn alone: it needs no support (none
-        set, or it flags more tires than its support covers), no other method is counted for
-        the tire, or another counted one shows at least its support."""
+    def _supported(self, used: list[str], counted: list[list[bool]],
+                   conf: list[list[float]]) -> list[list[bool]]:
+        """[method][tire]: where each used method may warn alone: it needs no support, no other
+        method is counted for the tire, or another counted one shows at least its support."""
         supported = []
         for i, method in enumerate(used):
             needed = self.params.method_support.get(method, 0.0)
-            covers = self.params.method_support_tires.get(method, N_TIRES)
-            if not needed > 0.0 or sum(flagging[i]) > covers:
+            if not needed > 0.0:
                 supported.append([True] * N_TIRES)
                 continue
             others = [k for k in range(len(used)) if k != i]
@@ -348,7 +324,7 @@ class TpmsVoter:
         flagging = [[c and f for c, f in zip(known, ind.underinflated.tolist(), strict=True)]
                     for known, ind in zip(counted, latest, strict=True)]
         h_own = [p.method_thresholds[m] for m in used]
-        supported = self._supported(used, counted, conf, flagging)
+        supported = self._supported(used, counted, conf)
 
         # Per tire, over the methods in order. Sums and maxima are bit for bit numpy's over
         # (methods, 4) arrays: the sum starts at 0.0 and adds a 0.0 for an uncounted method, a
@@ -435,11 +411,8 @@ class TpmsVoter:
                 rule = (f'{tire}: flagged by {", ".join(names)} only, {m} confidence '
                         f'{conf[i][j]:.2f} vs own h {p.method_thresholds[m]:.2f}')
                 if not supported[i][j]:
-                    covers = p.method_support_tires.get(m, N_TIRES)
-                    scope = f' while {m} flags at most {covers} tires' if covers < N_TIRES else ''
                     rule += (f', without support (another method at least '
-                             f'{p.method_support[m]:.2f} needed{scope})')
-
+                             f'{p.method_support[m]:.2f} needed)')
             state = 'WARNING' if self._warning[j] else (
                 f'condition held {self._on_time[j]:.1f}/{p.set_on_s:.1f} s' if condition[j]
                 else 'below threshold')

@@ -98,8 +98,7 @@ def voter_params(rule: VotingRuleParams, votes: Any) -> VoterParams:
     """The core's parameters from the rule and the per-method groups."""
     return VoterParams(**flatten(rule), method_thresholds={
         m: vote.threshold for m, vote in vars(votes).items()}, method_support={
-        m: vote.support for m, vote in vars(votes).items()}, method_support_tires={
-        m: vote.support_tires for m, vote in vars(votes).items()})
+        m: vote.support for m, vote in vars(votes).items()})
 
 
 class TpmsVoterProcessor:
