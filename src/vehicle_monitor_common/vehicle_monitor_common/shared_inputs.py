@@ -39,12 +39,9 @@ class _Receiver:
 
 @dataclass(eq=False)
 class _Shared:
-    """One subscription and the nodes it delivers to."""
+    """One subscription (its first receiver's node owns it) and the nodes it delivers to."""
 
-    msg_type: Any
-    raw: bool
-    subscription: Any
-    owner: Node
+    subscription: Any = None
     receivers: list[_Receiver] = field(default_factory=list)
 
     def __call__(self, message: Any) -> None:
@@ -62,12 +59,12 @@ class SharedInputs:
                   callback: Callable[[Any], None], raw: bool = False) -> None:
         """Subscribe ``node`` to a sensor input (as :func:`sensor_subscription` does), through
         an equal subscription of another node when there is one."""
-        shared = _Shared(msg_type, raw, None, node)
+        shared = _Shared()
         subscription = sensor_subscription(node, msg_type, topic, shared, raw=raw)
         for existing in self._shared:
-            if (existing.subscription.topic_name == subscription.topic_name
-                    and existing.msg_type is msg_type and existing.raw == raw
-                    and existing.subscription.qos_profile == subscription.qos_profile):
+            kept = existing.subscription
+            if (kept.topic_name == subscription.topic_name and kept.msg_type is msg_type
+                    and kept.raw == raw and kept.qos_profile == subscription.qos_profile):
                 # The node's own subscription declared its QoS override parameters; its
                 # deliveries are the existing one's.
                 node.destroy_subscription(subscription)
@@ -81,16 +78,17 @@ class SharedInputs:
         """Before ``node`` is destroyed: drop its receivers; move what it owned to the next
         node that shares it."""
         for shared in list(self._shared):
+            owned = shared.receivers[0].node is node
             shared.receivers = [r for r in shared.receivers if r.node is not node]
-            if shared.owner is not node:
+            if not owned:
                 continue
-            topic, qos = shared.subscription.topic_name, shared.subscription.qos_profile
-            node.destroy_subscription(shared.subscription)
+            old = shared.subscription
+            topic = old.topic_name     # read from the handle: not after it is destroyed
+            node.destroy_subscription(old)
             if not shared.receivers:
                 self._shared.remove(shared)
                 continue
             # The QoS as resolved when it was created: the override parameters are declared
             # on every sharing node already.
-            shared.owner = shared.receivers[0].node
-            shared.subscription = shared.owner.create_subscription(
-                shared.msg_type, topic, shared, qos, raw=shared.raw)
+            shared.subscription = shared.receivers[0].node.create_subscription(
+                old.msg_type, topic, shared, old.qos_profile, raw=old.raw)
