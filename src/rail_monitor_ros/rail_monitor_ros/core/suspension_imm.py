@@ -80,6 +80,7 @@ from rail_monitor_ros.core.rail_model import (
     full_car_state_space,
     reduced_bogie_body_model,
 )
+from rail_monitor_ros.core.riccati import solve_discrete_riccati
 from rail_monitor_ros.core.suspension_modes import (
     RATIO_DECIMALS,
     SuspensionMode,
@@ -133,11 +134,12 @@ class ModeModel:
         """The steady-state gain with ``known`` known inputs and measurement noise r.
 
         Raises:
-            numpy.linalg.LinAlgError, ValueError: no stabilising solution (scipy's DARE).
+            numpy.linalg.LinAlgError, ValueError: no stabilising solution
+                (:func:`rail_monitor_ros.core.riccati.solve_discrete_riccati`).
         """
         if known not in self.steady:
             h = self.h[known]
-            prior = scipy.linalg.solve_discrete_are(self.f.T, h.T, self.q, r)
+            prior = solve_discrete_riccati(self.f.T, h.T, self.q, r)
             prior = 0.5 * (prior + prior.T)
             prior_ht = prior @ h.T
             s = h @ prior_ht + r
