@@ -19,7 +19,8 @@ where that is longer (``DETECTION_LIMIT_S``: the diffusion's 2 minutes). Each
 method gets only what a user of the car can know (``FamilyCar.user_parameters``): placard
 (stiffness ``nominal_pressure_kpa``), driven axle (``driven_axle``, vibration
 ``driveline_compensation``: front, rear or all), nominal radius, track,
-wheelbase, encoder teeth; everything else at the core defaults (the nodes' defaults). The
+wheelbase, the encoder's teeth and the ECU's timer resolution and way of forming the speed
+(``encoder_*``: ABS ECU data); everything else at the core defaults (the nodes' defaults). The
 methods are fed as their nodes feed them (vibration in 0.1 s blocks, wheel radius on IMU-rate
 bins, the stiffness observer in 0.25 s chunks with held driver inputs; the voter at 10 Hz).
 
@@ -188,7 +189,9 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
     stiffness = StiffnessObserverParams(
         driven_axle=car.layout, rolling_radius_m=user['nominal_radius_m'],
         wheelbase_m=user['wheelbase_m'], nominal_pressure_kpa=(user['nominal_pressure_kpa'],) * 4,
-        encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction,
+        encoder_teeth=user['encoder_teeth'], encoder_timer_s=user['encoder_timer_s'],
+        encoder_speed_method=user['encoder_speed_method'],
+        encoder_window_s=user['encoder_window_s'], tooth_correction=settings.tooth_correction,
         pressure_relation=(PressureRelation(**car.tire_law_parameters()) if settings.law_given
                            else PressureRelation()))
     return vibration, radius, with_values(stiffness, settings.stiffness_set)

@@ -7,7 +7,7 @@ import pytest
 import scipy.signal as sig
 
 from tpms_ros.core.tooth_correction import ToothErrorCorrector
-from tpms_ros.simulation.road_simulator import encoder_wheel_speed
+from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 
 FS = 1000.0
 TEETH = 48

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tpms_ros.core.stiffness_observer import PressureRelation
+from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 from tpms_ros.simulation.car_family import (
     DRIVE_KINDS,
     HELD_OUT_SEEDS,
@@ -25,7 +26,7 @@ from tpms_ros.simulation.road_scenario import (
     speed_target,
     tire_pressure,
 )
-from tpms_ros.simulation.road_simulator import encoder_wheel_speed, simulate_scenario
+from tpms_ros.simulation.road_simulator import simulate_scenario
 
 from .test_road_simulator import _band, kinematic_handling
 

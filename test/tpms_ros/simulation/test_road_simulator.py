@@ -16,12 +16,12 @@ import pytest
 from scipy.signal import cont2discrete, dlsim
 
 from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 from tpms_ros.offline.wheel_speed_spectra import plot_wheel_speed_psd, wheel_speed_psd
 from tpms_ros.simulation.road_scenario import Scenario, parse_scenario
 from tpms_ros.simulation.road_simulator import (
     RoadSimulationResult,
     _leaky_rigid_mode,
-    encoder_wheel_speed,
     run_piecewise_lti,
     simulate_scenario,
     to_topic_series,

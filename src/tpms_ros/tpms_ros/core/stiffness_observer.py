@@ -27,6 +27,11 @@ Per wheel the chain is (paper Fig. 4, docs/methods/tire_stiffness_observer.md)::
   wheel, and the same consistency map applies. Limit: the partner's speed carries no
   driveline information at the partner's own belt anti-resonance, so once it is soft the
   unchanged wheel keeps a small residual there (5-10 kPa low on the simulator).
+* **Encoder noise** (``encoder_timer_s``, :class:`~tpms_ros.core.wheel_encoder.QuantisationNoise`):
+  the ECU timer's quantisation of the speed is in the regressors too and biases the least
+  squares by an amount that depends on the road's excitation; given the timer, a synthetic
+  realisation of it goes through the same filters and its second moments are subtracted from
+  each block's normal equations (bias-compensated least squares).
 * **Model-consistency correction** (:class:`~tpms_ros.core.torsional_observer.ConsistencyMap`):
   the raw LS coefficient is mapped to the true K through the model and filters.
 * **Calibration** learns each tire's nominal K and the block-to-block noise of its estimate;
@@ -68,6 +73,7 @@ from tpms_ros.core.torsional_observer import (
     consistency_map,
     design_observer,
 )
+from tpms_ros.core.wheel_encoder import SPEED_METHODS, QuantisationNoise
 from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
@@ -85,6 +91,9 @@ _CODE = {name: code for code, name in enumerate(REASONS)}
 CHECKING = 'checking_calibration'
 """A tire's status while a stored calibration is checked against the tires (unknown)."""
 _NO_REASON = len(REASONS)  # sentinel above every code, for min-reductions
+# The encoder noise's products carried per sample beside the filter outputs, as (row, column)
+# of [th, th_dot, w]: th th, th th_dot, th_dot th_dot, th w, th_dot w.
+_NOISE_PRODUCTS = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2))
 
 
 @dataclass(frozen=True)
@@ -288,6 +297,22 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
         0.9, 'tooth-edge rate (speed x teeth / 2 pi) above this fraction of the sample rate '
         "masks the wheel ('speed_band'): edges can then fall between samples", low=0.01,
         high=1.0)
+    # --- encoder noise: the ECU timer's quantisation of the speed, taken out of the least
+    # squares (docs/methods/tire_stiffness_observer.md, "Encoder noise") ---
+    # The regressors carry the noise too (errors in variables), so the least squares read a
+    # bias that shrinks as the road excites the tire more: calibrated on one road, the tires
+    # read low on a rougher one. Its second moments follow from the ECU's timer and way of
+    # forming the speed and are subtracted from each block's normal equations.
+    encoder_timer_s: float = param(
+        0.0, 'resolution of the ECU timer that stamps the tooth edges, s (ABS ECU data, often '
+        "1-4 us); > 0 removes the speed's quantisation noise from the least squares "
+        '(0: not corrected)', low=0.0, high=1e-3)
+    encoder_speed_method: Literal['tooth_period', 'window_average'] = param(
+        'tooth_period', "how the ECU forms the speed: 'tooth_period' (pitch over the last "
+        "tooth period, held) or 'window_average' (teeth over the edge-to-edge time across "
+        'encoder_window_s)', choices=SPEED_METHODS)
+    encoder_window_s: float = param(
+        0.005, "averaging window of 'window_average', s", low=1e-4, high=0.1)
     # --- trust: a calibrated tire whose estimate rests on blocks unlike the calibration's is
     # reported uncertain (not valid), never low (docs/methods/tire_stiffness_observer.md) ---
     trust_check: bool = param(
@@ -305,7 +330,7 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
             'max_lateral_accel_mps2', 'wheelbase_m', 'gate_lowpass_hz', 'max_omega_rad_s',
             'dead_omega_rad_s', 'stuck_s', 'settle_s', 'timing_tolerance',
             'warning_pressure_ratio', 'tooth_learning_s', 'tooth_warmup_s', 'tooth_phase_s',
-            'trust_max_spread_ratio'))
+            'trust_max_spread_ratio', 'encoder_window_s'))
         if not (isinstance(self.encoder_teeth, int) and self.encoder_teeth >= 2):
             raise ValueError('StiffnessObserverParams.encoder_teeth must be an int >= 2, '
                              f'got {self.encoder_teeth!r}')
@@ -333,13 +358,16 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
         if not 0.0 < self.min_block_fraction <= 1.0:
             raise ValueError('StiffnessObserverParams.min_block_fraction must be in (0, 1], '
                              f'got {self.min_block_fraction}')
+        if self.encoder_speed_method not in SPEED_METHODS:
+            raise ValueError(f'StiffnessObserverParams.encoder_speed_method must be one of '
+                             f'{SPEED_METHODS}, got {self.encoder_speed_method!r}')
         if self.driven_axle not in ('front', 'rear', 'none', 'all'):
             raise ValueError("StiffnessObserverParams.driven_axle must be 'front', 'rear', "
                              f"'none' or 'all', got {self.driven_axle!r}")
         if self.drive_compensation not in ('partner', 'difference'):
             raise ValueError("StiffnessObserverParams.drive_compensation must be 'partner' or "
                              f"'difference', got {self.drive_compensation!r}")
-        require_positive(self, ('partner_lag_s',), allow_zero=True)
+        require_positive(self, ('partner_lag_s', 'encoder_timer_s'), allow_zero=True)
         if not (math.isfinite(self.partner_lag_step_s)
                 and self.partner_lag_step_s * self.sample_rate_hz >= 1.0 - 1e-9):
             raise ValueError('StiffnessObserverParams.partner_lag_step_s must be at least one '
@@ -687,6 +715,9 @@ class TireStiffnessObserver:
             design = design_observer(model, p.observer_pole_factor, fs)
             cmap = consistency_map(model, design, self._band_sos, fs)
             self._groups.append((wheels, design, cmap))
+        # Per sample and wheel: [th, th_dot, w, band-passed speed] and, with the encoder
+        # noise removed, the noise's products.
+        self._channels = 4 + (len(_NOISE_PRODUCTS) if p.encoder_timer_s > 0.0 else 0)
         self._model_k = np.array([t.k for t in self.tires])
         self._axles = [AXLES[name] for name in p.driven_axles]
         self._partner = np.arange(N_WHEELS)
@@ -725,6 +756,12 @@ class TireStiffnessObserver:
         self._partial: list[np.ndarray] = []
         # The band-passed speeds just before the carried samples, for the partner lags.
         self._band_history = np.zeros((self._lag_reach, N_WHEELS))
+        self._noise = (QuantisationNoise(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
+                                         p.encoder_timer_s, p.encoder_speed_method,
+                                         p.encoder_window_s)
+                       if p.encoder_timer_s > 0.0 else None)
+        self._noise_band_zi: np.ndarray = np.zeros_like(self._band_zi)
+        self._noise_obs_zi: list[np.ndarray] = [np.zeros_like(zi) for zi in self._obs_zi]
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
@@ -972,6 +1009,11 @@ class TireStiffnessObserver:
             cols = np.isin(group_wheels, wheels)
             zi[:, :, cols] = 0.0
         self._tooth.reset(wheels)
+        if self._noise is not None:
+            self._noise.reset(wheels)
+            self._noise_band_zi[:, :, wheels] = 0.0
+            for (group_wheels, _, _), zi in zip(self._groups, self._noise_obs_zi, strict=True):
+                zi[:, :, np.isin(group_wheels, wheels)] = 0.0
         self._counters['resets'][wheels] += 1
 
     def _filter(self, omega: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -997,6 +1039,41 @@ class TireStiffnessObserver:
                 out[:, wheels, k], zi[k] = sig.lfilter(design.numerators[k], design.denominator,
                                                        x, axis=0, zi=zi[k])
         return out, low
+
+    def _noise_products(self, speed: np.ndarray) -> np.ndarray:
+        """(n, 4, 5) products of the synthetic quantisation noise's filtered [th, th_dot, w]
+        per sample, at the wheels' (low-passed) speeds (n, 4)."""
+        assert self._noise is not None
+        noise = self._noise.process(speed)
+        band, self._noise_band_zi = sig.sosfilt(self._band_sos, noise, axis=0,
+                                                zi=self._noise_band_zi)
+        filtered = np.empty(speed.shape + (3,))
+        for (wheels, design, _), zi in zip(self._groups, self._noise_obs_zi, strict=True):
+            for k in range(3):
+                filtered[:, wheels, k], zi[k] = sig.lfilter(
+                    design.numerators[k], design.denominator, band[:, wheels], axis=0, zi=zi[k])
+        rows, cols = zip(*_NOISE_PRODUCTS, strict=True)
+        return filtered[..., rows] * filtered[..., cols]
+
+    def _remove_noise(self, family: LsFamily, out: np.ndarray, mask: np.ndarray,
+                      gram: np.ndarray, rhs: np.ndarray) -> None:
+        """Subtract the synthetic noise's products over the counted samples from a family's
+        block sums, in place: each wheel's own [th, th_dot] rows and its w. The partner lags
+        carry the partner's noise, independent of this wheel's; subtracting their own moments
+        too left the driven wheels' normal equations ill-conditioned (docs/methods/
+        tpms_family_evaluation.md, "2026-12-02"), so they are left as they are."""
+        problem_mask = mask[:, :, family.wheels].prod(axis=-1)
+        for j in range(family.wheels.shape[1]):
+            wheels = family.wheels[:, j]
+            k_th, k_dot = family.coef_index[j]
+            sign = family.coef_sign[j]
+            sums = np.einsum('blp,blpk->bpk', problem_mask, out[:, :, wheels, 4:])
+            gram[..., k_th, k_th] -= sums[..., 0]
+            gram[..., k_th, k_dot] -= sums[..., 1]
+            gram[..., k_dot, k_th] -= sums[..., 1]
+            gram[..., k_dot, k_dot] -= sums[..., 2]
+            rhs[..., k_th] -= sign * sums[..., 3]
+            rhs[..., k_dot] -= sign * sums[..., 4]
 
     # ---------------------------------------------------------------- streaming update
 
@@ -1095,7 +1172,7 @@ class TireStiffnessObserver:
             self._counters[name] += counts[row]
 
         # --- filters, split at reset rows ----------------------------------------------------
-        outputs = np.empty((n, N_WHEELS, 4))
+        outputs = np.empty((n, N_WHEELS, self._channels))
         lowpass = np.empty((n, N_WHEELS))
         reset_rows = np.flatnonzero(reset.any(axis=1))
         bounds = np.union1d(reset_rows, [0, n])
@@ -1103,7 +1180,9 @@ class TireStiffnessObserver:
             wheels = np.flatnonzero(reset[s])
             if wheels.size:
                 self._reset_wheels(wheels, omega[s, wheels])
-            outputs[s:e], lowpass[s:e] = self._filter(filled[s:e], good[s:e])
+            outputs[s:e, :, :4], lowpass[s:e] = self._filter(filled[s:e], good[s:e])
+            if self._noise is not None:
+                outputs[s:e, :, 4:] = self._noise_products(lowpass[s:e])
         # Previous low-passed speed from before any reset, so the chunking cannot matter
         # (the derivative at a reset row is masked by the settling anyway).
         prev_low = np.concatenate((self._prev_lowpass[None], lowpass[:-1]))
@@ -1158,7 +1237,8 @@ class TireStiffnessObserver:
         lags of the last block reach into) and update the LS problems.
 
         Args:
-            outputs: (n, 4, 4) per sample and wheel [th, th_dot, w, band-passed speed].
+            outputs: (n, 4, C) per sample and wheel [th, th_dot, w, band-passed speed] and,
+                with ``encoder_timer_s``, the noise's products (:meth:`_noise_products`).
             code: (n, 4) reason codes (OK: the sample counts).
         """
         block_len = self.params.block_samples
@@ -1174,7 +1254,7 @@ class TireStiffnessObserver:
         if n_blocks == 0:
             return
         self._cached = None
-        out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, 4)
+        out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, self._channels)
         blk_code = code[:cut].reshape(n_blocks, block_len, N_WHEELS)
         mask = (blk_code == OK).astype(float)
         good = np.zeros((n_blocks, N_WHEELS), dtype=bool)
@@ -1183,6 +1263,8 @@ class TireStiffnessObserver:
         for family, ls in zip(self._families, self._ls, strict=True):
             regressors, target, problem_mask = self._regressors(family, out, mask, band)
             gram, rhs, count = ls.block_sums(regressors, target, problem_mask)
+            if self._noise is not None:
+                self._remove_noise(family, out, mask, gram, rhs)
             problem_good = ls.good_blocks(count)
             ls.update(gram, rhs, problem_good)
             good[:, family.wheels] = problem_good[:, :, None]

@@ -105,7 +105,8 @@ class FamilyCar:
                 + f', rough x{self.roughness_scale:.2f}')
 
     def user_parameters(self) -> dict[str, Any]:
-        """What a user of this car can know and set (placard, layout, radius, geometry)."""
+        """What a user of this car can know and set (placard, layout, radius, geometry, the
+        ABS ECU's encoder data)."""
         v = self.vehicle
         wheelbase = v.lf + v.lr
         front = v.m * GRAVITY * v.lr / wheelbase / 2.0
@@ -114,8 +115,10 @@ class FamilyCar:
                 'nominal_radius_m': v.rw, 'wheelbase_m': wheelbase,
                 'track_front_m': 2.0 * v.tf, 'track_rear_m': 2.0 * v.tr,
                 'static_load_n': (front, front, rear, rear), 'encoder_teeth': self.sensors.teeth,
+                'encoder_timer_s': self.sensors.timer_resolution_s,
+                'encoder_speed_method': self.sensors.speed_method,
+                'encoder_window_s': self.sensors.speed_window_s,
                 'wheel_inertia_kgm2': v.iw, 'cg_height_m': v.h}
-
 
     def tire_law_parameters(self) -> dict[str, Any]:
         """The tire's stiffness-pressure law as the stiffness observer's ``pressure_relation``

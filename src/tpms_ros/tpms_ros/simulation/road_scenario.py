@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.wheel_encoder import SPEED_METHODS
 from tpms_ros.simulation.vehicle_dynamics import VehicleParams, max_stable_step
 from vehicle_monitor_common.scenario_yaml import MappingNode as _Node
 from vehicle_monitor_common.scenario_yaml import read_mapping
@@ -41,7 +42,6 @@ MIN_TORSION_SAMPLES_PER_PERIOD = 20.0
 DEFAULT_STIFFNESS_PRESSURE_SLOPE = (1.0 - (35.0 / 40.0) ** 2) / (1.0 - 120.0 / 200.0)
 
 STIFFNESS_LAWS = ('linear', 'power')
-SPEED_METHODS = ('tooth_period', 'window_average')
 DRIVELINE_WHEELS = ('driven', 'all')
 
 

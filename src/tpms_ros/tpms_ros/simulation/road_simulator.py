@@ -34,6 +34,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from tpms_ros.core.tire_model import TorsionalTire
+from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 from tpms_ros.simulation.road_scenario import (
     DrivelineSpec,
     Scenario,
@@ -334,86 +335,6 @@ def _torsional_vibration(scenario: Scenario, t: np.ndarray, pressure: np.ndarray
         inputs = np.column_stack([rim_torques[wheel], road_torque[:, wheel]])
         vibration[:, wheel] = run_piecewise_lti(a, b, inputs, starts, dt)[:, 0]
     return vibration, t[starts], frequencies
-
-
-def encoder_wheel_speed(t: np.ndarray, rim_speed: np.ndarray, t_out: np.ndarray,
-                        tooth_error: np.ndarray, phase: float,
-                        timer_resolution_s: float, method: str = 'tooth_period',
-                        window_s: float = 0.005) -> np.ndarray:
-    """Wheel speed as an ABS ECU measures it from a toothed ring, for one wheel.
-
-    Tooth edges are where the rim angle crosses ``k * pitch + tooth_error[k mod teeth]``; the
-    ECU stamps them with its timer (floored to ``timer_resolution_s``) and reports
-    ``pitch / period`` of the last completed tooth, assuming a perfect ring, until the next edge.
-    When no edge comes for 1.5 periods the report falls as ``1.5 pitch / elapsed``, so a
-    stopping wheel reads zero.
-
-    With ``method='window_average'`` the ECU instead reports the teeth passed between the last
-    edge before ``t_out - window_s`` and the last edge before ``t_out`` over the time between
-    them (the mean of the tooth periods over the window, at least one period): a tooth's
-    spacing error then enters only through the two end edges, divided by the teeth counted.
-
-    Args:
-        t: (N,) fine time grid, s.
-        rim_speed: (N,) true rim angular speed on that grid, rad/s.
-        t_out: (M,) output sample times, s.
-        tooth_error: (teeth,) edge angle error of each tooth, rad.
-        phase: ring angle at t[0], rad.
-        timer_resolution_s: ECU timer resolution, s (0: exact).
-        method: ``tooth_period`` or ``window_average`` (see above).
-        window_s: averaging window of ``window_average``, s.
-
-    Returns:
-        (M,) measured wheel speed, rad/s.
-    """
-    teeth = tooth_error.size
-    pitch = 2.0 * np.pi / teeth
-    dt = np.diff(t)
-    angle = phase + np.concatenate([[0.0], np.cumsum(0.5 * (rim_speed[1:] + rim_speed[:-1])
-                                                     * dt)])
-    # The ring only counts edges; a wheel rocking backwards at standstill does not re-count.
-    angle = np.maximum.accumulate(angle)
-    first_tooth = int(math.floor(angle[0] / pitch)) - 1
-    last_tooth = int(math.ceil(angle[-1] / pitch)) + 1
-    tooth = np.arange(first_tooth, last_tooth + 1)
-    edge_angle = tooth * pitch + tooth_error[tooth % teeth]
-    edge_angle = edge_angle[(edge_angle > angle[0]) & (edge_angle < angle[-1])]
-    after = np.searchsorted(angle, edge_angle, side='right')
-    before = after - 1
-    frac = (edge_angle - angle[before]) / (angle[after] - angle[before])
-    edge_t = t[before] + frac * (t[after] - t[before])
-    if timer_resolution_s > 0.0:
-        edge_t = np.floor(edge_t / timer_resolution_s) * timer_resolution_s
-    if edge_t.size < 2:
-        return np.zeros(t_out.size)
-    last_edge = np.searchsorted(edge_t, t_out, side='right') - 1
-    if method == 'window_average':
-        return _window_average_speed(edge_t, t_out, last_edge, pitch, timer_resolution_s,
-                                     window_s)
-    period = np.maximum(np.diff(edge_t), max(timer_resolution_s, 1e-12))
-    tooth_speed = pitch / period                      # valid from edge 1 on
-    # Before the second edge the ECU has no period yet: report the first one (start-up).
-    held = tooth_speed[np.clip(last_edge - 1, 0, tooth_speed.size - 1)]
-    held_period = pitch / held
-    elapsed = t_out - edge_t[np.clip(last_edge, 0, edge_t.size - 1)]
-    stale = (last_edge >= 0) & (elapsed > 1.5 * held_period)
-    out = np.where(stale, 1.5 * pitch / np.maximum(elapsed, 1e-12), held)
-    return out
-
-
-def _window_average_speed(edge_t: np.ndarray, t_out: np.ndarray, last_edge: np.ndarray,
-                          pitch: float, timer_resolution_s: float,
-                          window_s: float) -> np.ndarray:
-    """Edge-to-edge mean speed over the window ending at each output time (see above)."""
-    last = np.clip(last_edge, 1, edge_t.size - 1)
-    first = np.searchsorted(edge_t, t_out - window_s, side='right') - 1
-    first = np.clip(np.minimum(first, last - 1), 0, edge_t.size - 2)
-    span = np.maximum(edge_t[last] - edge_t[first], max(timer_resolution_s, 1e-12))
-    held = pitch * (last - first) / span
-    held_period = span / (last - first)
-    elapsed = t_out - edge_t[np.clip(last_edge, 0, edge_t.size - 1)]
-    stale = (last_edge >= 0) & (elapsed > 1.5 * held_period)
-    return np.where(stale, 1.5 * pitch / np.maximum(elapsed, 1e-12), held)
 
 
 def simulate_scenario(scenario: Scenario,
