@@ -314,7 +314,7 @@ def test_encoder_noise_removal_keeps_the_estimate_off_the_road_level(method):
     that shrinks as the road excites the tire more (errors in variables): the same tires read
     ~20 % (tooth period) or ~14 % (window average) stiffer on a road four times smoother.
     With the ECU's timer given, its noise is taken out and the two roads read alike
-    (measured, mean of the four tires: 1.5-2.5 % apart, against 14-20 %)."""
+    (measured, mean of the four tires: 0.7-1.6 % apart, against 14-20 %)."""
     timer_s = 4e-6
     t = np.arange(int(60.0 * FS)) / FS
     mean_k = {}

@@ -1,10 +1,10 @@
-"""The ABS wheel-speed encoder: how an ECU forms a wheel speed from a toothed ring, and the
-second moments its timer's quantisation leaves in the stiffness method's filtered signals.
+"""The ABS wheel-speed encoder: how an ECU forms a wheel speed from a toothed ring, and a
+synthetic realisation of the noise its timer's quantisation leaves in that speed.
 
 One definition for both sides: the road simulator measures its rim speeds with
 :func:`encoder_wheel_speed`, and the stiffness observer
-(:mod:`tpms_ros.core.stiffness_observer`) uses :func:`quantisation_autocovariance` and
-:func:`filtered_noise_moments` to take the quantisation noise out of its least squares
+(:mod:`tpms_ros.core.stiffness_observer`) passes :class:`QuantisationNoise` through its filters
+to take the quantisation noise's second moments out of its least squares
 (``encoder_timer_s``; docs/methods/tire_stiffness_observer.md, "Encoder noise").
 
 No ROS import.
@@ -115,7 +115,7 @@ class QuantisationNoise:
     than a timer step, so that position is random from edge to edge. (Floored stamps of the
     low-passed speed give a pattern set by the speed's ratio to the timer step instead: in
     ``test_encoder_noise_removal_keeps_the_estimate_off_the_road_level`` they took a 20 % bias
-    to 12 %, the draws to 2.5 %; floored stamps of the measured speed, whose values already
+    to 12 %, the draws to 1.6 %; floored stamps of the measured speed, whose values already
     sit on the timer's lattice, gave an error of two thirds the size.)
     Only the moments of the noise over many blocks are used, never its values.
 
