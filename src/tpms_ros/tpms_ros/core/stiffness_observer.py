@@ -1005,15 +1005,16 @@ class TireStiffnessObserver:
                                        * values[None, None, :])
         self._lowpass_zi[:, :, wheels] = (sig.sosfilt_zi(self._lowpass_sos)[:, :, None]
                                           * values[None, None, :])
-        for (group_wheels, _, _), zi in zip(self._groups, self._obs_zi, strict=True):
+        # The encoder noise's filters start from rest: the noise has zero mean.
+        self._noise_band_zi[:, :, wheels] = 0.0
+        for (group_wheels, _, _), zi, noise_zi in zip(self._groups, self._obs_zi,
+                                                      self._noise_obs_zi, strict=True):
             cols = np.isin(group_wheels, wheels)
             zi[:, :, cols] = 0.0
+            noise_zi[:, :, cols] = 0.0
         self._tooth.reset(wheels)
         if self._noise is not None:
             self._noise.reset(wheels)
-            self._noise_band_zi[:, :, wheels] = 0.0
-            for (group_wheels, _, _), zi in zip(self._groups, self._noise_obs_zi, strict=True):
-                zi[:, :, np.isin(group_wheels, wheels)] = 0.0
         self._counters['resets'][wheels] += 1
 
     def _filter(self, omega: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1030,39 +1031,50 @@ class TireStiffnessObserver:
                                             zi=self._lowpass_zi)
         if self.params.tooth_correction:
             omega = self._tooth.process(omega, low, good)
-        band, self._band_zi = sig.sosfilt(self._band_sos, omega, axis=0, zi=self._band_zi)
         out = np.empty(omega.shape + (4,))
-        out[:, :, 3] = band
-        for (wheels, design, _), zi in zip(self._groups, self._obs_zi, strict=True):
+        out[:, :, 3], out[:, :, :3], self._band_zi = self._observe(omega, self._band_zi,
+                                                                   self._obs_zi)
+        return out, low
+
+    def _observe(self, speed: np.ndarray, band_zi: np.ndarray,
+                 obs_zi: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Band-pass and observer of (n, 4) speeds from the given filter states.
+
+        Returns:
+            (band-passed speed (n, 4), observer outputs [th, th_dot, w] (n, 4, 3), the
+            band-pass's new state); ``obs_zi`` (one per tire group) is updated in place.
+        """
+        band, band_zi = sig.sosfilt(self._band_sos, speed, axis=0, zi=band_zi)
+        out = np.empty(speed.shape + (3,))
+        for (wheels, design, _), zi in zip(self._groups, obs_zi, strict=True):
             x = band[:, wheels]
             for k in range(3):
                 out[:, wheels, k], zi[k] = sig.lfilter(design.numerators[k], design.denominator,
                                                        x, axis=0, zi=zi[k])
-        return out, low
+        return band, out, band_zi
 
     def _noise_products(self, speed: np.ndarray) -> np.ndarray:
         """(n, 4, 5) products of the synthetic quantisation noise's filtered [th, th_dot, w]
         per sample, at the wheels' (low-passed) speeds (n, 4)."""
         assert self._noise is not None
-        noise = self._noise.process(speed)
-        band, self._noise_band_zi = sig.sosfilt(self._band_sos, noise, axis=0,
-                                                zi=self._noise_band_zi)
-        filtered = np.empty(speed.shape + (3,))
-        for (wheels, design, _), zi in zip(self._groups, self._noise_obs_zi, strict=True):
-            for k in range(3):
-                filtered[:, wheels, k], zi[k] = sig.lfilter(
-                    design.numerators[k], design.denominator, band[:, wheels], axis=0, zi=zi[k])
+        _, filtered, self._noise_band_zi = self._observe(self._noise.process(speed),
+                                                         self._noise_band_zi,
+                                                         self._noise_obs_zi)
         rows, cols = zip(*_NOISE_PRODUCTS, strict=True)
         return filtered[..., rows] * filtered[..., cols]
 
-    def _remove_noise(self, family: LsFamily, out: np.ndarray, mask: np.ndarray,
+    def _remove_noise(self, family: LsFamily, out: np.ndarray, problem_mask: np.ndarray,
                       gram: np.ndarray, rhs: np.ndarray) -> None:
         """Subtract the synthetic noise's products over the counted samples from a family's
         block sums, in place: each wheel's own [th, th_dot] rows and its w. The partner lags
         carry the partner's noise, independent of this wheel's; subtracting their own moments
         too left the driven wheels' normal equations ill-conditioned (docs/methods/
-        tpms_family_evaluation.md, "2026-12-02"), so they are left as they are."""
-        problem_mask = mask[:, :, family.wheels].prod(axis=-1)
+        tpms_family_evaluation.md, "2026-12-02"), so they are left as they are.
+
+        Args:
+            family: the LS problems; ``out`` (B, L, 4, C) the block samples; ``problem_mask``
+                (B, L, P) where a problem's sample counts (:meth:`_regressors`).
+        """
         for j in range(family.wheels.shape[1]):
             wheels = family.wheels[:, j]
             k_th, k_dot = family.coef_index[j]
@@ -1264,7 +1276,7 @@ class TireStiffnessObserver:
             regressors, target, problem_mask = self._regressors(family, out, mask, band)
             gram, rhs, count = ls.block_sums(regressors, target, problem_mask)
             if self._noise is not None:
-                self._remove_noise(family, out, mask, gram, rhs)
+                self._remove_noise(family, out, problem_mask, gram, rhs)
             problem_good = ls.good_blocks(count)
             ls.update(gram, rhs, problem_good)
             good[:, family.wheels] = problem_good[:, :, None]
