@@ -19,8 +19,9 @@ where that is longer (``DETECTION_LIMIT_S``: the diffusion's 2 minutes). Each
 method gets only what a user of the car can know (``FamilyCar.user_parameters``): placard
 (stiffness ``nominal_pressure_kpa``), driven axle (``driven_axle``, vibration
 ``driveline_compensation``: front, rear or all), nominal radius, track,
-wheelbase, the encoder's teeth and the ECU's timer resolution and way of forming the speed
-(``encoder_*``: ABS ECU data); everything else at the core defaults (the nodes' defaults). The
+wheelbase, the encoder's teeth; everything else at the core defaults (the nodes' defaults:
+the stiffness observer reads the ECU's timer from held tooth periods; ``--ecu-given`` gives it
+how the ECU forms the speed instead, ``FamilyCar.ecu_parameters``). The
 methods are fed as their nodes feed them (vibration in 0.1 s blocks, wheel radius on IMU-rate
 bins, the stiffness observer in 0.25 s chunks with held driver inputs; the voter at 10 Hz).
 
@@ -136,6 +137,9 @@ class Settings:
     ring_scale: float = 1.0
     # Stiffness observer parameters set for every run (dotted name -> value), for ablations.
     stiffness_set: dict[str, Any] = field(default_factory=dict)
+    # How the car's ABS ECU forms the speed (FamilyCar.ecu_parameters) given to the stiffness
+    # observer; default: not known, the observer reads the timer from held tooth periods.
+    ecu_given: bool = False
 
 
 @dataclass(frozen=True)
@@ -189,11 +193,10 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
     stiffness = StiffnessObserverParams(
         driven_axle=car.layout, rolling_radius_m=user['nominal_radius_m'],
         wheelbase_m=user['wheelbase_m'], nominal_pressure_kpa=(user['nominal_pressure_kpa'],) * 4,
-        encoder_teeth=user['encoder_teeth'], encoder_timer_s=user['encoder_timer_s'],
-        encoder_speed_method=user['encoder_speed_method'],
-        encoder_window_s=user['encoder_window_s'], tooth_correction=settings.tooth_correction,
+        encoder_teeth=user['encoder_teeth'], tooth_correction=settings.tooth_correction,
         pressure_relation=(PressureRelation(**car.tire_law_parameters()) if settings.law_given
-                           else PressureRelation()))
+                           else PressureRelation()),
+        **(car.ecu_parameters() if settings.ecu_given else {}))
     return vibration, radius, with_values(stiffness, settings.stiffness_set)
 
 
@@ -315,7 +318,7 @@ def replay(result: RoadSimulationResult, car: FamilyCar, settings: Settings) -> 
             'valid': valid, 'truth': truth, 'speed': speed, 'errors': errors,
             'calibrated_at_s': calibrated_at, 'trust': trust,
             'statuses': statuses, 'thresholds': dict(vp.method_thresholds), 'h0': vp.h0,
-            'indications': seen}
+            'indications': seen, 'encoder_noise': stiff.encoder_noise}
 
 
 def load_trace(path: Path) -> tuple[Job, tuple[int, ...], float, dict[str, Any]]:
@@ -359,7 +362,8 @@ def score(job: Job, car: FamilyCar, tr: dict[str, Any], tires: tuple[int, ...],
     rec: dict[str, Any] = {'seed': job.seed, 'case': job.case, 'drive': job.drive,
                            'tires': [TIRE_NAMES[i] for i in tires],
                            'calibration_errors': tr['errors'],
-                           'calibrated_at_s': tr['calibrated_at_s'], 'statuses': tr['statuses']}
+                           'calibrated_at_s': tr['calibrated_at_s'], 'statuses': tr['statuses'],
+                           'encoder_noise': tr.get('encoder_noise', '')}
     mean, std, valid_frac = [], [], []
     for w in range(4):
         rows = nominal & tr['valid'][:, w]
@@ -728,6 +732,10 @@ def main() -> None:
     parser.add_argument('--law-given', action='store_true',
                         help="give the stiffness observer the tire's stiffness-pressure law "
                              '(tire data) instead of the default line')
+    parser.add_argument('--ecu-given', action='store_true',
+                        help="give the stiffness observer how the car's ABS ECU forms the speed "
+                             '(timer, method, window: ECU data) instead of reading the timer '
+                             'from the speeds')
     parser.add_argument('--stiffness-set', action='append', default=[], metavar='NAME=VALUE',
                         help='a stiffness observer parameter for every run (repeatable), e.g. '
                              'forgetting_factor=0.995')
@@ -763,7 +771,7 @@ def main() -> None:
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
                         args.law_given, args.sim_cache, args.traces, args.ring_scale,
-                        stiffness_set)
+                        stiffness_set, ecu_given=args.ecu_given)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])

@@ -85,7 +85,7 @@ def test_power_law_stiffness() -> None:
 def test_tire_law_parameters_invert_the_simulated_law_and_stay_out_of_user_parameters(
         ) -> None:
     """The law as the stiffness observer's pressure_relation maps each car's simulated K(p)
-    back to p; a user of the car is not given it by default."""
+    back to p; a user of the car is not given it (nor the ECU's data) by default."""
     laws = set()
     for seed in TUNING_SEEDS[:12]:
         car = sample_car(seed)
@@ -97,6 +97,7 @@ def test_tire_law_parameters_invert_the_simulated_law_and_stay_out_of_user_param
         np.testing.assert_allclose(p0 * PressureRelation(**law).pressure_ratio(ratio),
                                    pressures, rtol=1e-9)
         assert not any('law' in key or 'exponent' in key for key in car.user_parameters())
+        assert not set(car.ecu_parameters()) & set(car.user_parameters())
     assert laws == {'line', 'power'}
 
 

@@ -27,11 +27,14 @@ Per wheel the chain is (paper Fig. 4, docs/methods/tire_stiffness_observer.md)::
   wheel, and the same consistency map applies. Limit: the partner's speed carries no
   driveline information at the partner's own belt anti-resonance, so once it is soft the
   unchanged wheel keeps a small residual there (5-10 kPa low on the simulator).
-* **Encoder noise** (``encoder_timer_s``, :class:`~tpms_ros.core.wheel_encoder.QuantisationNoise`):
-  the ECU timer's quantisation of the speed is in the regressors too and biases the least
-  squares by an amount that depends on the road's excitation; given the timer, a synthetic
-  realisation of it goes through the same filters and its second moments are subtracted from
-  each block's normal equations (bias-compensated least squares).
+* **Encoder noise** (``encoder_noise_removal``,
+  :class:`~tpms_ros.core.wheel_encoder.QuantisationNoise`): the ECU timer's quantisation of the
+  speed is in the regressors too and biases the least squares by an amount that depends on
+  the road's excitation; a synthetic realisation of it goes through the same filters and its
+  second moments are subtracted from each block's normal equations (bias-compensated least
+  squares). The timer is ``encoder_timer_s`` or, when that is 0, read from the held
+  tooth-period speeds themselves (:class:`~tpms_ros.core.wheel_encoder.TimerLattice`); the
+  calibration waits for it.
 * **Model-consistency correction** (:class:`~tpms_ros.core.torsional_observer.ConsistencyMap`):
   the raw LS coefficient is mapped to the true K through the model and filters.
 * **Calibration** learns each tire's nominal K and the block-to-block noise of its estimate;
@@ -73,7 +76,7 @@ from tpms_ros.core.torsional_observer import (
     consistency_map,
     design_observer,
 )
-from tpms_ros.core.wheel_encoder import SPEED_METHODS, QuantisationNoise
+from tpms_ros.core.wheel_encoder import SPEED_METHODS, QuantisationNoise, TimerLattice
 from vehicle_monitor_common.parameters import group, param
 from vehicle_monitor_common.validation import require_positive
 
@@ -94,6 +97,9 @@ _NO_REASON = len(REASONS)  # sentinel above every code, for min-reductions
 # The encoder noise's products carried per sample beside the filter outputs, as (row, column)
 # of [th, th_dot, w]: th th, th th_dot, th_dot th_dot, th w, th_dot w.
 _NOISE_PRODUCTS = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2))
+# The step the synthetic noise runs on while the timer is being read from the data: the
+# noise is linear in the step to within step / tooth period (< 1 %), its products quadratic.
+_REFERENCE_TIMER_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -303,10 +309,14 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
     # bias that shrinks as the road excites the tire more: calibrated on one road, the tires
     # read low on a rougher one. Its second moments follow from the ECU's timer and way of
     # forming the speed and are subtracted from each block's normal equations.
+    encoder_noise_removal: bool = param(
+        True, "take the ECU timer's quantisation noise out of the least squares (the timer: "
+        'encoder_timer_s, or read from the wheel speeds when that is 0)')
     encoder_timer_s: float = param(
         0.0, 'resolution of the ECU timer that stamps the tooth edges, s (ABS ECU data, often '
-        "1-4 us); > 0 removes the speed's quantisation noise from the least squares "
-        '(0: not corrected)', low=0.0, high=1e-3)
+        "1-4 us); 0: read from the wheel speeds, which works for held tooth periods "
+        "('tooth_period': their values lie on a lattice of timer steps); window averages need "
+        'it given', low=0.0, high=1e-3)
     encoder_speed_method: Literal['tooth_period', 'window_average'] = param(
         'tooth_period', "how the ECU forms the speed: 'tooth_period' (pitch over the last "
         "tooth period, held) or 'window_average' (teeth over the edge-to-edge time across "
@@ -715,9 +725,29 @@ class TireStiffnessObserver:
             design = design_observer(model, p.observer_pole_factor, fs)
             cmap = consistency_map(model, design, self._band_sos, fs)
             self._groups.append((wheels, design, cmap))
-        # Per sample and wheel: [th, th_dot, w, band-passed speed] and, with the encoder
-        # noise removed, the noise's products.
-        self._channels = 4 + (len(_NOISE_PRODUCTS) if p.encoder_timer_s > 0.0 else 0)
+        # The ECU timer: given, or read from the held tooth periods. Until it is read the
+        # synthetic noise runs on a reference step (its products scale with the step squared)
+        # and the blocks are not used, so that the least squares and the calibration start
+        # with the noise removed. The lattice, the sample count and the sample at which the
+        # timer was read survive a reset (the timer is the ECU's).
+        self._timer_lattice = (TimerLattice(p.encoder_teeth)
+                               if p.encoder_noise_removal and p.encoder_timer_s == 0.0
+                               and p.encoder_speed_method == 'tooth_period' else None)
+        if not p.encoder_noise_removal:
+            self._noise_timer_s = 0.0
+        elif p.encoder_timer_s > 0.0:
+            self._noise_timer_s = p.encoder_timer_s
+        else:
+            self._noise_timer_s = _REFERENCE_TIMER_S if self._timer_lattice is not None else 0.0
+        # What the products of the noise as generated are multiplied by: (timer / generated
+        # step)^2; 0 while the timer is unknown or when it cannot be read.
+        self._noise_scale = 1.0 if p.encoder_noise_removal and p.encoder_timer_s > 0.0 else 0.0
+        self._samples = 0
+        # Blocks ending before this sample are not used (the timer was being read).
+        self._timer_read_at = math.inf if self._timer_lattice is not None else -math.inf
+        # Per sample and wheel: [th, th_dot, w, band-passed speed] and, when the encoder
+        # noise is (or may be) removed, the noise's products.
+        self._channels = 4 + (len(_NOISE_PRODUCTS) if self._noise_timer_s > 0.0 else 0)
         self._model_k = np.array([t.k for t in self.tires])
         self._axles = [AXLES[name] for name in p.driven_axles]
         self._partner = np.arange(N_WHEELS)
@@ -757,11 +787,15 @@ class TireStiffnessObserver:
         # The band-passed speeds just before the carried samples, for the partner lags.
         self._band_history = np.zeros((self._lag_reach, N_WHEELS))
         self._noise = (QuantisationNoise(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
-                                         p.encoder_timer_s, p.encoder_speed_method,
+                                         self._noise_timer_s, p.encoder_speed_method,
                                          p.encoder_window_s)
-                       if p.encoder_timer_s > 0.0 else None)
+                       if self._noise_timer_s > 0.0 and (self._noise_scale > 0.0
+                                                         or self._timer_read_at == math.inf)
+                       else None)
         self._noise_band_zi: np.ndarray = np.zeros_like(self._band_zi)
         self._noise_obs_zi: list[np.ndarray] = [np.zeros_like(zi) for zi in self._obs_zi]
+        # Sample index of the first sample of the next block (a reset drops the partial one).
+        self._block_start = self._samples
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
@@ -777,6 +811,40 @@ class TireStiffnessObserver:
         for name in (*REASONS[1:], 'out_of_order', 'timing_breaks', 'resets',
                      'torque_invalid', 'steering_invalid'):
             self._counters[name] = np.zeros(N_WHEELS, dtype=np.int64)
+
+    @property
+    def encoder_noise(self) -> str:
+        """How the encoder's quantisation noise is handled, for diagnostics."""
+        p = self.params
+        if not p.encoder_noise_removal:
+            return 'not removed (encoder_noise_removal false)'
+        lattice = self._timer_lattice
+        if lattice is None:
+            if p.encoder_timer_s > 0.0:
+                return f'removed (timer {p.encoder_timer_s * 1e6:.4g} us, given)'
+            return "not removed: 'window_average' speeds need encoder_timer_s given"
+        if lattice.timer_s is None:
+            return (f'reading the ECU timer from the wheel speeds ({lattice.collected} distinct '
+                    'readings so far); the estimate and the calibration wait for it')
+        if lattice.timer_s > 0.0:
+            return (f'removed (timer {lattice.timer_s * 1e6:.4g} us, read from the wheel '
+                    'speeds)')
+        return ('not removed: the wheel speeds are not held tooth periods on a timer lattice '
+                '(give encoder_timer_s and encoder_speed_method)')
+
+    def _read_timer(self, omega: np.ndarray, code: np.ndarray) -> None:
+        """Feed the timer lattice the readings the method uses; once it decides, scale the
+        noise to the timer read (or stop it) and note the sample."""
+        assert self._timer_lattice is not None
+        row = self._timer_lattice.add(omega, code == OK)
+        if row is None:
+            return
+        timer_s = self._timer_lattice.timer_s
+        assert timer_s is not None
+        self._timer_read_at = self._samples + row + 1
+        self._noise_scale = (timer_s / self._noise_timer_s) ** 2
+        if timer_s == 0.0:
+            self._noise = None
 
     @property
     def counters(self) -> dict[str, tuple[int, ...]]:
@@ -837,6 +905,8 @@ class TireStiffnessObserver:
         cal = self._calibration
         if cal is None:
             return ''
+        if self._timer_read_at == math.inf:
+            return self.encoder_noise
         block_s = self.params.block_s
         short = [f'{TIRE_NAMES[w]} {cal.blocks[w] * block_s:.1f}'
                  for w in np.flatnonzero(~self._wheel_calibrated)]
@@ -1079,7 +1149,8 @@ class TireStiffnessObserver:
             wheels = family.wheels[:, j]
             k_th, k_dot = family.coef_index[j]
             sign = family.coef_sign[j]
-            sums = np.einsum('blp,blpk->bpk', problem_mask, out[:, :, wheels, 4:])
+            sums = self._noise_scale * np.einsum('blp,blpk->bpk', problem_mask,
+                                                 out[:, :, wheels, 4:])
             gram[..., k_th, k_th] -= sums[..., 0]
             gram[..., k_th, k_dot] -= sums[..., 1]
             gram[..., k_dot, k_th] -= sums[..., 1]
@@ -1195,6 +1266,8 @@ class TireStiffnessObserver:
             outputs[s:e, :, :4], lowpass[s:e] = self._filter(filled[s:e], good[s:e])
             if self._noise is not None:
                 outputs[s:e, :, 4:] = self._noise_products(lowpass[s:e])
+            else:
+                outputs[s:e, :, 4:] = 0.0
         # Previous low-passed speed from before any reset, so the chunking cannot matter
         # (the derivative at a reset row is masked by the settling anyway).
         prev_low = np.concatenate((self._prev_lowpass[None], lowpass[:-1]))
@@ -1242,6 +1315,9 @@ class TireStiffnessObserver:
                      'speed_band'):
             self._counters[name] += (code == _CODE[name]).sum(axis=0)
 
+        if self._timer_read_at == math.inf:
+            self._read_timer(omega, code)
+        self._samples += n
         self._accumulate(outputs, code)
 
     def _accumulate(self, outputs: np.ndarray, code: np.ndarray) -> None:
@@ -1269,13 +1345,17 @@ class TireStiffnessObserver:
         out = outputs[:cut].reshape(n_blocks, block_len, N_WHEELS, self._channels)
         blk_code = code[:cut].reshape(n_blocks, block_len, N_WHEELS)
         mask = (blk_code == OK).astype(float)
+        # Blocks that began before the timer was read carry no (or unscaled) noise removal.
+        block_start = self._block_start + block_len * np.arange(n_blocks)
+        self._block_start += cut
+        mask[block_start < self._timer_read_at] = 0.0
         good = np.zeros((n_blocks, N_WHEELS), dtype=bool)
         block_raw = np.full((n_blocks, N_WHEELS, 2), np.nan)
         sums = []
         for family, ls in zip(self._families, self._ls, strict=True):
             regressors, target, problem_mask = self._regressors(family, out, mask, band)
             gram, rhs, count = ls.block_sums(regressors, target, problem_mask)
-            if self._noise is not None:
+            if self._noise_scale > 0.0:
                 self._remove_noise(family, out, problem_mask, gram, rhs)
             problem_good = ls.good_blocks(count)
             ls.update(gram, rhs, problem_good)

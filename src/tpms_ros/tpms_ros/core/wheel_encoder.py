@@ -5,13 +5,15 @@ One definition for both sides: the road simulator measures its rim speeds with
 :func:`encoder_wheel_speed`, and the stiffness observer
 (:mod:`tpms_ros.core.stiffness_observer`) passes :class:`QuantisationNoise` through its filters
 to take the quantisation noise's second moments out of its least squares
-(``encoder_timer_s``; docs/methods/tire_stiffness_observer.md, "Encoder noise").
+(``encoder_timer_s``; docs/methods/tire_stiffness_observer.md, "Encoder noise"). When the
+timer is not given, :class:`TimerLattice` reads it from the speeds themselves.
 
 No ROS import.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -187,3 +189,107 @@ def _edge_teeth(tooth: np.ndarray, crossed: np.ndarray) -> np.ndarray:
     starts = np.repeat(tooth[:-1] + 1, crossed)
     offsets = np.arange(crossed.sum()) - np.repeat(np.cumsum(crossed) - crossed, crossed)
     return starts + offsets
+
+
+class TimerLattice:
+    """The ECU timer's resolution read from held tooth-period speeds.
+
+    A held tooth period is a whole number of timer steps, so ``pitch / speed = k * timer_s``
+    for an integer ``k``: the distinct readings of every wheel lie on one lattice, whatever the
+    ring's tooth-spacing error (the ECU assumes a perfect ring). Adjacent distinct values are
+    a multiple of the step apart and, once the road's vibration spreads the periods over many
+    steps, mostly the step itself. The lattice is taken when nearly every distinct value lies
+    on it and its multiples hold their fair shares of the values (``k`` divisible by ``m`` for
+    about 1 / m of them): a window average over ``n`` teeth gives ``k * timer_s / n``, values
+    on finer lattices whose multiples hold too many, and filtered or rescaled signals lie on
+    none; the result is then 0, not read.
+
+    Args:
+        teeth: teeth per ring.
+        distinct: distinct readings (all wheels) that decide.
+        coarse_distinct: fewer that decide once the readings repeat ``repeats`` times each on
+            average (a coarse timer at high speed has few steps in the range the speed covers).
+        repeats: see ``coarse_distinct``.
+        max_readings: readings after which it decides on what it has (0 below 3 distinct
+            ones), so that a steady drive on a coarse timer does not keep it waiting.
+    """
+
+    def __init__(self, teeth: int, distinct: int = 150, coarse_distinct: int = 40,
+                 repeats: int = 50, max_readings: int = 40_000) -> None:
+        self._pitch = 2.0 * math.pi / teeth
+        self._distinct = distinct
+        self._coarse_distinct = coarse_distinct
+        self._repeats = repeats
+        self._max_readings = max_readings
+        self._periods = np.zeros(0)
+        self._readings = 0
+        self.timer_s: float | None = None
+        """The step, s; 0 when the readings are not on a lattice; None while collecting."""
+
+    @property
+    def collected(self) -> int:
+        """Distinct readings collected so far."""
+        return self._periods.size
+
+    def add(self, speed: np.ndarray, valid: np.ndarray) -> int | None:
+        """Collect the readings of a chunk, row by row, until enough are in to decide.
+
+        Args:
+            speed: (n, wheels) readings, rad/s.
+            valid: (n, wheels) the readings to use (valid samples of a turning wheel).
+
+        Returns:
+            The row at which :attr:`timer_s` was decided, or None (undecided, or decided
+            before). Deciding at a row, not at the chunk's end, keeps the result and its
+            moment independent of how the readings are chunked.
+        """
+        if self.timer_s is not None:
+            return None
+        periods: list[float] = self._periods.tolist()
+        for row in range(speed.shape[0]):
+            for value in (self._pitch / speed[row, valid[row]]).tolist():
+                self._readings += 1
+                # Values within 1e-6 (relative) are one: float rounding on the way from the
+                # ECU is far below that, any timer step far above.
+                at = bisect.bisect_left(periods, value)
+                near = [periods[i] for i in (at - 1, at) if 0 <= i < len(periods)]
+                if all(abs(value - other) > 1e-6 * value for other in near):
+                    periods.insert(at, value)
+            n = len(periods)
+            if n >= self._distinct or (n >= self._coarse_distinct
+                                       and self._readings >= self._repeats * n):
+                self.timer_s = lattice_step(np.array(periods))
+            elif self._readings >= self._max_readings:
+                self.timer_s = lattice_step(np.array(periods)) if n >= 3 else 0.0
+            if self.timer_s is not None:
+                self._periods = np.array(periods)
+                return row
+        self._periods = np.array(periods)
+        return None
+
+
+def lattice_step(periods: np.ndarray, tolerance: float = 0.02, required_share: float = 0.98,
+                 share_margin: float = 0.15) -> float:
+    """The step of the lattice the sorted distinct ``periods`` lie on (:class:`TimerLattice`),
+    or 0 when there is none.
+
+    Args:
+        periods: sorted distinct tooth periods, s.
+        tolerance: how far from a lattice point a value may lie, in steps.
+        required_share: share of the values that must lie on the lattice.
+        share_margin: how much more than 1 / m of the values the multiples of m (2..12) may
+            hold.
+    """
+    gaps = np.diff(periods)
+    if gaps.size < 2:
+        return 0.0
+    step = float(np.quantile(gaps, 0.02))
+    k = np.round(periods / step)
+    step = float(np.sum(periods * k) / np.sum(k * k))   # least squares over the whole range
+    k = np.round(periods / step)
+    if np.mean(np.abs(periods / step - k) <= tolerance) < required_share:
+        return 0.0
+    for m in range(2, 13):
+        if np.mean(k % m == 0) > 1.0 / m + share_margin:
+            return 0.0
+    return step

@@ -449,6 +449,7 @@ class TireStiffnessObserverProcessor:
             'speed_band_kmh': [p.speed_min_kmh, p.speed_max_kmh],
             'time_jumps': self.time_jumps,
             'recovery_s': recovery_s(p),
+            'encoder_noise': self.observer.encoder_noise,
         }
         for reason, count in self.rejected.items():
             values[f'rejected_messages_{reason}'] = count

@@ -106,7 +106,7 @@ class FamilyCar:
 
     def user_parameters(self) -> dict[str, Any]:
         """What a user of this car can know and set (placard, layout, radius, geometry, the
-        ABS ECU's encoder data)."""
+        encoder ring's teeth)."""
         v = self.vehicle
         wheelbase = v.lf + v.lr
         front = v.m * GRAVITY * v.lr / wheelbase / 2.0
@@ -115,10 +115,15 @@ class FamilyCar:
                 'nominal_radius_m': v.rw, 'wheelbase_m': wheelbase,
                 'track_front_m': 2.0 * v.tf, 'track_rear_m': 2.0 * v.tr,
                 'static_load_n': (front, front, rear, rear), 'encoder_teeth': self.sensors.teeth,
-                'encoder_timer_s': self.sensors.timer_resolution_s,
-                'encoder_speed_method': self.sensors.speed_method,
-                'encoder_window_s': self.sensors.speed_window_s,
                 'wheel_inertia_kgm2': v.iw, 'cg_height_m': v.h}
+
+    def ecu_parameters(self) -> dict[str, Any]:
+        """How the ABS ECU forms the wheel speed, as the stiffness observer's ``encoder_*``
+        parameters: ECU data a supplier has, not part of :meth:`user_parameters` (the observer
+        reads the timer from held tooth periods itself)."""
+        s = self.sensors
+        return {'encoder_timer_s': s.timer_resolution_s, 'encoder_speed_method': s.speed_method,
+                'encoder_window_s': s.speed_window_s}
 
     def tire_law_parameters(self) -> dict[str, Any]:
         """The tire's stiffness-pressure law as the stiffness observer's ``pressure_relation``
