@@ -90,24 +90,28 @@ def test_timer_lattice_reads_the_timer_of_held_tooth_periods(timer_s, teeth):
     """Held tooth periods are whole timer steps, whatever the ring's error: the step is read
     exactly, within the first 3 s of four wheels (measured: 0.24, 1.7, 0.61 s)."""
     speed = _measured('tooth_period', timer_s, teeth)
-    lattice = TimerLattice(teeth)
+    lattice = TimerLattice(teeth, FS)
     row = lattice.add(speed, np.ones(speed.shape, dtype=bool))
     assert lattice.timer_s == pytest.approx(timer_s, rel=1e-6)
     assert row is not None and row < 3000
 
 
-@pytest.mark.parametrize('case', ['window_average', 'exact', 'low_passed'])
+@pytest.mark.parametrize('case', ['window_average', 'two_tooth_window', 'exact', 'low_passed'])
 def test_timer_lattice_refuses_speeds_that_are_not_held_tooth_periods(case):
     """A window average over several teeth (here ~3-4), exact speeds and a filtered signal
-    lie on no lattice of timer steps: 0, not read (the noise is then not removed)."""
+    lie on no lattice of timer steps; a window of about two teeth does (half the timer's
+    step), but its reading changes about twice per tooth. Each: 0, not read (the noise is then
+    not removed)."""
     if case == 'window_average':
         speed = _measured('window_average', TIMER_S, TEETH, window_s=0.008)
+    elif case == 'two_tooth_window':
+        speed = _measured('window_average', TIMER_S, TEETH, window_s=0.003)
     elif case == 'exact':
         speed = _measured('tooth_period', 0.0, TEETH)
     else:
         speed = sig.sosfilt(sig.butter(2, 100.0, fs=FS, output='sos'),
                             _measured('tooth_period', TIMER_S, TEETH), axis=0)[200:]
-    lattice = TimerLattice(TEETH)
+    lattice = TimerLattice(TEETH, FS)
     assert lattice.add(speed, np.ones(speed.shape, dtype=bool)) is not None
     assert lattice.timer_s == 0.0
 
@@ -116,9 +120,9 @@ def test_timer_lattice_decides_at_the_same_reading_however_chunked():
     """The decision falls on a reading, not on a chunk's end."""
     speed = _measured('tooth_period', TIMER_S, TEETH)
     valid = speed > 56.0   # some readings left out, as the method's gates do
-    whole = TimerLattice(TEETH)
+    whole = TimerLattice(TEETH, FS)
     decided_at = whole.add(speed, valid)
-    chunked = TimerLattice(TEETH)
+    chunked = TimerLattice(TEETH, FS)
     rng = np.random.default_rng(6)
     start, decided = 0, None
     while decided is None and start < speed.shape[0]:
@@ -135,7 +139,7 @@ def test_timer_lattice_decides_on_a_steady_drive_with_a_coarse_timer():
     readings (10 s of four wheels) it decides on those (here 24) rather than keep the
     calibration waiting."""
     speed = _measured('tooth_period', 16e-6, TEETH, seconds=40.0)
-    lattice = TimerLattice(TEETH)
+    lattice = TimerLattice(TEETH, FS)
     row = lattice.add(speed, np.ones(speed.shape, dtype=bool))
     assert row is not None and lattice.collected < 40
     assert lattice.timer_s == pytest.approx(16e-6, rel=1e-6)

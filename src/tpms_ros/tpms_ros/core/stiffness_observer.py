@@ -730,7 +730,7 @@ class TireStiffnessObserver:
         # and the blocks are not used, so that the least squares and the calibration start
         # with the noise removed. The lattice, the sample count and the sample at which the
         # timer was read survive a reset (the timer is the ECU's).
-        self._timer_lattice = (TimerLattice(p.encoder_teeth)
+        self._timer_lattice = (TimerLattice(p.encoder_teeth, p.sample_rate_hz)
                                if p.encoder_noise_removal and p.encoder_timer_s == 0.0
                                and p.encoder_speed_method == 'tooth_period' else None)
         if not p.encoder_noise_removal:

@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from tpms_ros.core.tooth_correction import ANGLE_MODE_ON
+
 SPEED_METHODS = ('tooth_period', 'window_average')
 """How an ECU forms the speed from the tooth edges (:func:`encoder_wheel_speed`)."""
 
@@ -198,14 +200,18 @@ class TimerLattice:
     for an integer ``k``: the distinct readings of every wheel lie on one lattice, whatever the
     ring's tooth-spacing error (the ECU assumes a perfect ring). Adjacent distinct values are
     a multiple of the step apart and, once the road's vibration spreads the periods over many
-    steps, mostly the step itself. The lattice is taken when nearly every distinct value lies
-    on it and its multiples hold their fair shares of the values (``k`` divisible by ``m`` for
-    about 1 / m of them): a window average over ``n`` teeth gives ``k * timer_s / n``, values
-    on finer lattices whose multiples hold too many, and filtered or rescaled signals lie on
-    none; the result is then 0, not read.
+    steps, mostly the step itself. The lattice is taken when every distinct value lies on it
+    and its multiples hold their fair shares of the values (``k`` divisible by ``m`` for about
+    1 / m of them): a window average over ``n`` teeth gives ``k * timer_s / n``, values on
+    finer lattices whose multiples hold too many, and filtered signals lie on none; the result
+    is then 0, not read. A window average that spans about two teeth at most speeds would
+    pass (``k * timer_s / 2`` is a lattice); it is told by how often the reading changes: a
+    held period at most once per tooth, a window average also when an edge leaves the window
+    (the test the tooth correction makes, :data:`~tpms_ros.core.tooth_correction.ANGLE_MODE_ON`).
 
     Args:
         teeth: teeth per ring.
+        sample_rate_hz: the wheel-speed rate, Hz.
         distinct: distinct readings (all wheels) that decide.
         coarse_distinct: fewer that decide once the readings repeat ``repeats`` times each on
             average (a coarse timer at high speed has few steps in the range the speed covers).
@@ -214,15 +220,21 @@ class TimerLattice:
             ones), so that a steady drive on a coarse timer does not keep it waiting.
     """
 
-    def __init__(self, teeth: int, distinct: int = 150, coarse_distinct: int = 40,
-                 repeats: int = 50, max_readings: int = 40_000) -> None:
+    def __init__(self, teeth: int, sample_rate_hz: float, distinct: int = 150,
+                 coarse_distinct: int = 40, repeats: int = 50,
+                 max_readings: int = 40_000) -> None:
         self._pitch = 2.0 * math.pi / teeth
+        self._teeth_per_sample = 1.0 / (self._pitch * sample_rate_hz)   # per rad/s
         self._distinct = distinct
         self._coarse_distinct = coarse_distinct
         self._repeats = repeats
         self._max_readings = max_readings
         self._periods = np.zeros(0)
         self._readings = 0
+        # Changes of the reading between valid samples, and the teeth passed meanwhile.
+        self._previous: np.ndarray | None = None
+        self._changes = 0.0
+        self._teeth_passed = 0.0
         self.timer_s: float | None = None
         """The step, s; 0 when the readings are not on a lattice; None while collecting."""
 
@@ -245,6 +257,13 @@ class TimerLattice:
         """
         if self.timer_s is not None:
             return None
+        previous = np.concatenate((speed[:1] * np.nan if self._previous is None
+                                   else self._previous[None], speed[:-1]))
+        valid_previous = np.concatenate((np.isfinite(previous[:1]), valid[:-1]))
+        pair = valid & valid_previous
+        changes = self._changes + np.cumsum((pair & (speed != previous)).sum(axis=1))
+        passed = self._teeth_passed + np.cumsum(
+            np.where(pair, speed, 0.0).sum(axis=1)) * self._teeth_per_sample
         periods: list[float] = self._periods.tolist()
         for row in range(speed.shape[0]):
             for value in (self._pitch / speed[row, valid[row]]).tolist():
@@ -263,8 +282,12 @@ class TimerLattice:
                 self.timer_s = lattice_step(np.array(periods)) if n >= 3 else 0.0
             if self.timer_s is not None:
                 self._periods = np.array(periods)
+                if changes[row] > ANGLE_MODE_ON * passed[row]:
+                    self.timer_s = 0.0
                 return row
         self._periods = np.array(periods)
+        self._previous = np.where(valid[-1], speed[-1], np.nan)
+        self._changes, self._teeth_passed = float(changes[-1]), float(passed[-1])
         return None
 
 
