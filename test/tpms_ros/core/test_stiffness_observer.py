@@ -355,6 +355,27 @@ def test_encoder_noise_removal_keeps_the_estimate_off_the_road_level(method):
         assert abs(mean_k[30.0, 'read'] - 1.0) < 0.03
 
 
+def test_a_timer_read_at_low_speed_is_dropped_once_the_speeds_show_window_averages():
+    """An ECU averaging over 8 ms reports one tooth period while a tooth takes longer (here
+    20 teeth at 30 rad/s): its readings lie on the timer's lattice and change once per tooth,
+    so the timer is read. Faster, the reading changes about twice per tooth: the speeds are
+    window averages, and from then on the noise is left in (the held model would be wrong),
+    which /diagnostics says."""
+    seconds = 40.0
+    t = np.arange(int(seconds * FS)) / FS
+    profile = np.interp(t, [0.0, 15.0, 25.0, seconds], [30.0, 30.0, 55.0, 55.0])
+    vibration = synthesize(np.full(4, MODEL.k), seconds, seed=8) - OMEGA0
+    measured = np.column_stack([
+        encoder_wheel_speed(t, profile + vibration[:, w], t, np.zeros(20), 0.1 * w, 4e-6,
+                            'window_average', 0.008) for w in range(4)])
+    observer = TireStiffnessObserver(StiffnessObserverParams(encoder_teeth=20))
+    run(observer, measured[:15000])
+    assert observer.encoder_noise == 'removed (timer 4 us, read from the wheel speeds)'
+    run(observer, measured[15000:])
+    assert observer.encoder_noise.startswith('removed until sample ')
+    assert 'window averages' in observer.encoder_noise
+
+
 def _driven_pressure_error(axle: Literal['none', 'rear'],
                            compensation: Literal['partner', 'difference'] = 'partner',
                            ) -> np.ndarray:

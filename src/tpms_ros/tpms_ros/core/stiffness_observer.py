@@ -743,8 +743,12 @@ class TireStiffnessObserver:
         # step)^2; 0 while the timer is unknown or when it cannot be read.
         self._noise_scale = 1.0 if p.encoder_noise_removal and p.encoder_timer_s > 0.0 else 0.0
         self._samples = 0
-        # Blocks ending before this sample are not used (the timer was being read).
+        # Blocks beginning before this sample are not used (the timer was being read).
         self._timer_read_at = math.inf if self._timer_lattice is not None else -math.inf
+        # Blocks beginning at or after this sample keep the noise in: the timer was read from
+        # held periods, and the speeds turned out to be window averages after all (a window
+        # longer than a tooth period holds one tooth at low speeds).
+        self._noise_until = math.inf
         # Per sample and wheel: [th, th_dot, w, band-passed speed] and, when the encoder
         # noise is (or may be) removed, the noise's products.
         self._channels = 4 + (len(_NOISE_PRODUCTS) if self._noise_timer_s > 0.0 else 0)
@@ -798,6 +802,7 @@ class TireStiffnessObserver:
         self._block_start = self._samples
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
+        self._tooth_start = self._samples
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
                                     p.batch_window_blocks,
                                     p.min_block_fraction * p.block_samples)
@@ -826,6 +831,13 @@ class TireStiffnessObserver:
         if lattice.timer_s is None:
             return (f'reading the ECU timer from the wheel speeds ({lattice.collected} distinct '
                     'readings so far); the estimate and the calibration wait for it')
+        if lattice.timer_s > 0.0 and self._noise_until < math.inf:
+            since = (f'removed until sample {self._noise_until}, then not'
+                     if self._noise_until > self._timer_read_at else 'not removed')
+            return (f'{since}: the speeds looked like held periods on a '
+                    f'{lattice.timer_s * 1e6:.4g} us timer, but they are window averages (a '
+                    'window holds one tooth at low speeds; give encoder_timer_s, '
+                    'encoder_speed_method and encoder_window_s)')
         if lattice.timer_s > 0.0:
             return (f'removed (timer {lattice.timer_s * 1e6:.4g} us, read from the wheel '
                     'speeds)')
@@ -1134,7 +1146,7 @@ class TireStiffnessObserver:
         return filtered[..., rows] * filtered[..., cols]
 
     def _remove_noise(self, family: LsFamily, out: np.ndarray, problem_mask: np.ndarray,
-                      gram: np.ndarray, rhs: np.ndarray) -> None:
+                      scale: np.ndarray, gram: np.ndarray, rhs: np.ndarray) -> None:
         """Subtract the synthetic noise's products over the counted samples from a family's
         block sums, in place: each wheel's own [th, th_dot] rows and its w. The partner lags
         carry the partner's noise, independent of this wheel's; subtracting their own moments
@@ -1143,14 +1155,16 @@ class TireStiffnessObserver:
 
         Args:
             family: the LS problems; ``out`` (B, L, 4, C) the block samples; ``problem_mask``
-                (B, L, P) where a problem's sample counts (:meth:`_regressors`).
+                (B, L, P) where a problem's sample counts (:meth:`_regressors`); ``scale``
+                (B,) what each block's products are multiplied by ((timer / the step the noise
+                was generated on)^2, or 0).
         """
         for j in range(family.wheels.shape[1]):
             wheels = family.wheels[:, j]
             k_th, k_dot = family.coef_index[j]
             sign = family.coef_sign[j]
-            sums = self._noise_scale * np.einsum('blp,blpk->bpk', problem_mask,
-                                                 out[:, :, wheels, 4:])
+            sums = scale[:, None, None] * np.einsum('blp,blpk->bpk', problem_mask,
+                                                    out[:, :, wheels, 4:])
             gram[..., k_th, k_th] -= sums[..., 0]
             gram[..., k_th, k_dot] -= sums[..., 1]
             gram[..., k_dot, k_th] -= sums[..., 1]
@@ -1317,6 +1331,9 @@ class TireStiffnessObserver:
 
         if self._timer_read_at == math.inf:
             self._read_timer(omega, code)
+        elif (self._timer_lattice is not None and self._noise_until == math.inf
+              and self._tooth.window_seen_at is not None):
+            self._noise_until = self._tooth_start + self._tooth.window_seen_at
         self._samples += n
         self._accumulate(outputs, code)
 
@@ -1349,14 +1366,15 @@ class TireStiffnessObserver:
         block_start = self._block_start + block_len * np.arange(n_blocks)
         self._block_start += cut
         mask[block_start < self._timer_read_at] = 0.0
+        noise_scale = np.where(block_start < self._noise_until, self._noise_scale, 0.0)
         good = np.zeros((n_blocks, N_WHEELS), dtype=bool)
         block_raw = np.full((n_blocks, N_WHEELS, 2), np.nan)
         sums = []
         for family, ls in zip(self._families, self._ls, strict=True):
             regressors, target, problem_mask = self._regressors(family, out, mask, band)
             gram, rhs, count = ls.block_sums(regressors, target, problem_mask)
-            if self._noise_scale > 0.0:
-                self._remove_noise(family, out, problem_mask, gram, rhs)
+            if np.any(noise_scale > 0.0):
+                self._remove_noise(family, out, problem_mask, noise_scale, gram, rhs)
             problem_good = ls.good_blocks(count)
             ls.update(gram, rhs, problem_good)
             good[:, family.wheels] = problem_good[:, :, None]
