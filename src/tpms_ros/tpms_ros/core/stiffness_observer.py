@@ -1331,8 +1331,8 @@ class TireStiffnessObserver:
 
         if self._timer_read_at == math.inf:
             self._read_timer(omega, code)
-        elif (self._timer_lattice is not None and self._noise_until == math.inf
-              and self._tooth.window_seen_at is not None):
+        if (self._timer_read_at < math.inf and self._timer_lattice is not None
+                and self._noise_until == math.inf and self._tooth.window_seen_at is not None):
             self._noise_until = self._tooth_start + self._tooth.window_seen_at
         self._samples += n
         self._accumulate(outputs, code)
