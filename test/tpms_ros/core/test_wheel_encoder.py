@@ -143,3 +143,20 @@ def test_timer_lattice_decides_on_a_steady_drive_with_a_coarse_timer():
     row = lattice.add(speed, np.ones(speed.shape, dtype=bool))
     assert row is not None and lattice.collected < 40
     assert lattice.timer_s == pytest.approx(16e-6, rel=1e-6)
+
+
+def test_timer_lattice_keeps_a_held_timer_through_a_stop():
+    """Once read, the timer stays: a held period changes at most once per tooth, and the
+    readings of a stopping wheel (which fall sample by sample with no edge) are outside the
+    speeds the method uses, so the watch never sees a window average."""
+    t = np.arange(int(60.0 * FS) + 1) / FS
+    rim = np.interp(t, [0.0, 20.0, 28.0, 32.0, 40.0, 60.0], [55.0, 55.0, 0.0, 0.0, 55.0, 55.0])
+    rim = rim + 0.3 * np.sin(2 * np.pi * 40.0 * t) * (rim > 5.0)
+    speed = np.column_stack([encoder_wheel_speed(t, rim, t[1:], np.zeros(TEETH), 0.2 * w,
+                                                 TIMER_S) for w in range(4)])
+    lattice = TimerLattice(TEETH, FS)
+    valid = speed > 28.0       # the method's speed band (30 km/h at 0.3 m)
+    row = lattice.add(speed, valid)
+    assert row is not None and lattice.timer_s == pytest.approx(TIMER_S, rel=1e-6)
+    assert lattice.watch(speed[row + 1:], valid[row + 1:]) is None
+    assert not lattice.window_seen

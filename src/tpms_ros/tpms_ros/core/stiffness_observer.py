@@ -802,7 +802,6 @@ class TireStiffnessObserver:
         self._block_start = self._samples
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
-        self._tooth_start = self._samples
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
                                     p.batch_window_blocks,
                                     p.min_block_fraction * p.block_samples)
@@ -832,12 +831,10 @@ class TireStiffnessObserver:
             return (f'reading the ECU timer from the wheel speeds ({lattice.collected} distinct '
                     'readings so far); the estimate and the calibration wait for it')
         if lattice.timer_s > 0.0 and self._noise_until < math.inf:
-            since = (f'removed until sample {self._noise_until}, then not'
-                     if self._noise_until > self._timer_read_at else 'not removed')
-            return (f'{since}: the speeds looked like held periods on a '
-                    f'{lattice.timer_s * 1e6:.4g} us timer, but they are window averages (a '
-                    'window holds one tooth at low speeds; give encoder_timer_s, '
-                    'encoder_speed_method and encoder_window_s)')
+            return (f'removed until sample {self._noise_until}, then not: the speeds looked '
+                    f'like held periods on a {lattice.timer_s * 1e6:.4g} us timer, but they are '
+                    'window averages (a window holds one tooth at low speeds; give '
+                    'encoder_timer_s, encoder_speed_method and encoder_window_s)')
         if lattice.timer_s > 0.0:
             return (f'removed (timer {lattice.timer_s * 1e6:.4g} us, read from the wheel '
                     'speeds)')
@@ -846,17 +843,25 @@ class TireStiffnessObserver:
 
     def _read_timer(self, omega: np.ndarray, code: np.ndarray) -> None:
         """Feed the timer lattice the readings the method uses; once it decides, scale the
-        noise to the timer read (or stop it) and note the sample."""
-        assert self._timer_lattice is not None
-        row = self._timer_lattice.add(omega, code == OK)
-        if row is None:
-            return
-        timer_s = self._timer_lattice.timer_s
-        assert timer_s is not None
-        self._timer_read_at = self._samples + row + 1
-        self._noise_scale = (timer_s / self._noise_timer_s) ** 2
-        if timer_s == 0.0:
-            self._noise = None
+        noise to the timer read (or stop it) and note the sample; after that, note the sample
+        from which the readings are seen to be window averages (the noise then stays in)."""
+        lattice = self._timer_lattice
+        assert lattice is not None
+        valid = code == OK
+        start = 0
+        if self._timer_read_at == math.inf:
+            row = lattice.add(omega, valid)
+            if row is None:
+                return
+            assert lattice.timer_s is not None
+            self._timer_read_at = self._samples + row + 1
+            self._noise_scale = (lattice.timer_s / self._noise_timer_s) ** 2
+            if lattice.timer_s == 0.0:
+                self._noise = None
+            start = row + 1
+        row = lattice.watch(omega[start:], valid[start:])
+        if row is not None:
+            self._noise_until = self._samples + start + row
 
     @property
     def counters(self) -> dict[str, tuple[int, ...]]:
@@ -1329,11 +1334,8 @@ class TireStiffnessObserver:
                      'speed_band'):
             self._counters[name] += (code == _CODE[name]).sum(axis=0)
 
-        if self._timer_read_at == math.inf:
+        if self._timer_lattice is not None:
             self._read_timer(omega, code)
-        if (self._timer_read_at < math.inf and self._timer_lattice is not None
-                and self._noise_until == math.inf and self._tooth.window_seen_at is not None):
-            self._noise_until = self._tooth_start + self._tooth.window_seen_at
         self._samples += n
         self._accumulate(outputs, code)
 

@@ -102,9 +102,6 @@ class ToothErrorCorrector:
         self._changes = np.zeros(n_wheels)
         self._advance = np.zeros(n_wheels)
         self._angle_mode = np.zeros(n_wheels, dtype=bool)
-        self.window_seen_at: int | None = None
-        """Samples processed when a wheel's speed was first recognised as a window average
-        (None: not yet)."""
 
     @property
     def angle_mode(self) -> np.ndarray:
@@ -224,6 +221,4 @@ class ToothErrorCorrector:
         self._angle_mode = np.where(
             judged & (per_tooth > ANGLE_MODE_ON), True,
             np.where(judged & (per_tooth < ANGLE_MODE_OFF), False, self._angle_mode))
-        if self.window_seen_at is None and self._angle_mode.any():
-            self.window_seen_at = self._count
 

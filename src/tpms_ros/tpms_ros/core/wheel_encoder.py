@@ -17,8 +17,9 @@ import bisect
 import math
 
 import numpy as np
+import scipy.signal as sig
 
-from tpms_ros.core.tooth_correction import ANGLE_MODE_ON
+from tpms_ros.core.tooth_correction import ANGLE_MODE_ON, MIN_FORM_TEETH
 
 SPEED_METHODS = ('tooth_period', 'window_average')
 """How an ECU forms the speed from the tooth edges (:func:`encoder_wheel_speed`)."""
@@ -208,6 +209,10 @@ class TimerLattice:
     pass (``k * timer_s / 2`` is a lattice); it is told by how often the reading changes: a
     held period at most once per tooth, a window average also when an edge leaves the window
     (the test the tooth correction makes, :data:`~tpms_ros.core.tooth_correction.ANGLE_MODE_ON`).
+    A window longer than a tooth period holds one tooth at low speeds, so a slow start can
+    pass all of it; :meth:`watch` goes on testing the changes per tooth after the timer was
+    read (over ``form_s``, as the tooth correction does) and says when the readings turn out to
+    be window averages.
 
     Args:
         teeth: teeth per ring.
@@ -218,12 +223,17 @@ class TimerLattice:
         repeats: see ``coarse_distinct``.
         max_readings: readings after which it decides on what it has (0 below 3 distinct
             ones), so that a steady drive on a coarse timer does not keep it waiting.
+        form_s: memory of :meth:`watch`'s changes per tooth, s.
     """
 
     def __init__(self, teeth: int, sample_rate_hz: float, distinct: int = 150,
                  coarse_distinct: int = 40, repeats: int = 50,
-                 max_readings: int = 40_000) -> None:
+                 max_readings: int = 40_000, form_s: float = 2.0) -> None:
         self._pitch = 2.0 * math.pi / teeth
+        self._form_decay = math.exp(-1.0 / (form_s * sample_rate_hz))
+        self._form = np.zeros((1, 2))     # watch's decaying sums of changes and teeth passed
+        self.window_seen = False
+        """The readings turned out to be window averages after the timer was read."""
         self._teeth_per_sample = 1.0 / (self._pitch * sample_rate_hz)   # per rad/s
         self._distinct = distinct
         self._coarse_distinct = coarse_distinct
@@ -257,13 +267,9 @@ class TimerLattice:
         """
         if self.timer_s is not None:
             return None
-        previous = np.concatenate((speed[:1] * np.nan if self._previous is None
-                                   else self._previous[None], speed[:-1]))
-        valid_previous = np.concatenate((np.isfinite(previous[:1]), valid[:-1]))
-        pair = valid & valid_previous
-        changes = self._changes + np.cumsum((pair & (speed != previous)).sum(axis=1))
-        passed = self._teeth_passed + np.cumsum(
-            np.where(pair, speed, 0.0).sum(axis=1)) * self._teeth_per_sample
+        row_changes, row_teeth = self._changes_and_teeth(speed, valid)
+        changes = self._changes + np.cumsum(row_changes)
+        passed = self._teeth_passed + np.cumsum(row_teeth)
         periods: list[float] = self._periods.tolist()
         for row in range(speed.shape[0]):
             for value in (self._pitch / speed[row, valid[row]]).tolist():
@@ -282,13 +288,47 @@ class TimerLattice:
                 self.timer_s = lattice_step(np.array(periods)) if n >= 3 else 0.0
             if self.timer_s is not None:
                 self._periods = np.array(periods)
+                self._previous = np.where(valid[row], speed[row], np.nan)
                 if changes[row] > ANGLE_MODE_ON * passed[row]:
                     self.timer_s = 0.0
                 return row
         self._periods = np.array(periods)
-        self._previous = np.where(valid[-1], speed[-1], np.nan)
         self._changes, self._teeth_passed = float(changes[-1]), float(passed[-1])
         return None
+
+    def watch(self, speed: np.ndarray, valid: np.ndarray) -> int | None:
+        """After the timer was read, go on testing the changes per tooth of the readings
+        (the rows after the one :meth:`add` decided at, then every chunk).
+
+        Returns:
+            The row at which the readings were first seen to be window averages (more than
+            ``ANGLE_MODE_ON`` changes per tooth over ``form_s``, once ``MIN_FORM_TEETH`` teeth
+            are in it), or None.
+        """
+        if not self.timer_s or self.window_seen or speed.shape[0] == 0:
+            return None
+        counts = np.column_stack(self._changes_and_teeth(speed, valid))
+        form, self._form = sig.lfilter([1.0], [1.0, -self._form_decay], counts, axis=0,
+                                       zi=self._form_decay * self._form)
+        self._form = form[-1:]
+        seen = (form[:, 1] >= MIN_FORM_TEETH) & (form[:, 0] > ANGLE_MODE_ON * form[:, 1])
+        if not seen.any():
+            return None
+        self.window_seen = True
+        return int(np.argmax(seen))
+
+    def _changes_and_teeth(self, speed: np.ndarray, valid: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """Per row: the readings that changed since the wheel's previous valid sample (both
+        valid), and the teeth the wheels passed meanwhile; the last row is kept for the next
+        call."""
+        previous = np.concatenate((speed[:1] * np.nan if self._previous is None
+                                   else self._previous[None], speed[:-1]))
+        valid_previous = np.concatenate((np.isfinite(previous[:1]), valid[:-1]))
+        pair = valid & valid_previous
+        self._previous = np.where(valid[-1], speed[-1], np.nan)
+        return ((pair & (speed != previous)).sum(axis=1).astype(float),
+                np.where(pair, speed, 0.0).sum(axis=1) * self._teeth_per_sample)
 
 
 def lattice_step(periods: np.ndarray, tolerance: float = 0.02, required_share: float = 0.98,
