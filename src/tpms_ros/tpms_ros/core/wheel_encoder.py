@@ -201,9 +201,9 @@ class TimerLattice:
     for an integer ``k``: the distinct readings of every wheel lie on one lattice, whatever the
     ring's tooth-spacing error (the ECU assumes a perfect ring). Adjacent distinct values are
     a multiple of the step apart and, once the road's vibration spreads the periods over many
-    steps, mostly the step itself. The lattice is taken when every distinct value lies on it
-    and its multiples hold their fair shares of the values (``k`` divisible by ``m`` for about
-    1 / m of them): a window average over ``n`` teeth gives ``k * timer_s / n``, values on
+    steps, mostly the step itself. The lattice is taken when 98 % of the distinct values lie
+    on it and its multiples hold their fair shares of the values (``k`` divisible by ``m`` for
+    about 1 / m of them): a window average over ``n`` teeth gives ``k * timer_s / n``, values on
     finer lattices whose multiples hold too many, and filtered signals lie on none; the result
     is then 0, not read. A window average that spans about two teeth at most speeds would
     pass (``k * timer_s / 2`` is a lattice); it is told by how often the reading changes: a
