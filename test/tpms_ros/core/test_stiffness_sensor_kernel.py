@@ -14,6 +14,7 @@ from tpms_ros.core.stiffness_observer import (
     _CODE,
     N_WHEELS,
     OK,
+    STUCK_TOOTH_PERIODS,
     StiffnessObserverParams,
     sensor_checks,
     sensor_state,
@@ -49,7 +50,11 @@ class NumpySensorChecks:
         change = np.where(omega == prev, -1, idx)
         last_change = np.maximum.accumulate(change, axis=0)
         run = np.where(last_change >= 0, idx - last_change, idx + 1 + self.run[None])
-        stuck = ~invalid & ~dead & (run >= int(round(p.stuck_s * fs)))
+        with np.errstate(divide='ignore', invalid='ignore'):
+            tooth_periods = np.where(~invalid & (omega > 0.0), STUCK_TOOTH_PERIODS * fs / (
+                omega * (p.encoder_teeth / (2.0 * np.pi))), 0.0)
+        stuck = ~invalid & ~dead & (run >= np.maximum(int(round(p.stuck_s * fs)),
+                                                       tooth_periods))
         self.run = run[-1].copy()
         self.last_value = omega[-1].copy()
         code[stuck] = _CODE['stuck_sensor']
@@ -107,7 +112,8 @@ def _faulty_speeds(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.nda
     omega[700, 3] = -1.0                          # negative
     omega[800:803, 0] = 1e4                       # absurd
     omega[900:1000, 2] = 130.0                    # tooth edges faster than the samples
-    omega[1200:1400, :] = 0.1                     # all wheels stopped: not dead
+    omega[1200:1400, :] = 0.1                     # all wheels crawling: not dead
+    omega[1600:1700, 1] = 2.0                     # a slow tooth (65 ms) held: not stuck
     omega[:30, 3] = np.inf                        # bad from the start
     timing_break = rng.random(n) < 0.001
     timing_break[1500] = True
@@ -136,3 +142,19 @@ def test_sensor_kernel_equals_numpy_over_any_chunking() -> None:
         # Every sample code the kernel sets was exercised.
         assert {OK, *(_CODE[name] for name in (*COUNTED, 'timing'))} <= seen
         assert (_CODE['speed_band'] in seen) == p.tooth_correction
+
+
+def test_a_slow_wheel_holding_its_tooth_period_is_not_stuck() -> None:
+    """At 2 rad/s a 48-tooth ring's reading is held 65 ms, beyond ``stuck_s``: still a live
+    sensor (its tooth count must survive a crawl); the same reading held past three of its own
+    tooth periods is stuck."""
+    p = StiffnessObserverParams()
+    omega = np.full((400, N_WHEELS), 60.0) + np.arange(400)[:, None] * 1e-3
+    omega[:, 1] = 2.0
+    code, good, _, _, counts = KernelSensorChecks(p)(omega, np.zeros(400, dtype=bool))
+    tooth_period = 2.0 * np.pi / (p.encoder_teeth * 2.0) * p.sample_rate_hz   # samples
+    first_stuck = int(np.ceil(STUCK_TOOTH_PERIODS * tooth_period))  # run of equal readings
+    assert first_stuck > p.stuck_s * p.sample_rate_hz
+    assert good[:first_stuck, 1].all() and not good[first_stuck:, 1].any()
+    assert (code[first_stuck:, 1] == _CODE['stuck_sensor']).all()
+    assert counts[2, 1] == 400 - first_stuck

@@ -275,7 +275,8 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
         1.0, 'a wheel below this while another wheel is in the speed band is dead, rad/s',
         low=1e-3, high=100.0)
     stuck_s: float = param(
-        0.05, 'a wheel reading exactly the same value for this long is a stuck sensor, s',
+        0.05, 'a wheel reading exactly the same value for this long, and for three tooth '
+        'periods of that reading, is a stuck sensor, s',
         low=1e-3, high=10.0)
     settle_s: float = param(
         0.2, 'time after a filter reset during which samples are not used, s', low=1e-3,
@@ -518,6 +519,12 @@ def _row_median(values: np.ndarray) -> np.ndarray:
 # overrun reads as 'speed_band'.
 _INVALID, _DEAD, _STUCK = _CODE['invalid_sample'], _CODE['dead_sensor'], _CODE['stuck_sensor']
 _TIMING, _SETTLING, _OVERRUN = _CODE['timing'], _CODE['settling'], _CODE['speed_band']
+# A held reading lasts until the next tooth edge, a tooth period of its own speed: at 3 km/h
+# that is longer than stuck_s. A reading is stuck only when it also outlasts this many of those
+# periods (the next tooth is longer when braking, never by this much). A stuck reading resets
+# the wheel and its tooth pattern, which a slow crawl must not (issue 21: 50 resets in 10 min
+# of urban driving, each followed by a pattern learned anew from 1 s).
+STUCK_TOOTH_PERIODS = 3.0
 _F1, _F2 = types.float64[:], types.float64[:, :]
 _B1, _B2 = types.boolean[:], types.boolean[:, :]
 _I1, _I2 = types.int64[:], types.int64[:, :]
@@ -544,9 +551,11 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
         omega: (n, 4) wheel speeds as received.
         timing_break: (n,) samples that break the time line (gap, rate change).
         limits: max_omega_rad_s, dead_omega_rad_s, the speed another wheel must reach for a
-            slow wheel to be dead, rad/s, teeth per radian, the tooth-edge rate limit, 1/s.
-        stuck_samples, settle_samples: run of equal readings that is a stuck sensor; samples
-            not used after a reset.
+            slow wheel to be dead, rad/s, teeth per radian, the tooth-edge rate limit, 1/s,
+            the sample rate, Hz.
+        stuck_samples, settle_samples: run of equal readings that is a stuck sensor (and
+            :data:`STUCK_TOOTH_PERIODS` tooth periods of a non-zero reading); samples not used
+            after a reset.
         tooth_correction: the tooth-rate overrun check is on.
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause: (4,) carried
             per wheel: last reading, its run of equal readings, last sample good and its code
@@ -558,7 +567,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
         counts: (4, 4) out, per wheel invalid, dead, stuck and settling samples.
     """
     max_omega, dead_omega, others_min = limits[0], limits[1], limits[2]
-    teeth_per_rad, tooth_limit = limits[3], limits[4]
+    teeth_per_rad, tooth_limit, fs = limits[3], limits[4], limits[5]
     plausible = np.empty(N_WHEELS)
     invalid = np.empty(N_WHEELS, dtype=np.bool_)
     for w in range(N_WHEELS):
@@ -580,6 +589,9 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             # value only for one tooth period, a few ms at speed).
             run[w] = run[w] + 1 if value == last_value[w] else 0
             last_value[w] = value
+            stuck_limit = float(stuck_samples)
+            if not invalid[w] and value > 0.0:
+                stuck_limit = max(stuck_limit, STUCK_TOOTH_PERIODS * fs / (value * teeth_per_rad))
             sample_code = OK
             if invalid[w]:
                 sample_code = _INVALID
@@ -587,7 +599,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             elif dead:
                 sample_code = _DEAD
                 counts[1, w] += 1
-            elif run[w] >= stuck_samples:
+            elif run[w] >= stuck_limit:
                 sample_code = _STUCK
                 counts[2, w] += 1
             elif tooth_correction and plausible[w] * teeth_per_rad > tooth_limit:
@@ -653,7 +665,7 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     last_value, run, prev_good, prev_code, hold, since_reset, reset_cause = carried
     _sensor_chunk(omega, timing_break, np.array([
         p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
-        p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs]),
+        p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs, fs]),
         int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
         reset, filled, counts)
@@ -1117,7 +1129,11 @@ class TireStiffnessObserver:
         low, self._lowpass_zi = sig.sosfilt(self._lowpass_sos, omega, axis=0,
                                             zi=self._lowpass_zi)
         if self.params.tooth_correction:
-            omega = self._tooth.process(omega, low, good)
+            # The pattern learns in the speed band only: below it the low-passed reference
+            # lags a crawl by far more than a tooth's error (issue 21: a 0.5 km/h crawl put
+            # ratios of order 1 into a few teeth, and the tires read +190 kPa for a minute).
+            in_band = low * (3.6 * self.params.rolling_radius_m) >= self.params.speed_min_kmh
+            omega = self._tooth.process(omega, low, good & in_band)
         out = np.empty(omega.shape + (4,))
         out[:, :, 3], out[:, :, :3], self._band_zi = self._observe(omega, self._band_zi,
                                                                    self._obs_zi)
