@@ -889,6 +889,12 @@ class TireStiffnessObserver:
         return {name: tuple(int(v) for v in values) for name, values in self._counters.items()}
 
     @property
+    def tooth_pattern(self) -> np.ndarray:
+        """(4, teeth) each wheel's learned log speed error per encoder tooth, in the order its
+        tooth count runs (a copy; zeros without the tooth correction)."""
+        return self._tooth.pattern
+
+    @property
     def observer_designs(self) -> tuple[ObserverDesign, ...]:
         """The observer design of each wheel (FL..RR)."""
         by_wheel: list[ObserverDesign | None] = [None] * N_WHEELS
