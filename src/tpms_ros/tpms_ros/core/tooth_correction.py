@@ -25,6 +25,8 @@ ANGLE_MODE_ON = 1.08     # changes per tooth above which the input is not a held
 ANGLE_MODE_OFF = 1.03    # ... and below which it is again
 BINS_PER_TOOTH = 4       # angle-domain pattern resolution
 MIN_FORM_TEETH = 200.0   # weighted teeth of data before the form is judged
+SLOW_HOLD = 4            # samples from which a hold is a slow tooth (see Tooth count)
+NO_EDGE = np.iinfo(np.int64).min // 2   # no change seen since a reset
 
 
 class ToothErrorCorrector:
@@ -44,7 +46,12 @@ class ToothErrorCorrector:
       below the sample rate); the offset is tracked as the circular mean of ``x`` at the
       changes (``tooth_phase_s`` memory, unwrapped), so the count ``round(x - offset)`` of each
       change is exact even when two consecutive periods read the same value, and it does not
-      drift. Each sample belongs to the tooth of the last change.
+      drift. Each sample belongs to the tooth of the last change. A hold of ``SLOW_HOLD``
+      samples or more is a slow tooth, and the new value is that tooth's own period, so over
+      it ``x`` advances by the new value, not the one held: braking to a crawl, each hold lasts
+      the next, longer period and the held value's integral runs ahead of the wheel (issue 21:
+      a crawl to 2 km/h slipped the count and mixed two alignments of the pattern). Shorter
+      holds keep the integral, whose sub-sample averaging the count needs at high edge rates.
     * **Pattern.** Per tooth, the exponentially weighted mean (``learning_s`` memory) of
       ``log(speed / low-passed speed)`` over valid samples; the torsional vibration is not
       synchronous with the ring and averages out, the pattern is made zero-mean over the ring
@@ -86,7 +93,11 @@ class ToothErrorCorrector:
         self._phase_decay = math.exp(-1.0 / (phase_s * sample_rate_hz))
         self._refresh = refresh_samples
         self._count = 0
-        self._phase = np.zeros(n_wheels)               # tooth phase x at the last sample
+        self._phase = np.zeros(n_wheels)               # integrated speed, teeth (angle bins)
+        self._edge_phase = np.zeros(n_wheels)          # tooth phase x at the last sample
+        # Row of the last change, relative to the next segment's first row (NO_EDGE: none since
+        # the wheel's reset).
+        self._edge_row = np.full(n_wheels, NO_EDGE, dtype=np.int64)
         self._phasor = np.zeros(n_wheels, complex)     # running sum of exp(2 pi i x) at changes
         self._offset = np.zeros(n_wheels)              # unwrapped edge offset, teeth
         self._tooth = np.zeros(n_wheels, dtype=np.int64)
@@ -115,10 +126,11 @@ class ToothErrorCorrector:
 
     def reset(self, wheels: np.ndarray) -> None:
         """Forget the ring angle and pattern of ``wheels``."""
-        for array in (self._phase, self._phasor, self._offset, self._tooth, self._sum,
-                      self._weight, self._pattern, self._angle_sum, self._angle_weight,
-                      self._angle_pattern):
+        for array in (self._phase, self._edge_phase, self._phasor, self._offset, self._tooth,
+                      self._sum, self._weight, self._pattern, self._angle_sum,
+                      self._angle_weight, self._angle_pattern):
             array[wheels] = 0
+        self._edge_row[wheels] = NO_EDGE
         self._previous[wheels] = np.nan
 
     def process(self, speed: np.ndarray, reference: np.ndarray,
@@ -151,16 +163,22 @@ class ToothErrorCorrector:
         phase = self._phase + np.cumsum(speed, axis=0) * self._cycle
         previous = np.concatenate((self._previous[None], speed[:-1]))
         change = speed != previous
-        unit = np.where(change, np.exp(2j * np.pi * phase), 0.0)
+        rows = np.arange(n)[:, None]
+        last = np.maximum.accumulate(np.where(change, rows, self._edge_row[None]), axis=0)
+        before = np.concatenate((self._edge_row[None], last[:-1]))
+        hold = rows - before
+        slow = change & (before != NO_EDGE) & (hold >= SLOW_HOLD)
+        # over a slow tooth the new value replaces the one held on the hold's earlier samples
+        catch_up = np.where(slow, (hold - 1) * (speed - previous) * self._cycle, 0.0)
+        edge_phase = self._edge_phase + np.cumsum(speed * self._cycle + catch_up, axis=0)
+        unit = np.where(change, np.exp(2j * np.pi * edge_phase), 0.0)
         decay = self._phase_decay
         phasor, _ = sig.lfilter([1.0], [1.0, -decay], unit, axis=0,
                                 zi=decay * self._phasor[None])
         wrapped = np.angle(phasor) / (2.0 * np.pi)
         step = np.diff(np.concatenate((self._offset[None], wrapped)), axis=0)
         offset = self._offset + np.cumsum(step - np.round(step), axis=0)
-        counted = np.round(phase - offset).astype(np.int64)
-        rows = np.arange(n)[:, None]
-        last = np.maximum.accumulate(np.where(change, rows, -1), axis=0)
+        counted = np.round(edge_phase - offset).astype(np.int64)
         tooth = np.where(last >= 0, np.take_along_axis(counted, np.maximum(last, 0), axis=0),
                          self._tooth[None])
         index = tooth % self.teeth
@@ -199,6 +217,8 @@ class ToothErrorCorrector:
         # Carry the state; shift phase and offset together by whole rings (keeps them small).
         ring = np.floor(offset[-1] / self.teeth) * self.teeth
         self._phase = phase[-1] - ring
+        self._edge_phase = edge_phase[-1] - ring
+        self._edge_row = np.where(last[-1] == NO_EDGE, NO_EDGE, last[-1] - n)
         self._offset = offset[-1] - ring
         self._phasor = phasor[-1]
         self._tooth = tooth[-1] - ring.astype(np.int64)
