@@ -590,7 +590,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             run[w] = run[w] + 1 if value == last_value[w] else 0
             last_value[w] = value
             stuck_limit = float(stuck_samples)
-            if not invalid[w] and value > 0.0:
+            if plausible[w] > 0.0:
                 stuck_limit = max(stuck_limit, STUCK_TOOTH_PERIODS * fs / (value * teeth_per_rad))
             sample_code = OK
             if invalid[w]:

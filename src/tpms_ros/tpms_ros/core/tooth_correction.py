@@ -168,9 +168,10 @@ class ToothErrorCorrector:
         before = np.concatenate((self._edge_row[None], last[:-1]))
         hold = rows - before
         slow = change & (before != NO_EDGE) & (hold >= SLOW_HOLD)
-        # over a slow tooth the new value replaces the one held on the hold's earlier samples
+        # over a slow tooth the new value replaces the one held on the hold's earlier samples:
+        # the tooth phase is the integral plus those catch-ups
         catch_up = np.where(slow, (hold - 1) * (speed - previous) * self._cycle, 0.0)
-        edge_phase = self._edge_phase + np.cumsum(speed * self._cycle + catch_up, axis=0)
+        edge_phase = phase + (self._edge_phase - self._phase) + np.cumsum(catch_up, axis=0)
         unit = np.where(change, np.exp(2j * np.pi * edge_phase), 0.0)
         decay = self._phase_decay
         phasor, _ = sig.lfilter([1.0], [1.0, -decay], unit, axis=0,
