@@ -51,7 +51,7 @@ WHEELS = 'vehicle/wheel_speeds'
 # Short memory (RLS memory 3.3 s) so a 24 s run calibrates, converges and recovers; the car's
 # values as in road_graph.yaml, but no driven axle (with block_s 0.1 a calibration on the rear
 # axle's difference problem gets k_block_std 0, which load_calibration_state refuses: reported).
-FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0,
+FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0, 'tooth_learned_s': 1.0,
         'rolling_radius_m': 0.305, 'wheelbase_m': 2.693, 'calibration_file': 'none',
         # the loaded calibration is this data's own: used at once (the check of a stored
         # calibration has its own tests)

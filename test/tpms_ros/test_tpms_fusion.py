@@ -1,8 +1,9 @@
 """End-to-end TPMS fusion on the road simulator (issue 6): cores fed as their nodes feed them.
 
-One seeded 200 s scenario (90 km/h, mild cornering, a speed dip): every method calibrates over
-the first 70 s at placard pressure, the car then drives 60 s more at nominal pressure (no
-warning allowed), and at 130 s the front-left tire loses 25 % in 2 s (a puncture). The fused
+One seeded 220 s scenario (90 km/h, mild cornering, a speed dip): every method calibrates over
+the first 90 s at placard pressure (the stiffness observer learns the encoder rings for 15 s
+first), the car then drives 60 s more at nominal pressure (no warning allowed), and at 150 s
+the front-left tire loses 25 % in 2 s (a puncture). The fused
 voter must warn within 60 s, on that tire only. The replay is the one of
 ``benchmarks/eval_tpms_fusion.py`` (vibration blocks of 0.1 s, radius on 10 ms means closed at
 the IMU stamps with held driver inputs, stiffness chunks of 0.25 s, voters at 10 Hz).
@@ -30,9 +31,9 @@ from tpms_ros.core.wheel_radius_analysis import bin_wheel_speeds, sample_and_hol
 from tpms_ros.simulation.road_scenario import parse_scenario  # noqa: E402
 from tpms_ros.simulation.road_simulator import simulate_scenario  # noqa: E402
 
-CALIBRATION_END_S = 70.0
-FAULT_S = 130.0
-DURATION_S = 200.0
+CALIBRATION_END_S = 90.0
+FAULT_S = 150.0
+DURATION_S = 220.0
 
 
 @pytest.fixture(scope='module')

@@ -86,8 +86,7 @@ class NumpySensorChecks:
                                 self.reset_cause[None])
         self.since_reset = since[-1].copy()
         self.reset_cause = settle_cause[-1].copy()
-        settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
-        settling = good & (since < int(round(settle_s * fs)))
+        settling = good & (since < int(round(p.settle_s * fs)))
         code = np.where(settling, settle_cause, code)
         counts.append(settling.sum(axis=0))
         return code, good, reset, filled, np.array(counts)
@@ -123,7 +122,7 @@ def _faulty_speeds(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.nda
 def test_sensor_kernel_equals_numpy_over_any_chunking() -> None:
     rng = np.random.default_rng(3)
     omega, timing_break = _faulty_speeds(rng, 2500)
-    for p in (StiffnessObserverParams(tooth_warmup_s=0.05),
+    for p in (StiffnessObserverParams(settle_s=0.05),
               StiffnessObserverParams(tooth_correction=False, settle_s=0.05)):
         reference, kernel = NumpySensorChecks(p), KernelSensorChecks(p)
         seen: set[int] = set()

@@ -13,12 +13,12 @@ FS = 1000.0
 TEETH = 48
 
 
-def _ring_speed(method: str, speed: float, seconds: float = 40.0
+def _ring_speed(method: str, speed: float, seconds: float = 40.0, ring_seed: int = 4
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(measured, clean) speed of one wheel at ``speed`` rad/s with a 40 Hz wobble: a 0.25 % ring
-    and a perfect one read the same way."""
+    (drawn from ``ring_seed``) and a perfect one read the same way."""
     t = np.arange(0.0, seconds, 1e-4)
-    rng = np.random.default_rng(4)
+    rng = np.random.default_rng(ring_seed)
     true = speed + 2.0 * np.sin(2 * np.pi * 0.05 * t) + 0.05 * np.sin(2 * np.pi * 40.0 * t)
     errors = rng.normal(0.0, 0.0025 * 2 * np.pi / TEETH, TEETH)
     errors -= errors.mean()
@@ -34,16 +34,58 @@ def _ring_speed(method: str, speed: float, seconds: float = 40.0
 def test_correction_removes_most_of_the_ring_error_on_both_forms(method: str, speed: float,
                                                                  angle_mode: bool) -> None:
     measured, true = _ring_speed(method, speed)
-    sos = sig.butter(2, 5.0, fs=FS, output='sos')
-    reference = sig.sosfilt(sos, measured, zi=sig.sosfilt_zi(sos) * measured[0])[0]
-    corrector = ToothErrorCorrector(1, TEETH, FS, 10.0, 0.5, 250)
-    out = np.empty_like(measured)
-    for start in range(0, measured.size, 250):
-        sl = slice(start, start + 250)
-        out[sl] = corrector.process(measured[sl, None], reference[sl, None],
-                                    np.ones((measured[sl].size, 1), dtype=bool))[:, 0]
+    corrector = ToothErrorCorrector(1, TEETH, FS, 10.0, 0.5, 250, learned_s=5.0)
+    out, learned = _correct(corrector, measured)
     assert bool(corrector.angle_mode[0]) is angle_mode
     late = slice(measured.size // 2, None)
-    raw = np.std(np.log(measured[late] / true[late]))
-    fixed = np.std(np.log(out[late] / true[late]))
-    assert fixed < 0.5 * raw, (raw, fixed)
+    assert _error(measured[late], true[late]) > 2.0 * _error(out[late], true[late])
+    # Learned after 5 s of samples, on the refresh clock.
+    assert np.flatnonzero(learned)[0] == 5000
+
+
+def _correct(corrector: ToothErrorCorrector, measured: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """One wheel's (corrected speeds, learned) in chunks of 250 samples, every sample learned
+    from (the reference is a 5 Hz low-pass of the speed)."""
+    sos = sig.butter(2, 5.0, fs=FS, output='sos')
+    reference = sig.sosfilt(sos, measured, zi=sig.sosfilt_zi(sos) * measured[0])[0]
+    out = np.empty_like(measured)
+    learned = np.empty(measured.size, dtype=bool)
+    for start in range(0, measured.size, 250):
+        sl = slice(start, start + 250)
+        corrected, chunk_learned = corrector.process(
+            measured[sl, None], reference[sl, None], np.ones((measured[sl].size, 1), dtype=bool))
+        out[sl], learned[sl] = corrected[:, 0], chunk_learned[:, 0]
+    return out, learned
+
+
+def _error(speed: np.ndarray, true: np.ndarray) -> float:
+    return float(np.std(np.log(speed / true)))
+
+
+@pytest.mark.parametrize('method', ['tooth_period', 'window_average'])
+def test_a_reset_wheel_finds_its_ring_again(method: str) -> None:
+    """A reset loses the tooth count, not the ring: the pattern learned before it is found at
+    the new count's alignment after REFIND_S of new data, long before learned_s."""
+    measured, true = _ring_speed(method, 80.0)
+    corrector = ToothErrorCorrector(1, TEETH, FS, 10.0, 0.5, 250, learned_s=15.0)
+    half = measured.size // 2
+    _, learned = _correct(corrector, measured[:half])
+    assert learned[-1]
+    corrector.reset(np.array([0]))
+    out, learned = _correct(corrector, measured[half:])
+    assert 2000 <= np.flatnonzero(learned)[0] <= 2500
+    settled = slice(3000, 8000)
+    assert _error(measured[half:][settled], true[half:][settled]) \
+        > 2.0 * _error(out[settled], true[half:][settled])
+
+
+def test_another_ring_after_a_reset_is_learned_from_scratch() -> None:
+    """A ring unlike the kept pattern (a swapped wheel, say) is not mistaken for it."""
+    first, _ = _ring_speed('tooth_period', 80.0, seconds=20.0)
+    second, _ = _ring_speed('tooth_period', 80.0, seconds=20.0, ring_seed=5)
+    corrector = ToothErrorCorrector(1, TEETH, FS, 10.0, 0.5, 250, learned_s=15.0)
+    _correct(corrector, first)
+    corrector.reset(np.array([0]))
+    _, learned = _correct(corrector, second)
+    assert 15000 <= np.flatnonzero(learned)[0] < 15250     # the next refresh after 15 s

@@ -32,9 +32,9 @@ CONFIG = PKG / 'config' / 'tire_stiffness_observer.yaml'
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                   reliability=ReliabilityPolicy.RELIABLE)
 START_NS = 1_700_000_000 * 10**9  # epoch-like stamps: the node must keep ms resolution
-# Short memory so a 16 s run calibrates, converges and follows a step (the defaults are for
-# minutes of driving).
-FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0}
+# Short memory and tooth learning so a 16 s run calibrates, converges and follows a step (the
+# defaults are for minutes of driving).
+FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0, 'tooth_learned_s': 1.0}
 
 
 @pytest.fixture(scope='module')
@@ -286,7 +286,8 @@ def test_steering_from_driver_inputs_pauses_the_estimate_when_cornering(
     harness.feed(node, stamps, drive.wheel_speed[:3000])
     assert spin_until(lambda: node.processor.processed >= 2750, 10.0)
     counts = node.processor.observer.counters
-    # Every sample after the first second's settling (tooth-correction warm-up).
-    assert counts['cornering'][0] + counts['settling'][0] >= node.processor.processed - 1
+    # Every sample after the filters' settling, or while the tooth pattern is learned.
+    assert counts['cornering'][0] + counts['settling'][0] + counts['tooth_learning'][0] \
+        >= node.processor.processed - 1
     assert counts['cornering'][0] >= 1500, counts['cornering']
     assert counts['steering_invalid'][0] == 0 and counts['torque_invalid'][0] == 0

@@ -25,7 +25,8 @@ from vehicle_monitor_common.processing import ERROR, Output
 ROOT = Path(__file__).resolve().parents[3]
 BAG = ROOT / 'bags' / 'road_puncture_15pct_fl'
 CONFIG = ROOT / 'src' / 'tpms_ros' / 'config' / 'tire_stiffness_observer.yaml'
-FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0,
+# Short memory, calibration and ring learning: the defaults are for minutes of driving.
+FAST = {'block_s': 0.1, 'forgetting_factor': 0.97, 'calibration_s': 4.0, 'tooth_learned_s': 1.0,
         'calibrate_on_start': True, 'calibration_file': 'none'}
 TOPICS = {'/vehicle/wheel_speeds': 'vehicle/wheel_speeds',
           '/vehicle/driver_inputs': 'vehicle/driver_inputs'}

@@ -89,6 +89,7 @@ OK = 0
 REASONS: tuple[str, ...] = (
     'ok', 'invalid_sample', 'dead_sensor', 'stuck_sensor', 'timing', 'settling',
     'axle_partner', 'wheel_slip', 'wheel_torque', 'cornering', 'acceleration', 'speed_band',
+    'tooth_learning',
 )
 _CODE = {name: code for code, name in enumerate(REASONS)}
 CHECKING = 'checking_calibration'
@@ -292,11 +293,14 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
     tooth_learning_s: float = param(
         30.0, 'memory time constant of the per-tooth error learning, s', low=0.1, high=3600.0)
     # Every sample lands on some tooth, so a tooth gets fs / teeth samples per second at any
-    # speed: after 1 s the simulated rings' patterns were learned to a correlation of
-    # 0.91-0.98; the learning goes on while the samples are used.
-    tooth_warmup_s: float = param(
-        1.0, "after a (re)start of a wheel's tooth tracking its samples are not used for this "
-        'long, s', low=1e-3, high=60.0)
+    # speed. A ring learned over 1 s correlated 0.91-0.98 with the true one on the simulated
+    # rings, but a calibration on such a pattern read a tire 18 kPa low for a whole drive
+    # (issue 21, tuning car 21504); after a reset the kept pattern is usually found again
+    # after 2 s (docs/methods/tire_stiffness_observer.md, "The encoder ring's tooth pattern").
+    tooth_learned_s: float = param(
+        15.0, "in-band samples a wheel's tooth pattern learns from before the wheel's samples "
+        'are used, s (after a reset: unless the pattern learned before it is found again)',
+        low=0.0, high=600.0)
     tooth_phase_s: float = param(
         0.5, 'memory time constant of the tooth-edge phase tracker, s', low=1e-3, high=60.0)
     # With 48 teeth at 1 kHz and 0.9: 113 rad/s.
@@ -340,7 +344,7 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
             'rolling_radius_m', 'max_accel_mps2', 'max_slip', 'max_wheel_torque_nm',
             'max_lateral_accel_mps2', 'wheelbase_m', 'gate_lowpass_hz', 'max_omega_rad_s',
             'dead_omega_rad_s', 'stuck_s', 'settle_s', 'timing_tolerance',
-            'warning_pressure_ratio', 'tooth_learning_s', 'tooth_warmup_s', 'tooth_phase_s',
+            'warning_pressure_ratio', 'tooth_learning_s', 'tooth_phase_s',
             'trust_max_spread_ratio', 'encoder_window_s'))
         if not (isinstance(self.encoder_teeth, int) and self.encoder_teeth >= 2):
             raise ValueError('StiffnessObserverParams.encoder_teeth must be an int >= 2, '
@@ -661,12 +665,11 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     filled = np.empty((n, N_WHEELS))
     counts = np.zeros((4, N_WHEELS), dtype=np.int64)
     speed_min = p.speed_band_kmh[0] / 3.6 / p.rolling_radius_m
-    settle_s = max(p.settle_s, p.tooth_warmup_s) if p.tooth_correction else p.settle_s
     last_value, run, prev_good, prev_code, hold, since_reset, reset_cause = carried
     _sensor_chunk(omega, timing_break, np.array([
         p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
         p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs, fs]),
-        int(round(p.stuck_s * fs)), int(round(settle_s * fs)), p.tooth_correction,
+        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)), p.tooth_correction,
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
         reset, filled, counts)
     return code, good, reset, filled, counts
@@ -813,7 +816,8 @@ class TireStiffnessObserver:
         # Sample index of the first sample of the next block (a reset drops the partial one).
         self._block_start = self._samples
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
-                                          p.tooth_learning_s, p.tooth_phase_s, p.block_samples)
+                                          p.tooth_learning_s, p.tooth_phase_s, p.block_samples,
+                                          p.tooth_learned_s)
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
                                     p.batch_window_blocks,
                                     p.min_block_fraction * p.block_samples)
@@ -1122,7 +1126,8 @@ class TireStiffnessObserver:
             self._noise.reset(wheels)
         self._counters['resets'][wheels] += 1
 
-    def _filter(self, omega: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _filter(self, omega: np.ndarray, good: np.ndarray,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Run gate low-pass, tooth correction, band-pass and observer on a continuous segment.
 
         Args:
@@ -1130,20 +1135,22 @@ class TireStiffnessObserver:
             good: (n, 4) valid sensor samples (the tooth pattern learns from these only).
 
         Returns:
-            (outputs (n, 4, 4) = [th, th_dot, w, band-passed speed], low-passed speed (n, 4)).
+            (outputs (n, 4, 4) = [th, th_dot, w, band-passed speed], low-passed speed (n, 4),
+            (n, 4) samples whose wheel's tooth pattern is learned (all without the correction)).
         """
         low, self._lowpass_zi = sig.sosfilt(self._lowpass_sos, omega, axis=0,
                                             zi=self._lowpass_zi)
+        learned = np.ones(omega.shape, dtype=bool)
         if self.params.tooth_correction:
             # The pattern learns in the speed band only: below it the low-passed reference
             # lags a crawl by far more than a tooth's error (issue 21: a 0.5 km/h crawl put
             # ratios of order 1 into a few teeth, and the tires read +190 kPa for a minute).
             in_band = low * (3.6 * self.params.rolling_radius_m) >= self.params.speed_min_kmh
-            omega = self._tooth.process(omega, low, good & in_band)
+            omega, learned = self._tooth.process(omega, low, good & in_band)
         out = np.empty(omega.shape + (4,))
         out[:, :, 3], out[:, :, :3], self._band_zi = self._observe(omega, self._band_zi,
                                                                    self._obs_zi)
-        return out, low
+        return out, low, learned
 
     def _observe(self, speed: np.ndarray, band_zi: np.ndarray,
                  obs_zi: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1298,13 +1305,15 @@ class TireStiffnessObserver:
         # --- filters, split at reset rows ----------------------------------------------------
         outputs = np.empty((n, N_WHEELS, self._channels))
         lowpass = np.empty((n, N_WHEELS))
+        learned = np.empty((n, N_WHEELS), dtype=bool)
         reset_rows = np.flatnonzero(reset.any(axis=1))
         bounds = np.union1d(reset_rows, [0, n])
         for s, e in zip(bounds[:-1], bounds[1:], strict=True):
             wheels = np.flatnonzero(reset[s])
             if wheels.size:
                 self._reset_wheels(wheels, omega[s, wheels])
-            outputs[s:e, :, :4], lowpass[s:e] = self._filter(filled[s:e], good[s:e])
+            outputs[s:e, :, :4], lowpass[s:e], learned[s:e] = self._filter(filled[s:e],
+                                                                            good[s:e])
             if self._noise is not None:
                 outputs[s:e, :, 4:] = self._noise_products(lowpass[s:e])
             else:
@@ -1342,7 +1351,10 @@ class TireStiffnessObserver:
                           np.broadcast_to((np.nan_to_num(lateral) > p.max_lateral_accel_mps2)
                                           [:, None], code.shape)))
         gates.append((_CODE['wheel_slip'], np.isfinite(slip) & (slip > p.max_slip)))
-        for gate_code, hit in gates:  # ascending priority: later (more specific) wins
+        # Last, so that a wheel whose tooth pattern is being learned tells the other reasons
+        # its data would not count (the speed band, say) where they apply too.
+        gates.append((_CODE['tooth_learning'], ~learned))
+        for gate_code, hit in gates:  # the first gate that applies to a sample sets its code
             code = np.where((code == OK) & hit, gate_code, code)
 
         # Driven axles need both wheels: a wheel whose partner is masked is masked too.
@@ -1353,7 +1365,7 @@ class TireStiffnessObserver:
                 code[:, w] = np.where(wheel_mask[:, w] & ~both, _CODE['axle_partner'],
                                       code[:, w])
         for name in ('axle_partner', 'wheel_slip', 'wheel_torque', 'cornering', 'acceleration',
-                     'speed_band'):
+                     'speed_band', 'tooth_learning'):
             self._counters[name] += (code == _CODE[name]).sum(axis=0)
 
         if self._timer_lattice is not None:

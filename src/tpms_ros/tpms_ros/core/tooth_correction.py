@@ -27,6 +27,11 @@ BINS_PER_TOOTH = 4       # angle-domain pattern resolution
 MIN_FORM_TEETH = 200.0   # weighted teeth of data before the form is judged
 SLOW_HOLD = 4            # samples from which a hold is a slow tooth (see Tooth count)
 NO_EDGE = np.iinfo(np.int64).min // 2   # no change seen since a reset
+# A reset wheel's kept pattern is looked for in the new learning once this much of it is there,
+# and taken when the best circular correlation reaches REFIND_CORRELATION. The largest
+# correlation of two unrelated 48-tooth patterns over all shifts is about 0.45.
+REFIND_S = 2.0
+REFIND_CORRELATION = 0.8
 
 
 class ToothErrorCorrector:
@@ -72,8 +77,17 @@ class ToothErrorCorrector:
       bins per tooth of the running angle ``x`` (the integrated speed, which an average of
       tooth periods follows closely), with no edge anchoring.
 
+    * **Learned.** A wheel's pattern is *learned* once ``learned_s`` of learning samples have
+      gone into it; until then :meth:`process` says so per sample and the stiffness observer
+      does not use them (issue 21: a calibration on a half-learned pattern read a tire 18 kPa
+      low for a whole drive).
+
     A :meth:`reset` (gap, rate change, resumed after bad data) loses the ring angle, so that
-    wheel's count and pattern start over (the recognised speed form is kept).
+    wheel's count and pattern start over (the recognised speed form is kept). The ring itself
+    is unchanged, so a learned pattern is *kept*: once ``REFIND_S`` of new learning is there,
+    the kept pattern is looked for in it at every circular shift, and at a correlation of
+    ``REFIND_CORRELATION`` or more it is taken, at the new count's alignment, with the weight
+    of a full memory; the wheel is learned again at once instead of after ``learned_s``.
 
     Args:
         n_wheels: number of wheels (columns).
@@ -82,14 +96,20 @@ class ToothErrorCorrector:
         learning_s: memory time constant of the pattern learning, s.
         phase_s: memory time constant of the tooth-phase tracker, s.
         refresh_samples: the applied pattern is refreshed every this many samples.
+        learned_s: learning samples after which a wheel's pattern counts as learned, s.
         form_s: memory time constant of the speed-form recognition, s.
     """
 
     def __init__(self, n_wheels: int, teeth: int, sample_rate_hz: float, learning_s: float,
-                 phase_s: float, refresh_samples: int, form_s: float = 2.0) -> None:
+                 phase_s: float, refresh_samples: int, learned_s: float,
+                 form_s: float = 2.0) -> None:
         self.teeth = teeth
+        self._learned_samples = learned_s * sample_rate_hz
+        self._refind_samples = REFIND_S * sample_rate_hz
         self._cycle = 1.0 / (2.0 * np.pi / teeth * sample_rate_hz)  # teeth per (rad/s) sample
         self._learn_decay = math.exp(-1.0 / (learning_s * sample_rate_hz))
+        # The total weight of a full learning memory (every sample usable).
+        self._full_weight = 1.0 / (1.0 - self._learn_decay)
         self._phase_decay = math.exp(-1.0 / (phase_s * sample_rate_hz))
         self._refresh = refresh_samples
         self._count = 0
@@ -113,6 +133,11 @@ class ToothErrorCorrector:
         self._changes = np.zeros(n_wheels)
         self._advance = np.zeros(n_wheels)
         self._angle_mode = np.zeros(n_wheels, dtype=bool)
+        self._learned_count = np.zeros(n_wheels)       # learning samples since the reset
+        self._learned = np.zeros(n_wheels, dtype=bool)
+        self._kept = np.zeros((n_wheels, teeth))       # the pattern before the last reset
+        self._angle_kept = np.zeros((n_wheels, bins))
+        self._has_kept = np.zeros(n_wheels, dtype=bool)
 
     @property
     def angle_mode(self) -> np.ndarray:
@@ -124,8 +149,20 @@ class ToothErrorCorrector:
         """(wheels, teeth) learned log speed error per tooth, in tooth-count order (a copy)."""
         return self._pattern.copy()
 
+    @property
+    def learned(self) -> np.ndarray:
+        """(wheels,) True where the pattern is learned (see Learned)."""
+        return self._learned.copy()
+
     def reset(self, wheels: np.ndarray) -> None:
-        """Forget the ring angle and pattern of ``wheels``."""
+        """Forget the ring angle of ``wheels``; a learned pattern is kept to be found again."""
+        wheels = np.atleast_1d(wheels)
+        keep = wheels[self._learned[wheels]]
+        self._kept[keep] = self._pattern[keep]
+        self._angle_kept[keep] = self._angle_pattern[keep]
+        self._has_kept[keep] = True
+        self._learned[wheels] = False
+        self._learned_count[wheels] = 0.0
         for array in (self._phase, self._edge_phase, self._phasor, self._offset, self._tooth,
                       self._sum, self._weight, self._pattern, self._angle_sum,
                       self._angle_weight, self._angle_pattern):
@@ -134,7 +171,7 @@ class ToothErrorCorrector:
         self._previous[wheels] = np.nan
 
     def process(self, speed: np.ndarray, reference: np.ndarray,
-                learn: np.ndarray) -> np.ndarray:
+                learn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Correct a segment of held tooth speeds (n, wheels) and learn from it.
 
         Args:
@@ -143,19 +180,22 @@ class ToothErrorCorrector:
             learn: samples that may be learned from (valid sensor data).
 
         Returns:
-            (n, wheels) corrected speeds.
+            (n, wheels) corrected speeds, (n, wheels) whether each sample's wheel had its
+            pattern learned (see Learned).
         """
         out = np.empty_like(speed)
+        learned = np.empty(speed.shape, dtype=bool)
         start = 0
         while start < speed.shape[0]:
             stop = min(speed.shape[0], start + self._refresh - self._count % self._refresh)
+            learned[start:stop] = self._learned
             out[start:stop] = self._segment(speed[start:stop], reference[start:stop],
                                             learn[start:stop])
             self._count += stop - start
             if self._count % self._refresh == 0:
                 self._refresh_pattern()
             start = stop
-        return out
+        return out, learned
 
     def _segment(self, speed: np.ndarray, reference: np.ndarray,
                  learn: np.ndarray) -> np.ndarray:
@@ -193,6 +233,7 @@ class ToothErrorCorrector:
 
         # Learn: per-sample exponential forgetting, scattered into the teeth by bincount.
         usable = learn & (speed > 0.0) & (reference > 0.0)
+        self._learned_count += usable.sum(axis=0)
         ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
         weight = (self._learn_decay ** (n - 1 - rows)) * usable
         wheel_offset = np.arange(n_wheels)[None]
@@ -234,7 +275,43 @@ class ToothErrorCorrector:
         centre = mean.sum(axis=1, keepdims=True) / np.maximum(count, 1)
         return np.where(seen, mean - centre, 0.0)
 
+    def _refind(self, wheels: np.ndarray, total: np.ndarray, weight: np.ndarray,
+                kept: np.ndarray) -> np.ndarray:
+        """Look for ``kept`` patterns in the new learning of ``wheels``; where found, add them
+        to the learning sums (in place) at their best shift with a full memory's weight.
+
+        Returns:
+            (len(wheels),) True where found.
+        """
+        fresh = self._centred(total[wheels], weight[wheels])
+        old = kept[wheels]
+        # Circular cross-correlation at every shift s: sum_k fresh[k + s] * old[k].
+        product = np.fft.irfft(np.fft.rfft(fresh, axis=1)
+                               * np.conj(np.fft.rfft(old, axis=1)), fresh.shape[1], axis=1)
+        norm = np.linalg.norm(fresh, axis=1) * np.linalg.norm(old, axis=1)
+        shift = np.argmax(product, axis=1)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            correlation = product[np.arange(wheels.size), shift] / norm
+        found = np.nan_to_num(correlation) >= REFIND_CORRELATION
+        bins = fresh.shape[1]
+        for row in np.flatnonzero(found):
+            w = wheels[row]
+            prior = self._full_weight / bins
+            total[w] += prior * np.roll(old[row], shift[row])
+            weight[w] += prior
+        return found
+
     def _refresh_pattern(self) -> None:
+        look = np.flatnonzero(self._has_kept & ~self._learned
+                              & (self._learned_count >= self._refind_samples))
+        angle = look[self._angle_mode[look]]
+        teeth = look[~self._angle_mode[look]]
+        if angle.size:
+            self._learned[angle] = self._refind(angle, self._angle_sum, self._angle_weight,
+                                                self._angle_kept)
+        if teeth.size:
+            self._learned[teeth] = self._refind(teeth, self._sum, self._weight, self._kept)
+        self._learned |= self._learned_count >= self._learned_samples
         self._pattern = self._centred(self._sum, self._weight)
         self._angle_pattern = self._centred(self._angle_sum, self._angle_weight)
         judged = self._advance >= MIN_FORM_TEETH

@@ -26,7 +26,8 @@ repeated replay, a clock reset) restarts the filters from the new time line, kee
 calibration, and the status says so until every tire is estimated again.
 
 Sensor faults (non-finite, negative, absurd, dead, stuck speeds, timing breaks) are the core's:
-the wheel is *unknown* (``valid``/``known`` false), never low. After such a fault clears, the
+the wheel is *unknown* (``valid``/``known`` false), never low. Such a fault clears once the
+wheel's encoder-ring pattern is back (found again or relearned after the reset). Then the
 least squares still hold blocks from around the fault for one memory of the estimator
 (:func:`recovery_s`): the tire stays unknown ('recovering') for that much valid data time, so a
 transient after a fault is never published as valid, and the status says so. An input rate that
@@ -366,7 +367,10 @@ class TireStiffnessObserverProcessor:
 
     def _follow_faults(self, est: StiffnessEstimate) -> None:
         """Start a tire's recovery window when its sensor fault clears."""
-        fault = np.array([s in SENSOR_FAULTS for s in est.status])
+        # A wheel reset by a sensor fault has its encoder ring's pattern to find again or relearn
+        # ('tooth_learning') before its data count: the fault clears after that.
+        fault = np.array([s in SENSOR_FAULTS or (s == 'tooth_learning' and faulted)
+                          for s, faulted in zip(est.status, self._faulted, strict=True)])
         cleared = self._faulted & ~fault
         self._recovering_until[cleared] = self._last_t + recovery_s(self.params)
         self._faulted = fault
