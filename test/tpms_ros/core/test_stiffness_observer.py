@@ -173,7 +173,7 @@ def test_noisy_tire_is_reported_uncertain_not_low():
                             noise=0.02)[:, 1]
     for trust in (True, False):
         observer = TireStiffnessObserver(synthetic_params(calibration_s=30.0,
-                                                                 trust_check=trust))
+                                                          trust_check=trust))
         observer.start_calibration()
         run(observer, cal)
         est = run(observer, test)[40:]     # after the RLS forgot the calibration data
@@ -198,7 +198,7 @@ def test_model_error_keeps_a_biased_healthy_tire_below_the_warning_threshold():
     peaks = {}
     for ratio in (0.0, StiffnessObserverParams().model_error_ratio):
         observer = TireStiffnessObserver(synthetic_params(calibration_s=30.0,
-                                                                 model_error_ratio=ratio))
+                                                          model_error_ratio=ratio))
         observer.start_calibration()
         run(observer, cal)
         est = run(observer, test)[40:]
@@ -300,9 +300,9 @@ def test_chunked_equals_one_shot_with_bad_samples(compensation, encoder):
     stamps = np.arange(omega.shape[0]) / FS
     stamps[20000:] += 0.05   # a 50 ms gap
     params = synthetic_params(calibration_s=10.0, driven_axle='rear',
-                                     drive_compensation=compensation,
-                                     encoder_noise_removal=encoder != 'off',
-                                     encoder_timer_s=2e-6 if encoder == 'given' else 0.0)
+                              drive_compensation=compensation,
+                              encoder_noise_removal=encoder != 'off',
+                              encoder_timer_s=2e-6 if encoder == 'given' else 0.0)
     one = TireStiffnessObserver(params)
     one.start_calibration()
     whole = one.update(omega, stamps=stamps)
@@ -345,9 +345,9 @@ def test_encoder_noise_removal_keeps_the_estimate_off_the_road_level(method):
             if removal == 'read' and method == 'window_average':
                 continue
             params = synthetic_params(encoder_noise_removal=removal != 'off',
-                                             encoder_timer_s=timer,
-                                             encoder_speed_method=method,
-                                             encoder_window_s=0.005)
+                                      encoder_timer_s=timer,
+                                      encoder_speed_method=method,
+                                      encoder_window_s=0.005)
             observer = TireStiffnessObserver(params)
             estimate = run(observer, measured)[-1]
             mean_k[road_std, removal] = float(np.mean(estimate.stiffness)) / MODEL.k

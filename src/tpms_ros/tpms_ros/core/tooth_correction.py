@@ -149,11 +149,6 @@ class ToothErrorCorrector:
         """(wheels, teeth) learned log speed error per tooth, in tooth-count order (a copy)."""
         return self._pattern.copy()
 
-    @property
-    def learned(self) -> np.ndarray:
-        """(wheels,) True where the pattern is learned (see Learned)."""
-        return self._learned.copy()
-
     def reset(self, wheels: np.ndarray) -> None:
         """Forget the ring angle of ``wheels``; a learned pattern is kept to be found again."""
         wheels = np.atleast_1d(wheels)
@@ -293,12 +288,10 @@ class ToothErrorCorrector:
         with np.errstate(invalid='ignore', divide='ignore'):
             correlation = product[np.arange(wheels.size), shift] / norm
         found = np.nan_to_num(correlation) >= REFIND_CORRELATION
-        bins = fresh.shape[1]
+        prior = self._full_weight / fresh.shape[1]     # a full memory's weight per tooth (bin)
         for row in np.flatnonzero(found):
-            w = wheels[row]
-            prior = self._full_weight / bins
-            total[w] += prior * np.roll(old[row], shift[row])
-            weight[w] += prior
+            total[wheels[row]] += prior * np.roll(old[row], shift[row])
+            weight[wheels[row]] += prior
         return found
 
     def _refresh_pattern(self) -> None:
