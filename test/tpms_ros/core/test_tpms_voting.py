@@ -57,6 +57,52 @@ def test_truth_table_of_the_paper_rule(vib: tuple[int, float], rad: tuple[int, f
     assert set(result.methods_used) == {'vibration', 'wheel_radius'}
 
 
+# (vibration, radius, stiffness) as (flag, conf) on FL, the agreement rule -> warning on FL
+THREE_METHODS = [
+    ((1, 0.55), (0, 0.3), (1, 0.75), 'any_two', True),   # two agree, mean 0.65 > h0
+    ((1, 0.55), (0, 0.3), (1, 0.75), 'all', False),      # the radius method vetoes
+    ((1, 0.45), (0, 0.3), (1, 0.52), 'any_two', False),  # two agree, mean 0.485 < h0
+    ((1, 0.55), (0, 0.0), (0, 0.4), 'any_two', False),   # one flags, below its own h_i
+    ((0, 0.1), (0, 0.3), (1, 0.85), 'any_two', True),    # one flags, above its own h_i
+    ((1, 0.6), (1, 0.2), (1, 0.2), 'any_two', False),    # all three: their mean 0.33 < h0
+]
+
+
+@pytest.mark.parametrize(('vib', 'rad', 'stiff', 'agreement', 'expected'), THREE_METHODS)
+def test_two_of_three_methods_agree(vib: tuple[int, float], rad: tuple[int, float],
+                                    stiff: tuple[int, float], agreement: str,
+                                    expected: bool) -> None:
+    """With three methods, two that flag a tire agree whatever the third says ('any_two'): the
+    mean of their confidences against h0; 'all' needs every counted method to flag it."""
+    voter = make_voter(method_thresholds={'vibration': H_VIB, 'wheel_radius': H_RAD,
+                                          'stiffness': H_VIB}, agreement=agreement)
+    result = voter.evaluate(1.0, [
+        ind(m, 1.0, [v[0], 0, 0, 0], [v[1], 0, 0, 0])
+        for m, v in (('vibration', vib), ('wheel_radius', rad), ('stiffness', stiff))])
+    assert bool(result.warning[0]) is expected
+    assert not result.warning[1:].any()
+    if expected and agreement == 'any_two' and not stiff[1] > H_VIB:
+        assert any('vibration + stiffness agree, wheel_radius not' in r for r in result.reasons)
+
+
+def test_two_of_three_agreement_clears_below_both_thresholds() -> None:
+    """The warning set by two agreeing methods is held while their mean stays above the clear
+    threshold (clear_ratio x h0) and clears once it and each method's own evidence are below."""
+    voter = make_voter(method_thresholds={'vibration': H_VIB, 'wheel_radius': H_RAD,
+                                          'stiffness': H_VIB}, set_off_s=1.0)
+
+    def vote(t: float, vib: float, stiff: float) -> bool:
+        return bool(voter.evaluate(t, [
+            ind('vibration', t, [1, 0, 0, 0], [vib, 0, 0, 0]),
+            ind('wheel_radius', t, [0] * 4, [0.2, 0, 0, 0]),
+            ind('stiffness', t, [1, 0, 0, 0], [stiff, 0, 0, 0])]).warning[0])
+
+    assert vote(1.0, 0.6, 0.7)
+    assert vote(2.0, 0.4, 0.4) and vote(3.5, 0.4, 0.4)   # mean 0.4 > clear 0.35: held
+    assert vote(4.0, 0.3, 0.3)                            # below: the clear timer starts
+    assert not vote(5.5, 0.3, 0.3)
+
+
 @pytest.mark.parametrize(('radius', 'expected'), [
     ((0, 0.1, 1), False),   # counted and confidently not low: no support
     ((0, 0.29, 1), False),  # just below the support

@@ -11,7 +11,14 @@ two methods, generalised here per tire and to any number of methods:
 * every counted method flags j and there are at least two of them (agreement, t1 = t2) ->
   condition if the mean confidence exceeds h0;
 * otherwise (disagreement, or a single method) -> condition if any flagging method's confidence
-  exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses. Beyond the paper, a
+  exceeds its own h_i, with h_i > h0 so agreement warns on smaller losses;
+* with ``agreement: any_two`` (the default), also where two or more methods flag j but a third
+  counted one does not: condition if the flagging methods' mean confidence exceeds h0. For two
+  methods this is the paper's rule; with three, each pair that flags is an agreement of the
+  paper's kind, so one method that cannot see a loss does not veto the two that do (issue 21:
+  the wheel radius method rarely flags a 15 % loss, and its silence kept the vibration and
+  stiffness methods' agreement from warning; ``all`` is the rule generalised as every counted
+  method flagging). Beyond the paper, a
   method may need support to warn alone (its ``support`` s_i > 0): another counted method
   must then show at least s_i for the tire (with no other method counted it warns alone as
   before). It answers a method that is confidently wrong on some cars while the others see
@@ -35,7 +42,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, make_dataclass, replace
 import math
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -96,8 +103,12 @@ def method_votes_params(methods: Sequence[str]) -> type[Any]:
 class VotingRuleParams:
     """The voting rule's thresholds and timing, each a ROS parameter of the same name."""
 
-    h0: float = param(0.5, 'threshold on the mean confidence when all counted methods agree '
-                      '(below every <method>.threshold)', low=0.01, high=0.99)
+    h0: float = param(0.5, 'threshold on the mean confidence of the methods that agree (below '
+                      'every <method>.threshold)', low=0.01, high=0.99)
+    agreement: Literal['any_two', 'all'] = param(
+        'any_two', "which flagging methods agree on a tire: 'any_two' (two or more flag it, "
+        "whatever the others say; a 2-of-3 vote) or 'all' (every counted method flags it)",
+        choices=('any_two', 'all'))
     max_age_s: float = param(2.0, 'an indication older than this (relative to the evaluation '
                              'time, data time) is stale and not voted, s', low=0.01, high=3600.0)
     # Net: the timer counts down while the condition does not hold.
@@ -332,13 +343,15 @@ class TpmsVoter:
         n_flagging = [0] * N_TIRES
         informed = [False] * N_TIRES
         agree = [False] * N_TIRES
+        partial = [False] * N_TIRES      # 'any_two': two or more flag, a counted one does not
         mean_conf = [0.0] * N_TIRES
+        flagging_mean = [0.0] * N_TIRES
         confidence = [0.0] * N_TIRES
         condition = [False] * N_TIRES
         strongest = [0] * N_TIRES    # the first method of the largest margin: the reasons name it
         for j in range(N_TIRES):
             n_counted = 0
-            conf_sum = 0.0
+            conf_sum = flag_conf_sum = 0.0
             max_flag_conf = best_margin = best_set = 0.0
             for i in range(len(used)):
                 n_counted += counted[i][j]
@@ -348,6 +361,7 @@ class TpmsVoter:
                 # tells which method is strongest relative to its threshold (the one the reasons
                 # name)
                 flag_conf = conf[i][j] if flagging[i][j] else 0.0
+                flag_conf_sum += flag_conf
                 margin = conf[i][j] / h_own[i] if flagging[i][j] else 0.0
                 # a method needing support sets a warning only with it; its evidence holds one
                 # anyway
@@ -362,15 +376,22 @@ class TpmsVoter:
                     best_set = margin_set
             informed[j] = n_counted > 0
             agree[j] = n_flagging[j] == n_counted and n_counted >= 2
+            partial[j] = p.agreement == 'any_two' and not agree[j] and n_flagging[j] >= 2
             mean_conf[j] = conf_sum / max(n_counted, 1)
+            flagging_mean[j] = flag_conf_sum / max(n_flagging[j], 1)
             if agree[j]:
                 confidence[j] = mean_conf[j]
             elif n_flagging[j] > 0:
                 confidence[j] = max_flag_conf
-            # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears
+            # evidence relative to the threshold in force: > 1 sets, < clear_ratio clears. A
+            # partial agreement adds its own (the flagging methods' mean against h0) to each
+            # flagging method's against its h_i.
             ratio = mean_conf[j] / p.h0 if agree[j] else best_margin
-            condition[j] = n_flagging[j] > 0 and (ratio if agree[j] else best_set) > 1.0
-            below_clear = n_flagging[j] == 0 or ratio < p.clear_ratio
+            partial_ratio = flagging_mean[j] / p.h0 if partial[j] else 0.0
+            condition[j] = n_flagging[j] > 0 and (
+                ratio > 1.0 if agree[j] else best_set > 1.0 or partial_ratio > 1.0)
+            below_clear = n_flagging[j] == 0 or (
+                ratio < p.clear_ratio and partial_ratio < p.clear_ratio)
 
             # hold-off and hysteresis as up/down timers: they count up while their condition
             # holds and down (not to zero) otherwise, so a noisy confidence that is mostly above
@@ -405,6 +426,10 @@ class TpmsVoter:
             if agree[j]:
                 rule = (f'{tire}: {" + ".join(names)} agree, mean confidence '
                         f'{mean_conf[j]:.2f} vs h0 {p.h0:.2f}')
+            elif partial[j]:
+                silent = [m for i, m in enumerate(used) if counted[i][j] and not flagging[i][j]]
+                rule = (f'{tire}: {" + ".join(names)} agree, {", ".join(silent)} not, mean '
+                        f'confidence {flagging_mean[j]:.2f} vs h0 {p.h0:.2f}')
             else:
                 i = strongest[j]
                 m = used[i]
