@@ -346,6 +346,7 @@ class TpmsVoter:
         partial = [False] * N_TIRES      # 'any_two': two or more flag, a counted one does not
         mean_conf = [0.0] * N_TIRES
         flagging_mean = [0.0] * N_TIRES
+        partial_leads = [False] * N_TIRES   # the partial agreement, not one method, is strongest
         confidence = [0.0] * N_TIRES
         condition = [False] * N_TIRES
         strongest = [0] * N_TIRES    # the first method of the largest margin: the reasons name it
@@ -388,6 +389,7 @@ class TpmsVoter:
             # flagging method's against its h_i.
             ratio = mean_conf[j] / p.h0 if agree[j] else best_margin
             partial_ratio = flagging_mean[j] / p.h0 if partial[j] else 0.0
+            partial_leads[j] = partial[j] and partial_ratio >= best_margin
             condition[j] = n_flagging[j] > 0 and (
                 ratio > 1.0 if agree[j] else best_set > 1.0 or partial_ratio > 1.0)
             below_clear = n_flagging[j] == 0 or (
@@ -426,7 +428,7 @@ class TpmsVoter:
             if agree[j]:
                 rule = (f'{tire}: {" + ".join(names)} agree, mean confidence '
                         f'{mean_conf[j]:.2f} vs h0 {p.h0:.2f}')
-            elif partial[j]:
+            elif partial_leads[j]:
                 silent = [m for i, m in enumerate(used) if counted[i][j] and not flagging[i][j]]
                 rule = (f'{tire}: {" + ".join(names)} agree, {", ".join(silent)} not, mean '
                         f'confidence {flagging_mean[j]:.2f} vs h0 {p.h0:.2f}')
