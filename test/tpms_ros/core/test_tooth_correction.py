@@ -43,25 +43,6 @@ def test_correction_removes_most_of_the_ring_error_on_both_forms(method: str, sp
     assert np.flatnonzero(learned)[0] == 5000
 
 
-@pytest.mark.parametrize(('method', 'angle_mode'), [('tooth_period', False),
-                                                  ('window_average', True)])
-def test_the_speed_form_holds_at_edge_rates_near_the_sample_rate(method: str,
-                                                                  angle_mode: bool) -> None:
-    """Near one edge per sample a window average changes about once per tooth, like a held
-    period; the form recognised at lower speed holds there (issue 21: motorway wheels of a
-    window-average ECU were switched to the tooth count and reset at every overrun)."""
-    slow, _ = _ring_speed(method, 80.0, seconds=20.0)        # 0.61 edges per sample
-    fast, _ = _ring_speed(method, 130.0, seconds=20.0)       # 0.99
-    corrector = ToothErrorCorrector(1, TEETH, FS, 10.0, 0.5, 250, learned_s=5.0)
-    modes = []
-    for part in (slow, fast):
-        for start in range(0, part.size, 250):
-            chunk = part[start:start + 250, None]
-            corrector.process(chunk, chunk, np.ones(chunk.shape, dtype=bool))
-            modes.append(bool(corrector.angle_mode[0]))
-    assert modes[len(modes) // 4:] == [angle_mode] * (len(modes) - len(modes) // 4)
-
-
 def _correct(corrector: ToothErrorCorrector, measured: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
     """One wheel's (corrected speeds, learned) in chunks of 250 samples, every sample learned

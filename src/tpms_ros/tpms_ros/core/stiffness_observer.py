@@ -534,11 +534,11 @@ _B1, _B2 = types.boolean[:], types.boolean[:, :]
 _I1, _I2 = types.int64[:], types.int64[:, :]
 
 
-@njit(types.void(_F2, _B1, _F1, types.int64, types.int64, _B1,
+@njit(types.void(_F2, _B1, _F1, types.int64, types.int64, types.boolean,
                  _F1, _I1, _B1, _I1, _F1, _I1, _I1, _I2, _B2, _B2, _F2, _I2),
       cache=True, error_model='numpy')
 def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarray,
-                  stuck_samples: int, settle_samples: int, overrun_check: np.ndarray,
+                  stuck_samples: int, settle_samples: int, tooth_correction: bool,
                   last_value: np.ndarray, run: np.ndarray, prev_good: np.ndarray,
                   prev_code: np.ndarray, hold: np.ndarray, since_reset: np.ndarray,
                   reset_cause: np.ndarray, code: np.ndarray, good: np.ndarray,
@@ -560,7 +560,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
         stuck_samples, settle_samples: run of equal readings that is a stuck sensor (and
             :data:`STUCK_TOOTH_PERIODS` tooth periods of a non-zero reading); samples not used
             after a reset.
-        overrun_check: (4,) wheels whose tooth-rate overrun is checked.
+        tooth_correction: the tooth-rate overrun check is on.
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause: (4,) carried
             per wheel: last reading, its run of equal readings, last sample good and its code
             (before settling), held speed, samples since the last reset and its cause.
@@ -606,7 +606,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             elif run[w] >= stuck_limit:
                 sample_code = _STUCK
                 counts[2, w] += 1
-            elif overrun_check[w] and plausible[w] * teeth_per_rad > tooth_limit:
+            elif tooth_correction and plausible[w] * teeth_per_rad > tooth_limit:
                 # Edges faster than the samples: the tooth count (and the correction) is lost, so
                 # the wheel is treated as unusable and its tracking restarts when it slows down.
                 sample_code = _OVERRUN
@@ -642,8 +642,7 @@ def sensor_state() -> tuple[np.ndarray, ...]:
 
 
 def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: np.ndarray,
-                  carried: tuple[np.ndarray, ...], angle_mode: np.ndarray,
-                  ) -> tuple[np.ndarray, ...]:
+                  carried: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     """The per-sample sensor checks of a chunk (:func:`_sensor_chunk` with the parameters'
     limits).
 
@@ -653,8 +652,6 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
             time line.
         carried: the per-wheel state carried across chunks (:func:`sensor_state`), updated in
             place.
-        angle_mode: (4,) wheels whose tooth pattern is learned in the angle domain (not a
-            held tooth period): no tooth-rate overrun for them.
 
     Returns:
         code, good, reset, filled (each (n, 4)) and the (4, 4) counts of invalid, dead, stuck
@@ -672,10 +669,7 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     _sensor_chunk(omega, timing_break, np.array([
         p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
         p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs, fs]),
-        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)),
-        # An angle-domain pattern is indexed by the integrated speed, which edges faster than
-        # the samples do not break: only a tooth count is lost in an overrun.
-        p.tooth_correction & ~angle_mode,
+        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)), p.tooth_correction,
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
         reset, filled, counts)
     return code, good, reset, filled, counts
@@ -1303,7 +1297,7 @@ class TireStiffnessObserver:
         # is reset when good data resumes, so they never reach an estimate.
         code, good, reset, filled, counts = sensor_checks(p, omega, timing_break, (
             self._last_value, self._run, self._prev_good, self._prev_code, self._hold,
-            self._since_reset, self._reset_cause), self._tooth.angle_mode)
+            self._since_reset, self._reset_cause))
         for row, name in enumerate(('invalid_sample', 'dead_sensor', 'stuck_sensor',
                                     'settling')):
             self._counters[name] += counts[row]

@@ -21,17 +21,10 @@ import scipy.signal as sig
 
 # A held tooth period changes at most once per edge (<= 1 change per tooth); a window average
 # also changes when an edge leaves the window, 1 + (1 - edges per sample) changes per tooth.
-# A held period changes at most once per edge, so over the form's long memory its changes per
-# tooth stay at 1 or below; a window average measured 1.04-1.11 on the family's 9 ms ECU.
-ANGLE_MODE_ON = 1.03     # changes per tooth above which the input is not a held tooth period
-ANGLE_MODE_OFF = 1.015   # ... and below which it is again
+ANGLE_MODE_ON = 1.08     # changes per tooth above which the input is not a held tooth period
+ANGLE_MODE_OFF = 1.03    # ... and below which it is again
 BINS_PER_TOOTH = 4       # angle-domain pattern resolution
 MIN_FORM_TEETH = 200.0   # weighted teeth of data before the form is judged
-# The two forms differ only while edges come slower than the samples: at e edges per sample a
-# window average changes 2 - e times per tooth, so near e = 1 it looks like a held period (issue
-# 21: window-average wheels on the motorway flipped to the tooth count, 566 of 759 re-finds).
-# The form is judged below this many edges per sample (held: <= 1, window: >= 1.2 per tooth).
-FORM_MAX_EDGES_PER_SAMPLE = 0.8
 SLOW_HOLD = 4            # samples from which a hold is a slow tooth (see Tooth count)
 NO_EDGE = np.iinfo(np.int64).min // 2   # no change seen since a reset
 # A reset wheel's kept pattern is looked for in the new learning once this much of it is there,
@@ -78,9 +71,7 @@ class ToothErrorCorrector:
       pattern counted from it adds error instead of removing it (issue 21: a 0.24 % ring read
       +11..51 kPa at placard with the correction, +5..20 without). The form is recognised from
       the changes per tooth of angle (held period: at most 1; window average: up to 2),
-      exponentially weighted over ``form_s`` of samples below ``FORM_MAX_EDGES_PER_SAMPLE``
-      edges per sample (nearer one edge per sample the two forms look alike; the form is the
-      ECU's, so faster driving does not forget it), with hysteresis (``ANGLE_MODE_ON`` /
+      exponentially weighted over ``form_s``, with hysteresis (``ANGLE_MODE_ON`` /
       ``ANGLE_MODE_OFF``), switched on the refresh clock. For a wheel that is not a held tooth
       period the pattern is learned and removed in the angle domain instead: ``BINS_PER_TOOTH``
       bins per tooth of the running angle ``x`` (the integrated speed, which an average of
@@ -106,12 +97,12 @@ class ToothErrorCorrector:
         phase_s: memory time constant of the tooth-phase tracker, s.
         refresh_samples: the applied pattern is refreshed every this many samples.
         learned_s: learning samples after which a wheel's pattern counts as learned, s.
-        form_s: memory of the speed-form recognition, s of samples slow enough to judge it.
+        form_s: memory time constant of the speed-form recognition, s.
     """
 
     def __init__(self, n_wheels: int, teeth: int, sample_rate_hz: float, learning_s: float,
                  phase_s: float, refresh_samples: int, learned_s: float,
-                 form_s: float = 60.0) -> None:
+                 form_s: float = 2.0) -> None:
         self.teeth = teeth
         self._learned_samples = learned_s * sample_rate_hz
         self._refind_samples = REFIND_S * sample_rate_hz
@@ -253,13 +244,9 @@ class ToothErrorCorrector:
             slot, (weight * ratio).ravel(), n_wheels * bins).reshape(n_wheels, bins)
         self._angle_weight = fade * self._angle_weight + np.bincount(
             slot, weight.ravel(), n_wheels * bins).reshape(n_wheels, bins)
-        # Speed form: changes per tooth of angle over valid samples slow enough to tell,
-        # forgotten over those samples only (the form is the ECU's: a stretch of fast driving
-        # must not forget it).
-        judged = usable & (speed * self._cycle < FORM_MAX_EDGES_PER_SAMPLE)
-        later: np.ndarray = np.cumsum(judged[::-1], axis=0)[::-1] - judged
-        form_weight = (self._form_decay ** later) * judged
-        form_fade = self._form_decay ** judged.sum(axis=0)
+        # Speed form: changes per tooth of angle over valid samples.
+        form_weight = (self._form_decay ** (n - 1 - rows)) * usable
+        form_fade = self._form_decay ** n
         self._changes = form_fade * self._changes + (form_weight * change).sum(axis=0)
         self._advance = form_fade * self._advance \
             + (form_weight * speed * self._cycle).sum(axis=0)
