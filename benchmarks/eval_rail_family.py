@@ -1,7 +1,7 @@
 """The rail estimators judged on the held-out family of cars and tracks (issue 19).
 
-Run: ``source tools/env.sh && python benchmarks/eval_rail_family.py [--seeds held-out|development]
-[--cars N] [--speeds K] [--skip-creep] [--skip-imm] [--creep-configs NAMES] [--healthy-s S]
+Run: ``source tools/env.sh && python benchmarks/eval_rail_family.py
+[--seeds held-out|development|development-wide] [--skip-cars N] [--cars N] [--speeds K] [--skip-creep] [--skip-imm] [--creep-configs NAMES] [--healthy-s S]
 [--json PATH]``. Cars come from :mod:`rail_monitor_ros.simulation.rail_family` (default: the
 held-out seeds, which nothing is tuned on); each estimator gets the car's parameters through
 the parameters it declares (``vehicle.*`` of its parameter dataclass, built with
@@ -77,6 +77,7 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     DEVELOPMENT_SEEDS,
     HELD_OUT_SEEDS,
     IMM_SPEED_RANGE,
+    WIDE_DEVELOPMENT_SEEDS,
     OFFSETS,
     FamilyCar,
     case_seed,
@@ -116,6 +117,8 @@ MAP_ERROR = 3e-4
 CREEP_TARGETS = {'C-spec/exact': (0.05, 1.0, 1.0), 'C-spec/map0.3': (0.05, 1.0, 0.9),
                  'C-all/exact': (0.05, 1.0, 1.0), 'C-all/map0.3': (0.05, 1.0, 0.9),
                  'D/none': (0.10, 2.0, 0.9), 'D/exact': (0.10, 2.0, 0.9)}
+SEED_SETS = {'held-out': HELD_OUT_SEEDS, 'development': DEVELOPMENT_SEEDS,
+             'development-wide': WIDE_DEVELOPMENT_SEEDS}
 SPRING_TARGET_S, DAMPER_TARGET_S, IMM_PASS_SHARE = 0.5, 1.0, 0.95
 HALF_STEP = 0.05 + 1e-9
 # Speed bands of the per-speed summary, m/s.
@@ -566,8 +569,12 @@ def write_scoreboard(path: str, out: dict[str, Any], commit: str) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--seeds', choices=('held-out', 'development'), default='held-out')
+    parser.add_argument('--seeds', choices=tuple(SEED_SETS), default='held-out',
+                        help='held-out: the judging set; development: the 12 tuning cars; '
+                             'development-wide: 36 more tuning cars')
     parser.add_argument('--cars', type=int, default=0, help='first N cars only (0: all)')
+    parser.add_argument('--skip-cars', type=int, default=0,
+                        help='leave out the first N cars (to split a set between processes)')
     parser.add_argument('--speeds', type=int, default=2, help='speeds per car')
     parser.add_argument('--skip-creep', action='store_true')
     parser.add_argument('--skip-imm', action='store_true')
@@ -613,7 +620,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         imm_overrides = parse_assignments(args.imm_set, SuspensionImmParams())
     except ConfigurationError as exc:
         parser.error(f'--imm-set: {exc}')
-    seeds = HELD_OUT_SEEDS if args.seeds == 'held-out' else DEVELOPMENT_SEEDS
+    seeds = SEED_SETS[args.seeds][args.skip_cars:]
     if args.cars > 0:
         seeds = seeds[:args.cars]
     configs = [c for c in args.creep_configs.split(',') if c]
