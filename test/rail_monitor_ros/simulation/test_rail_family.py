@@ -18,6 +18,7 @@ from rail_monitor_ros.simulation.rail_family import (
     IMM_SPEED_RANGE,
     MASS_FIELDS,
     SPEED_MARGIN,
+    WIDE_DEVELOPMENT_SEEDS,
     case_seed,
     creep_steps_scenario,
     family,
@@ -37,6 +38,8 @@ def test_cars_are_seeded_within_their_ranges_and_held_out_is_apart() -> None:
     keeps its masses within +/-20 %, its conicity in range and its speeds below the margin of
     its critical speed (stable there, faults included)."""
     assert not set(HELD_OUT_SEEDS) & set(DEVELOPMENT_SEEDS)
+    assert not set(HELD_OUT_SEEDS) & set(WIDE_DEVELOPMENT_SEEDS)
+    assert not set(DEVELOPMENT_SEEDS) & set(WIDE_DEVELOPMENT_SEEDS)
     assert sample_car(HELD_OUT_SEEDS[0]) == sample_car(HELD_OUT_SEEDS[0])
     assert sample_car(HELD_OUT_SEEDS[0]) != sample_car(HELD_OUT_SEEDS[1])
     nominal = RailVehicleParams()
