@@ -268,9 +268,11 @@ def test_extreme_outlier_does_not_collapse_modes() -> None:
 
 def test_adaptive_step_moves_damper_modes_to_the_estimated_spring() -> None:
     """Between the spring fault and the damper fault, and after it, the damper modes carry
-    ~1.5; without adaptation they stay 1."""
+    ~1.5; before the spring fault exactly 1; without adaptation they stay 1."""
     res = _paper_run()
     damper = [i for i, m in enumerate(res.modes) if m.kind == 'damper']
+    healthy = res.time < 2.9
+    assert np.all(res.mode_spring_ratio[healthy][:, damper] == 1.0)
     late = (res.time > 4.0) & (res.time < 6.0)
     carried = res.mode_spring_ratio[late][:, damper]
     assert np.all(carried == carried[:, :1])

@@ -31,10 +31,12 @@ Beyond the paper:
   measurement rows, noise ``known_track_std_m``). 'half_car' is the paper's model
   (:func:`reduced_bogie_body_model`, wheelset inputs as coloured noise or known from the
   track), right only for the paper's half-car truth.
-* The adaptive compound-fault step: the damper modes use the estimated spring ratio,
+* The adaptive compound-fault step: the damper modes use the estimated spring ratio once it
+  is a spring fault for the decision (before, 1: :meth:`SuspensionImm._adapt`),
   re-discretised when it moves by ``adaptation_resolution`` (discretisations are cached on
-  that grid). The estimate weighs every mode with real evidence (smoothed probability at least
-  ``estimate_min_probability`` of the largest), damper modes at their current spring ratio.
+  that grid). The estimate weighs every mode with real evidence (smoothed probability at
+  least ``estimate_min_probability`` of the largest), damper modes at their current spring
+  ratio.
   The paper's literal reading (spring modes 2-8 only) lost the spring once the damper failed
   (measured with the earlier reduced model without wheelsets): all spring-only modes then fit
   badly and their relative weights wander. With the full-car model the estimate holds 1.50
@@ -946,17 +948,27 @@ class SuspensionImm:
 
     def _adapt(self) -> None:
         """Damper modes take the estimated spring ratio (the voting modes' weighted ratio,
-        :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`), while the damper is
-        healthy: once the damper-fault modes hold more than half the smoothed probability the
-        spring ratio they carry is frozen. The spring modes (damper 100 %) measure the spring
+        :func:`rail_monitor_ros.core.imm_kernel.smooth_probabilities`) when it is a spring
+        fault for the decision (at least ``min_fault_deviation`` from 1), and 1 otherwise;
+        once the damper-fault modes hold more than half the smoothed probability the spring
+        ratio they carry is frozen.
+
+        Why 1 within the band: the spring grid holds nominal and ratios above it, so on a
+        healthy spring the estimate leans upwards (development car 1043: 1.08), and damper
+        modes carrying that lean are not the hypothesis of a damper-only fault (there, the
+        correct one never led after a damper-40 % fault; docs/methods/rail_family_evaluation.md).
+        Why frozen under a damper fault: the spring modes (damper 100 %) measure the spring
         only while the damper is healthy; after a damper fault they all fit badly and their
         residual weight, every one at a spring ratio above 1, pulled the estimate upwards
         (development cars: 1.0 -> 1.19 within 5 s of a damper-49 % fault, which then read as
         spring+damper)."""
         if self.smoothed[self._damper_fault_mode].sum() > 0.5:
             return
-        quantum = self.params.adaptation_resolution
-        snapped = round(round(self.spring_ratio / quantum) * quantum, RATIO_DECIMALS)
+        if abs(self.spring_ratio - 1.0) < self.params.min_fault_deviation:
+            snapped = 1.0
+        else:
+            quantum = self.params.adaptation_resolution
+            snapped = round(round(self.spring_ratio / quantum) * quantum, RATIO_DECIMALS)
         if snapped != self._damper_spring:
             self._build_bank(snapped)
             self.rediscretizations += 1
