@@ -1,8 +1,8 @@
 """The rail estimators judged on the held-out family of cars and tracks (issue 19).
 
 Run: ``source tools/env.sh && python benchmarks/eval_rail_family.py
-[--seeds held-out|development|development-wide] [--skip-cars N] [--cars N] [--speeds K] [--skip-creep] [--skip-imm] [--creep-configs NAMES] [--healthy-s S]
-[--json PATH]``. Cars come from :mod:`rail_monitor_ros.simulation.rail_family` (default: the
+[--seeds held-out|development|development-wide] [--skip-cars N] [--cars N] [--speeds K]
+[--skip-creep] [--skip-imm] [--creep-configs NAMES] [--healthy-s S] [--json PATH]``. Cars come from :mod:`rail_monitor_ros.simulation.rail_family` (default: the
 held-out seeds, which nothing is tuned on); each estimator gets the car's parameters through
 the parameters it declares (``vehicle.*`` of its parameter dataclass, built with
 ``vehicle_monitor_common.parameters.build``) and its speed.
@@ -77,8 +77,8 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     DEVELOPMENT_SEEDS,
     HELD_OUT_SEEDS,
     IMM_SPEED_RANGE,
-    WIDE_DEVELOPMENT_SEEDS,
     OFFSETS,
+    WIDE_DEVELOPMENT_SEEDS,
     FamilyCar,
     case_seed,
     creep_steps_scenario,
