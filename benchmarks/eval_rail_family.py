@@ -1,11 +1,11 @@
 """The rail estimators judged on the held-out family of cars and tracks (issue 19).
 
-Run: ``source tools/env.sh && python benchmarks/eval_rail_family.py
-[--seeds held-out|development|development-wide] [--skip-cars N] [--cars N] [--speeds K]
-[--skip-creep] [--skip-imm] [--creep-configs NAMES] [--healthy-s S] [--json PATH]``. Cars
-come from :mod:`rail_monitor_ros.simulation.rail_family` (default: the held-out seeds, which
-nothing is tuned on); each estimator gets the car's parameters through the parameters it declares (``vehicle.*`` of its parameter dataclass, built with
-``vehicle_monitor_common.parameters.build``) and its speed.
+Run: ``source tools/env.sh && python benchmarks/eval_rail_family.py [--seeds
+held-out|development|development-wide] [--skip-cars N] [--cars N] [--speeds K] [--skip-creep]
+[--skip-imm] [--creep-configs NAMES] [--healthy-s S] [--json PATH]``. Cars come from
+:mod:`rail_monitor_ros.simulation.rail_family` (default: the held-out seeds, which nothing is tuned
+on); each estimator gets the car's parameters through the parameters it declares (``vehicle.*`` of
+its parameter dataclass, built with ``vehicle_monitor_common.parameters.build``) and its speed.
 
 Creep estimator (:class:`rail_monitor_ros.core.creep_ekf.CreepEkf`, as the creep_estimator node
 runs it): c = 1 -> 0.5 at 5 s -> 0.75 at 10 s, per car at ``--speeds`` speeds in 20-70 m/s below
