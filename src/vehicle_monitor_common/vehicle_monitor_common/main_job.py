@@ -216,8 +216,8 @@ def run_graph_on_bag(domain: Domain, bag: Path, run_dir: Path, *, label: str = '
         watch.stop()
         if player.error:
             raise RuntimeError(f'{label}: {player.error}')
-        graph.drain()
         published_counts = dict(player.published)
+        graph.drain(expected=published_counts)
         dropped = sum(max(0, count - (recorder.stats[topic].count
                                       if topic in recorder.stats else 0))
                       for topic, count in published_counts.items())

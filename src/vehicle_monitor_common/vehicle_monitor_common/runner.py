@@ -31,7 +31,7 @@ without players runs until then) and prints what the recorders received.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 import importlib
 from importlib.metadata import entry_points
@@ -154,8 +154,14 @@ class Graph:
         """Every player of the graph has finished its replay."""
         return all(p.done.is_set() for p in self.of_type(ScenarioPlayer))
 
-    def drain(self, quiet_s: float = 0.3, timeout_s: float = 5.0) -> None:
-        """Spin until the recorders have received nothing new for ``quiet_s``."""
+    def drain(self, quiet_s: float = 0.3, timeout_s: float = 5.0,
+              expected: Mapping[str, int] | None = None) -> None:
+        """Spin until the recorders hold the ``expected`` count of each topic (what the player
+        published) and have received nothing new for ``quiet_s``, or ``timeout_s`` passed.
+
+        Quiet alone is not enough: one long callback (a suspension monitor rebuilding its
+        bank) can keep the recorder's queue waiting for longer than ``quiet_s``, and the
+        messages behind it would be counted as dropped."""
         recorders = self.of_type(GraphRecorder)
         deadline = time.monotonic() + timeout_s
         last_total, last_change = -1, time.monotonic()
@@ -163,7 +169,9 @@ class Graph:
             total = sum(s.count for r in recorders for s in r.stats.values())
             if total != last_total:
                 last_total, last_change = total, time.monotonic()
-            elif time.monotonic() - last_change > quiet_s:
+            elif (time.monotonic() - last_change > quiet_s
+                  and all(sum(r.stats[topic].count for r in recorders if topic in r.stats)
+                          >= count for topic, count in (expected or {}).items())):
                 return
             self.executor.spin_once(timeout_sec=0.02)
 
