@@ -88,6 +88,7 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     sample_speeds,
     suspension_fault_scenario,
 )
+from rail_monitor_ros.simulation.rail_scenario import TrackConfig  # noqa: E402
 from rail_monitor_ros.simulation.rail_simulator import (  # noqa: E402
     RailSimulationResult,
     lateral_states_fields,
@@ -195,7 +196,8 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
         values |= {'track_model': 'spectrum', 'track_roughness_m_rad': spectrum.roughness,
                    'track_corner_wavenumber_rad_per_m': spectrum.omega_c,
                    'track_long_wavenumber_rad_per_m': spectrum.omega_r,
-                   'track_map_error_m': MAP_ERROR if track_kind == 'map0.3' else 1e-5}
+                   'track_map_error_m': MAP_ERROR if track_kind == 'map0.3' else 1e-5,
+                   'track_map_max_wavelength_m': TrackConfig.max_wavelength}
     params = build(CreepEkfParams, values)
     z = creep_inputs(result, pattern, fields_kind == 'C-spec')
     track = None

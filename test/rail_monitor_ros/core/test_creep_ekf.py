@@ -43,10 +43,18 @@ def creep_steps() -> RailSimulationResult:
     return simulate(shipped_scenario('rail_creep_steps'))
 
 
+# The shipped bags publish the true track alignment (an exact survey; 0.01 mm stands for
+# exact), and the estimator is told so; the default track_map_error_m (0.3 mm, a map in
+# service) costs these runs up to 4 points of error (B: 5.3 % instead of 1.5 % from 1 s
+# after the first step).
+SURVEYED_TRACK = {'track_map_error_m': 1e-5}
+
+
 @pytest.fixture(scope='module')
 def known_runs(creep_steps: RailSimulationResult) -> dict[str, CreepRun]:
     """One run per pattern with the measured track alignment as known input."""
-    return {p: run_on_simulation(creep_steps, CreepEkfParams(pattern=p)) for p in 'ABCD'}
+    return {p: run_on_simulation(creep_steps, CreepEkfParams(pattern=p, **SURVEYED_TRACK))
+            for p in 'ABCD'}
 
 
 def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.ndarray:
@@ -176,7 +184,7 @@ def test_half_car_model_mismatch_biases_pattern_d(creep_steps: RailSimulationRes
     """The paper's 7-DOF half car on the 14-DOF truth: pattern D is biased high (its body is
     too heavy seen from the bogie, no yaw, no other bogie); the end model removes the bias."""
     half = run_on_simulation(creep_steps, CreepEkfParams(pattern='D', model='half'))
-    end = run_on_simulation(creep_steps, CreepEkfParams(pattern='D'))
+    end = run_on_simulation(creep_steps, CreepEkfParams(pattern='D', **SURVEYED_TRACK))
     half_bias = [m.steady_error for m in step_metrics(half)]
     end_bias = [m.steady_error for m in step_metrics(end)]
     assert min(half_bias) > 0.05                       # measured +9.6 % and +17.5 %
@@ -404,17 +412,21 @@ def test_pattern_c_reads_only_the_spec_fields(creep_steps: RailSimulationResult)
 
 
 def test_track_map_weighted_by_its_stated_accuracy(creep_steps: RailSimulationResult) -> None:
-    """A published track map with 0.3 mm rms error (the spectrum's shape): the spectrum track
-    model told the map's accuracy halves the worst error of one that takes the map as exact
-    (measured, largest error from 1 s after the 0.4 -> 0.6 step: 39.9 % against 77.2 %; the
-    issue's +/-5 % is not reached, see docs/methods/rail_family_evaluation.md)."""
+    """A published track map with 0.3 mm rms error (the spectrum's shape) over the simulated
+    band: the spectrum track model told the map's accuracy and band has less than half the
+    worst error of one that takes the map as exact (measured, largest error from 1 s after
+    the 0.4 -> 0.6 step: 20.5 % against 59.1 %; 32.5 % when the stated rms was taken as the
+    whole spectrum's; the issue's +/-5 % is not reached, see
+    docs/methods/rail_family_evaluation.md)."""
     scenario = creep_steps.scenario
     mapped = simulate(replace(scenario, track=replace(scenario.track, map_error_rms=3e-4)))
     worst = {}
     for stated in (1e-5, 3e-4):
-        run = run_on_simulation(mapped, CreepEkfParams(pattern='C', track_map_error_m=stated))
+        run = run_on_simulation(mapped, CreepEkfParams(
+            pattern='C', track_map_error_m=stated,
+            track_map_max_wavelength_m=scenario.track.max_wavelength))
         worst[stated] = step_metrics(run)[-1].max_error_after_window
-    assert worst[3e-4] < 0.6 * worst[1e-5]
+    assert worst[3e-4] < 0.5 * worst[1e-5]
 
 
 def test_sensor_offsets_estimated(creep_steps: RailSimulationResult) -> None:
@@ -423,7 +435,7 @@ def test_sensor_offsets_estimated(creep_steps: RailSimulationResult) -> None:
     scenario = creep_steps.scenario
     biased = simulate(replace(scenario, sensors=replace(scenario.sensors,
                                                         displacement_bias=5e-4)))
-    params = CreepEkfParams(pattern='C')
+    params = CreepEkfParams(pattern='C', **SURVEYED_TRACK)
     ekf = CreepEkf(params)
     y, track, _ = simulation_inputs(biased, 'C')
     ekf.run(y, track)

@@ -27,6 +27,21 @@ def test_declared_after_the_hold_time_and_cleared_after_the_clear_time() -> None
     assert _run(decision, keys, [0.8, 0.2], 12) == ['spring'] * 10 + [''] * 2
 
 
+def test_a_flickering_fault_is_declared_and_a_short_excursion_is_not() -> None:
+    """The hold is counted net of dips (up-down): a damper fault whose probability is above
+    the threshold 3 samples in 4 is declared after about twice the hold time (a count that
+    restarted at every dip never would); excursions of 4 samples with 6 between them never
+    add up to the hold of 5."""
+    keys = [NORMAL, DAMPER_50]
+    flicker = [[0.2, 0.8]] * 3 + [[0.5, 0.5]]
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
+    components = [decision.update(keys, np.array(p)).component for p in flicker * 4]
+    assert components.index('damper') == 9             # the count reaches 6 at sample 10
+    decision = FaultDecision(0.6, hold_time_s=0.05, dt=0.01)
+    excursions = [[0.2, 0.8]] * 4 + [[0.9, 0.1]] * 6
+    assert {decision.update(keys, np.array(p)).component for p in excursions * 20} == {''}
+
+
 def test_a_declared_fault_holds_through_a_probability_dip() -> None:
     """The declared component drops below the threshold (probability spread over modes, or
     normal ahead) for longer than the hold time: still declared; only confirmed normal clears

@@ -144,7 +144,8 @@ def test_paper_scenario_on_the_full_car_simulator() -> None:
 
     Targets met (seed 3, measured): spring_150 smoothed > 0.5 0.075 s after the fault (target
     0.5 s), damper_50 0.115 s after 6 s (target 1 s), non-normal modes <= 0.06 before 3 s
-    (target 0.2); estimates 1.50 / 0.50 after 7 s; declared 0.34 s and 0.38 s after the faults.
+    (target 0.2); estimates 1.50 / 0.50 after 7 s; declared 1.025 s and 1.03 s after the
+    faults (the 1 s hold of the decision).
     """
     res = _paper_run()
     before = res.time < 3.0
@@ -157,8 +158,8 @@ def test_paper_scenario_on_the_full_car_simulator() -> None:
     late = res.time > 7.0
     assert abs(res.spring_ratio[late].mean() - 1.5) < 0.05
     assert abs(res.damper_ratio[late].mean() - 0.5) < 0.05
-    assert res.first_detection('spring', 3.0) - 3.0 < 0.75
-    assert res.first_detection('spring+damper', 6.0) - 6.0 < 0.75
+    assert res.first_detection('spring', 3.0) - 3.0 < 1.25
+    assert res.first_detection('spring+damper', 6.0) - 6.0 < 1.25
 
 
 @cache
@@ -414,8 +415,8 @@ def test_runtime_decision_parameters_keep_a_declared_fault() -> None:
     """A change of the decision's runtime parameters takes effect at once and keeps a declared
     fault (hysteresis on the decision): only what was pending is dropped."""
     imm = SuspensionImm()
-    imm.decision.load_state(((1.5, 1.0), '', 7))
-    changed = replace(imm.params, hold_time_s=1.0, clear_time_s=3.0, min_fault_deviation=0.35)
+    imm.decision.load_state(((1.5, 1.0), 7, (0, 12, 0)))
+    changed = replace(imm.params, hold_time_s=2.0, clear_time_s=3.0, min_fault_deviation=0.35)
     imm.update_runtime_params(changed)
-    assert imm.decision.state == ((1.5, 1.0), None, 0)
+    assert imm.decision.state == ((1.5, 1.0), 0, (0, 0, 0))
     assert imm.decision.clear_samples == 600 and imm.decision.min_deviation == 0.35

@@ -46,9 +46,10 @@ Beyond the paper:
   damper-100 % mode *is* the spring-only hypothesis at the estimated spring ratio), ratios
   within ``min_fault_deviation`` of 1 counted nominal, a compound counted as a damper fault
   unless a spring fault was declared first; a fault component is declared when its summed
-  smoothed probability stays above ``fault_threshold`` for ``hold_time_s``, and cleared only
-  when normal does so for ``clear_time_s`` (hysteresis on the decision). The adaptive step is
-  frozen while the damper-fault modes dominate.
+  smoothed probability leads above ``fault_threshold`` for ``hold_time_s`` net of its dips
+  (an up-down count), and cleared only when normal leads for ``clear_time_s`` without a break
+  (hysteresis on the decision). The adaptive step is frozen while the damper-fault modes
+  dominate.
 """
 
 from __future__ import annotations
@@ -188,7 +189,7 @@ _SHARED_DISCRETIZATIONS_MAX = 512
 # 0.15 sits between the grid's 0.1 steps); nor, since 2026-12-01, spring 120 % and damper 80 %
 # (0.25: in 6 healthy development hours 1 -> 0 declarations, held out 6 -> 2; the faults the
 # targets name, spring 130-160 % and damper 30-70 %, are all still declared).
-HOLD_TIME_S = 0.5
+HOLD_TIME_S = 1.0
 CLEAR_TIME_S = 1.0
 MIN_FAULT_DEVIATION = 0.25
 # Relative eigenvalue below which a bank covariance counts as broken (not rounding).
@@ -265,8 +266,8 @@ class SuspensionImmParams:
             step): the Markov prior's background mass is not evidence.
         fault_threshold: summed smoothed probability of a fault component to declare it (of
             normal to clear it; :class:`rail_monitor_ros.core.fault_decision.FaultDecision`).
-        hold_time_s: how long a fault component must stay above the threshold to be
-            declared (or to replace the declared one), s.
+        hold_time_s: how long, net of its dips (an up-down count), a fault component must
+            lead above the threshold to be declared (or to replace the declared one), s.
         clear_time_s: how long the normal hypothesis must stay above the threshold to clear a
             declared fault, s (hysteresis on the decision: a dip of the declared hypothesis
             does not clear it).
@@ -390,8 +391,8 @@ class SuspensionImmParams:
     fault_threshold: float = param(0.6, 'summed smoothed probability of a fault component to '
                                    'declare it (of normal to clear it), 1', low=0.01,
                                    high=0.99)
-    hold_time_s: float = param(HOLD_TIME_S, 'time a fault component stays above the threshold '
-                               'before it is declared, s', low=0.0, high=600.0)
+    hold_time_s: float = param(HOLD_TIME_S, 'time a fault component leads above the threshold, '
+                               'net of its dips, before it is declared, s', low=0.0, high=600.0)
     clear_time_s: float = param(CLEAR_TIME_S, 'time the normal hypothesis stays above the '
                                 'threshold before a declared fault clears, s', low=0.0,
                                 high=600.0)
@@ -681,10 +682,12 @@ class SuspensionImm:
         ``clear_time_s``, ``min_fault_deviation``, ``max_gap_s``, ``vehicle.speed``; the others
         are read-only): a new decision rule (the declared fault kept, nothing pending), the new
         gap limit, the new speed (:meth:`set_speed`)."""
-        declared = self.decision.state[0]
+        state = self.decision.state
         self.decision = _fault_decision(params, self.params.dt)
-        # A declared fault stays declared (hysteresis on the decision): only what was pending.
-        self.decision.load_state((declared, None, 0))
+        # A declared fault stays declared (hysteresis on the decision): only what was pending
+        # is dropped (counted against the old hold and clear times).
+        self.decision.load_state(state)
+        self.decision.forget_pending()
         self._max_gap_s = params.max_gap_s
         self.set_speed(params.vehicle.speed)
 
