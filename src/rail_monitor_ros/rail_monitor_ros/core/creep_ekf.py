@@ -647,10 +647,8 @@ class CreepEkf:
             # The stationary spread of the shaped track and map error: sigma^2 and, for the
             # rate, poles product times sigma^2.
             poles = self._model.track_poles[0] * self._model.track_poles[1]
-            track = [np.full(N_U, self._track_variance()), np.full(N_U, poles *
-                                                                     self._track_variance())]
-            error = [np.full(N_U, self._map_error_variance()),
-                     np.full(N_U, poles * self._map_error_variance())]
+            track, error = ([np.full(N_U, variance), np.full(N_U, poles * variance)]
+                            for variance in (self._track_variance(), self._map_error_variance()))
         else:
             track = [np.full(N_U, p.initial_track_std_m ** 2),
                      np.full(N_U, self._track_rate_std() ** 2)]
