@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import scipy.signal as sig
 
-from tpms_ros.core.tooth_correction import ToothErrorCorrector
+from tpms_ros.core import tooth_correction
+from tpms_ros.core.tooth_correction import WINDOW_STEADY_REFRESHES, ToothErrorCorrector
 from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 
 FS = 1000.0
@@ -39,8 +40,14 @@ def test_correction_removes_most_of_the_ring_error_on_both_forms(method: str, sp
     assert bool(corrector.angle_mode[0]) is angle_mode
     late = slice(measured.size // 2, None)
     assert _error(measured[late], true[late]) > 2.0 * _error(out[late], true[late])
-    # Learned after 5 s of samples, on the refresh clock.
-    assert np.flatnonzero(learned)[0] == 5000
+    first = np.flatnonzero(learned)[0]
+    if angle_mode:
+        # Learned once the fitted window (6 ms) has held for WINDOW_STEADY_REFRESHES.
+        assert corrector.window_samples[0] == pytest.approx(6.0, abs=0.5)
+        assert 5000 + 250 * WINDOW_STEADY_REFRESHES <= first <= 20000
+    else:
+        # Learned after 5 s of samples, on the refresh clock.
+        assert first == 5000
 
 
 def _correct(corrector: ToothErrorCorrector, measured: np.ndarray
@@ -89,3 +96,38 @@ def test_another_ring_after_a_reset_is_learned_from_scratch() -> None:
     corrector.reset(np.array([0]))
     _, learned = _correct(corrector, second)
     assert 15000 <= np.flatnonzero(learned)[0] < 15250     # the next refresh after 15 s
+
+
+@pytest.mark.parametrize('window_s', [0.006, 0.009])
+def test_a_window_average_is_corrected_at_every_speed_by_its_window_model(
+        window_s: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A window average sees the ring averaged over the teeth its window holds, which changes
+    with the speed. Over urban speeds (25-65 rad/s, 1-5 teeth per window) one learned pattern
+    left 3.2e-4 (6 ms) and 3.1e-4 (9 ms) of the ring's error in the 25-60 Hz band, the window
+    model fitted to the edge-rate bands 2.5e-4 and 1.7e-4 (measured); it finds the ECU's
+    window."""
+    seconds = 120.0
+    t = np.arange(0.0, seconds, 1e-4)
+    true = (45.0 + 15.0 * np.sin(2 * np.pi * t / 23.0) + 5.0 * np.sin(2 * np.pi * t / 7.0)
+            + 0.05 * np.sin(2 * np.pi * 40.0 * t))
+    rng = np.random.default_rng(4)
+    errors = rng.normal(0.0, 0.0025 * 2 * np.pi / TEETH, TEETH)
+    errors -= errors.mean()
+    t_out = np.arange(0.01, seconds, 1.0 / FS)
+    measured = encoder_wheel_speed(t, true, t_out, errors, 0.7, 2e-6, 'window_average', window_s)
+    clean = encoder_wheel_speed(t, true, t_out, np.zeros(TEETH), 0.7, 2e-6, 'window_average',
+                                window_s)
+    band = sig.butter(2, [25.0, 60.0], 'bandpass', fs=FS, output='sos')
+    late = slice(measured.size // 2, None)
+
+    def in_band(speed: np.ndarray) -> float:
+        return float(np.std(sig.sosfilt(band, np.log(speed / clean))[late]))
+
+    corrector = ToothErrorCorrector(1, TEETH, FS, 30.0, 0.5, 250, learned_s=15.0)
+    modelled, _ = _correct(corrector, measured)
+    assert corrector.window_samples[0] == pytest.approx(window_s * FS, abs=0.5)
+    # The model with no window: one pattern at every speed, as before the window model.
+    monkeypatch.setattr(tooth_correction, 'WINDOW_SAMPLES', np.zeros(1))
+    one_pattern, _ = _correct(ToothErrorCorrector(1, TEETH, FS, 30.0, 0.5, 250,
+                                                  learned_s=15.0), measured)
+    assert in_band(modelled) < 0.85 * in_band(one_pattern) < 0.4 * in_band(measured)
