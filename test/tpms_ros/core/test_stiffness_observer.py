@@ -139,8 +139,10 @@ def test_power_law_tire_read_right_only_with_its_law():
     """A tire whose K follows (p/p0)^0.4 (a law of the car family, not the paper's line).
 
     Calibrated at 200 kPa, FR at 160 and RL at 180 kPa: with its power law given the
-    readings are the truth within 3 kPa (measured 162.0, 180.9); with the default line they
-    read 172.4 and 186.5, the line's law-limited values (1 - (1 - 0.8^0.4) / 0.586 = 0.854).
+    readings are the truth within 4 kPa (measured 162.0, 180.9; 163.4, 180.3 since the window
+    model's learning gate, which starts the calibration 0.5 s later); with the default line
+    they read 172.4 and 186.5, the line's law-limited values (1 - (1 - 0.8^0.4) / 0.586 =
+    0.854).
     """
     k0 = MODEL.with_resonance(45.0).k
     p_true = np.array([200.0, 160.0, 180.0, 200.0])
@@ -155,9 +157,9 @@ def test_power_law_tire_read_right_only_with_its_law():
         est = run(observer, test)
         assert est[-1].valid.all()
         means[relation.law] = np.mean([e.pressure_kpa for e in est[len(est) // 2:]], axis=0)
-    np.testing.assert_allclose(means['power'], p_true, atol=3.0)
+    np.testing.assert_allclose(means['power'], p_true, atol=4.0)
     law_limited = 200.0 * PressureRelation().pressure_ratio((p_true / 200.0) ** 0.4)
-    np.testing.assert_allclose(means['line'], law_limited, atol=3.0)
+    np.testing.assert_allclose(means['line'], law_limited, atol=4.0)
     assert means['line'][1] - p_true[1] > 8.0
 
 

@@ -7,7 +7,7 @@ import pytest
 import scipy.signal as sig
 
 from tpms_ros.core import tooth_correction
-from tpms_ros.core.tooth_correction import WINDOW_STEADY_REFRESHES, ToothErrorCorrector
+from tpms_ros.core.tooth_correction import ToothErrorCorrector
 from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 
 FS = 1000.0
@@ -42,9 +42,9 @@ def test_correction_removes_most_of_the_ring_error_on_both_forms(method: str, sp
     assert _error(measured[late], true[late]) > 2.0 * _error(out[late], true[late])
     first = np.flatnonzero(learned)[0]
     if angle_mode:
-        # Learned once the fitted window (6 ms) has held for WINDOW_STEADY_REFRESHES.
-        assert corrector.window_samples[0] == pytest.approx(6.0, abs=0.5)
-        assert 5000 + 250 * WINDOW_STEADY_REFRESHES <= first <= 20000
+        # Learned once the fitted window has held over the second half of the learning (at
+        # one speed no window fits better than none, the window model's start).
+        assert 5000 <= first <= 10000
     else:
         # Learned after 5 s of samples, on the refresh clock.
         assert first == 5000
@@ -104,7 +104,7 @@ def test_a_window_average_is_corrected_at_every_speed_by_its_window_model(
     """A window average sees the ring averaged over the teeth its window holds, which changes
     with the speed. Over urban speeds (25-65 rad/s, 1-5 teeth per window) one learned pattern
     left 3.2e-4 (6 ms) and 3.1e-4 (9 ms) of the ring's error in the 25-60 Hz band, the window
-    model fitted to the edge-rate bands 2.5e-4 and 1.7e-4 (measured); it finds the ECU's
+    model fitted to the edge-rate bands 2.4e-4 and 1.7e-4 (measured); it finds the ECU's
     window."""
     seconds = 120.0
     t = np.arange(0.0, seconds, 1e-4)

@@ -38,16 +38,20 @@ REFIND_CORRELATION = 0.8
 RATE_BAND = 0.02
 RATE_BANDS = 50
 WINDOW_SAMPLES = np.concatenate(([0.0], np.arange(1.0, 12.01, 0.25)))
+# The ring's spectrum is fitted with this much of the bands' weight added to each harmonic's
+# normal equation (a response below about its square root counts as none).
+RESPONSE_FLOOR = 0.01
 # A band enters the fit once it holds this many learning samples per angle bin.
 BAND_MIN_PER_BIN = 5.0
-# A window-average wheel is first learned once its fitted window has stayed within
-# WINDOW_STEADY samples for this many refreshes (its pattern no longer changes form under the
-# calibration: tuning car 21514's FR read 46 kPa low after a calibration made while its window
-# moved from 4.75 to 6 samples).
+# The window is fitted from half a wheel's learning on, and a window-average wheel is first
+# learned once its window has stayed within WINDOW_STEADY samples over the second half (its
+# pattern no longer changes form under the calibration: tuning car 21514's FR read 46 kPa low
+# after a calibration made while its window moved from 4.75 to 6 samples).
+WINDOW_FIT_SHARE = 0.5
 WINDOW_STEADY = 0.5
-# ... and a fitted window is replaced only by one whose residual is this much smaller.
-WINDOW_PREFERENCE = 1.02
-WINDOW_STEADY_REFRESHES = 8
+# ... and a fitted window is replaced only by one whose residual is this much smaller (no
+# window, one pattern at every speed, is where every wheel starts: a window must earn its place).
+WINDOW_PREFERENCE = 1.1
 
 
 class ToothErrorCorrector:
@@ -97,18 +101,20 @@ class ToothErrorCorrector:
       the ring's error averaged over the last ``m = e W`` teeth, so its angle-domain pattern
       changes with the speed: harmonic ``h`` of the ring's own pattern ``p_h`` is seen as
       ``p_h sinc(h m / N)`` (N teeth; no phase: the running angle integrates the averaged
-      speed, so it lags the ring by the same m / 2 teeth as the average's centre). One pattern learned over the speeds
-      of an urban drive leaves about half the ring's error in (issue 21, tuning car 21510).
-      The angle-domain learning is therefore also kept per band of edge rate (``RATE_BAND``),
-      and at each refresh ``p_h`` and ``W`` are fitted to the bands together (least squares
-      per harmonic, ``W`` the best of ``WINDOW_SAMPLES``; ``W = 0`` is one pattern at every
-      speed). Every band then applies the pattern the model gives at its edge rate: all the
-      data make one ring's estimate, each speed sees it as its window does.
+      speed, so it lags the ring by the same m / 2 teeth as the average's centre). One
+      pattern learned over the speeds of an urban drive leaves about half the ring's error in
+      (issue 21, tuning car 21510). The angle-domain learning is therefore also kept per band
+      of edge rate (``RATE_BAND``), and at each refresh ``p_h`` and ``W`` are fitted to the
+      bands together (least squares per harmonic, ``W`` the best of ``WINDOW_SAMPLES``;
+      ``W = 0``, where every wheel starts, is the pooled pattern). Every band then applies the
+      pattern the model gives at its edge rate: all the data make one ring's estimate, each
+      speed sees it as its window does.
 
     * **Learned.** A wheel's pattern is *learned* once ``learned_s`` of learning samples have
       gone into it; until then :meth:`process` says so per sample and the stiffness observer
       does not use them (issue 21: a calibration on a half-learned pattern read a tire 18 kPa
-      low for a whole drive).
+      low for a whole drive). A window-average wheel's first learning also waits until its
+      fitted window has held over the second half of it (see Window model).
 
     A :meth:`reset` (gap, rate change, resumed after bad data) loses the ring angle, so that
     wheel's count and pattern start over (the recognised speed form is kept). The ring itself
@@ -140,6 +146,10 @@ class ToothErrorCorrector:
         self._full_weight = 1.0 / (1.0 - self._learn_decay)
         self._phase_decay = math.exp(-1.0 / (phase_s * sample_rate_hz))
         self._refresh = refresh_samples
+        self._fit_samples = WINDOW_FIT_SHARE * min(self._learned_samples,
+                                                   0.5 * self._full_weight)
+        self._steady_refreshes = math.ceil(WINDOW_FIT_SHARE * self._learned_samples
+                                           / refresh_samples)
         self._count = 0
         self._phase = np.zeros(n_wheels)               # integrated speed, teeth (angle bins)
         self._edge_phase = np.zeros(n_wheels)          # tooth phase x at the last sample
@@ -360,26 +370,30 @@ class ToothErrorCorrector:
         total = weight.sum(axis=1)
         fitted = total >= BAND_MIN_PER_BIN * bins
         # After a reset the kept ring, found again, is worth more than a few bands' seconds.
-        if total[fitted].sum() < min(self._learned_samples, 0.5 * self._full_weight):
+        if total[fitted].sum() < self._fit_samples:
             return
         observed = np.fft.rfft(self._centred(self._band_sum[wheel][fitted], weight[fitted]),
                                axis=1)
         w = total[fitted][None, :, None]
         response = self._window_response[:, fitted]                  # (windows, bands, h)
+        # A harmonic the fitted bands see only near a zero of its response is not known: the
+        # floor keeps its estimate from blowing up and reaching the bands where it shows.
         ring = ((w * response * observed[None]).sum(axis=1)
-                / np.maximum((w * response ** 2).sum(axis=1), 1e-300))  # (windows, h)
+                / ((w * response ** 2).sum(axis=1) + RESPONSE_FLOOR * w.sum()))  # (windows, h)
         residual = (w * np.abs(observed[None] - ring[:, None] * response) ** 2).sum(axis=(1, 2))
         best = int(np.argmin(residual))
         # The window stays unless another fits clearly better: at one speed every window fits
-        # (one band), and the choice would follow the rounding.
+        # (one band), and the choice would follow the rounding (and the chunking).
         current = int(np.searchsorted(WINDOW_SAMPLES, self._window[wheel]))
-        if residual[current] <= WINDOW_PREFERENCE * residual[best] + 1e-300:
+        energy = float((w * np.abs(observed[None]) ** 2).sum())
+        if residual[current] <= WINDOW_PREFERENCE * residual[best] + 1e-9 * energy:
             best = current
         held = abs(WINDOW_SAMPLES[best] - self._window[wheel]) <= WINDOW_STEADY
         self._window_held[wheel] = self._window_held[wheel] + 1 if held else 0
         self._window[wheel] = WINDOW_SAMPLES[best]
         self._ring[wheel] = ring[best]
-        self._ring_known[wheel] = True
+        # No window: the pooled pattern, learned from every sample as before the model.
+        self._ring_known[wheel] = best > 0
 
     @property
     def window_samples(self) -> np.ndarray:
@@ -406,14 +420,14 @@ class ToothErrorCorrector:
             self._ring_known[ring] = True
         if teeth.size:
             self._learned[teeth] = self._refind(teeth, self._sum, self._weight, self._kept)[0]
-        for wheel in np.flatnonzero(self._angle_mode):
+        for wheel in np.flatnonzero(self._angle_mode).tolist():
             self._fit_window(wheel)
         # Only a wheel's first learning waits for its window: the window is the ECU's, and at
         # motorway edge rates (few, narrow bands) its fit wanders while resets at the tooth-rate
         # limit make the wheels learn again and again (tuning car 21514: a 25 % puncture
         # missed when every relearning waited).
         steady = (~self._angle_mode | self._has_kept
-                  | (self._window_held >= WINDOW_STEADY_REFRESHES))
+                  | (self._window_held >= self._steady_refreshes))
         self._learned |= (self._learned_count >= self._learned_samples) & steady
         self._pattern = self._centred(self._sum, self._weight)
         self._angle_pattern = self._centred(self._angle_sum, self._angle_weight)
