@@ -171,9 +171,10 @@ class ToothErrorCorrector:
         self._band_weight = np.zeros((n_wheels, RATE_BANDS, bins))
         # The pattern each band applies (the window model's); the pooled one until fitted.
         self._band_pattern = np.zeros((n_wheels, RATE_BANDS, bins))
-        # The window model (see Window model): the fitted window (the ECU's, so a reset keeps
-        # it), how many refreshes it has held, and the ring's spectrum p_h where fitted.
-        self._window = np.zeros(n_wheels)
+        # The window model (see Window model): the fitted window's index in WINDOW_SAMPLES
+        # (the ECU's, so a reset keeps it), how many refreshes it has held, and the ring's
+        # spectrum p_h where fitted.
+        self._window = np.zeros(n_wheels, dtype=np.int64)
         self._window_held = np.zeros(n_wheels, dtype=np.int64)
         self._ring = np.zeros((n_wheels, bins // 2 + 1), complex)
         self._ring_known = np.zeros(n_wheels, dtype=bool)
@@ -363,8 +364,8 @@ class ToothErrorCorrector:
         return found, shift
 
     def _fit_window(self, wheel: int) -> None:
-        """Fit the window model to a wheel's bands once they hold a learning memory's worth
-        (see Window model); bands too thinly learned do not enter the fit."""
+        """Fit the window model to a wheel's bands once they hold ``WINDOW_FIT_SHARE`` of its
+        learning (see Window model); bands too thinly learned do not enter the fit."""
         weight = self._band_weight[wheel]
         bins = weight.shape[1]
         total = weight.sum(axis=1)
@@ -384,13 +385,13 @@ class ToothErrorCorrector:
         best = int(np.argmin(residual))
         # The window stays unless another fits clearly better: at one speed every window fits
         # (one band), and the choice would follow the rounding (and the chunking).
-        current = int(np.searchsorted(WINDOW_SAMPLES, self._window[wheel]))
+        current = int(self._window[wheel])
         energy = float((w * np.abs(observed[None]) ** 2).sum())
         if residual[current] <= WINDOW_PREFERENCE * residual[best] + 1e-9 * energy:
             best = current
-        held = abs(WINDOW_SAMPLES[best] - self._window[wheel]) <= WINDOW_STEADY
+        held = abs(WINDOW_SAMPLES[best] - WINDOW_SAMPLES[current]) <= WINDOW_STEADY
         self._window_held[wheel] = self._window_held[wheel] + 1 if held else 0
-        self._window[wheel] = WINDOW_SAMPLES[best]
+        self._window[wheel] = best
         self._ring[wheel] = ring[best]
         # No window: the pooled pattern, learned from every sample as before the model.
         self._ring_known[wheel] = best > 0
@@ -399,7 +400,7 @@ class ToothErrorCorrector:
     def window_samples(self) -> np.ndarray:
         """(wheels,) the averaging window fitted to each angle-mode wheel, samples (0: one
         pattern at every speed, or not fitted)."""
-        return self._window.copy()
+        return WINDOW_SAMPLES[self._window]
 
     def _refresh_pattern(self) -> None:
         look = np.flatnonzero(self._has_kept & ~self._learned
@@ -411,13 +412,11 @@ class ToothErrorCorrector:
                                         self._angle_kept)
             self._learned[angle] = found
             # The kept ring's spectrum, at the new count's alignment (np.roll by the shift).
-            ring = angle[found & self._ring_has_kept[angle]]
-            bins = self._angle_sum.shape[1]
+            take = found & self._ring_has_kept[angle]
             harmonics = np.arange(self._ring.shape[1])
-            self._ring[ring] = self._ring_kept[ring] * np.exp(
-                -2j * np.pi * harmonics[None] * shift[found & self._ring_has_kept[angle]][:, None]
-                / bins)
-            self._ring_known[ring] = True
+            self._ring[angle[take]] = self._ring_kept[angle[take]] * np.exp(
+                -2j * np.pi * harmonics[None] * shift[take][:, None] / self._angle_sum.shape[1])
+            self._ring_known[angle[take]] = True
         if teeth.size:
             self._learned[teeth] = self._refind(teeth, self._sum, self._weight, self._kept)[0]
         for wheel in np.flatnonzero(self._angle_mode).tolist():
@@ -434,9 +433,8 @@ class ToothErrorCorrector:
         self._band_pattern[:] = self._angle_pattern[:, None, :]
         modelled = np.flatnonzero(self._ring_known)
         if modelled.size:
-            spectrum = (self._ring[modelled, None, :]
-                        * self._window_response[np.searchsorted(WINDOW_SAMPLES,
-                                                                self._window[modelled])])
+            spectrum = self._ring[modelled, None, :] * self._window_response[
+                self._window[modelled]]
             spectrum[..., 0] = 0.0
             self._band_pattern[modelled] = np.fft.irfft(spectrum, self._angle_sum.shape[1],
                                                         axis=-1)
