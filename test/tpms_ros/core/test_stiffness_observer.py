@@ -561,16 +561,25 @@ def test_timing_faults_reset_and_are_counted():
 
 
 def test_tooth_rate_above_sample_rate_masks_wheel():
-    """Tooth edges faster than 0.9 x the sample rate lose the tooth count: 'speed_band'.
+    """Tooth edges faster than 0.9 x the sample rate lose a held period's tooth count:
+    'speed_band'. A window average (the angle domain: these synthetic speeds change at every
+    sample) has no count to lose and stays in use.
 
     120 rad/s with 48 teeth is 917 edges/s at 1 kHz (a 0.3 m wheel at 130 km/h); with the
     tooth correction off the same data are used.
     """
     omega = synthesize(np.full(4, MODEL.k), 3.0, seed=81) + (120.0 - OMEGA0)
+    # Fast from the start: the speed form is not judged yet (held period until shown not).
     on = run(TireStiffnessObserver(synthetic_params()), omega)[-1]
     assert on.status == ('speed_band',) * 4 and not on.valid.any()
     off = run(TireStiffnessObserver(synthetic_params(tooth_correction=False)), omega)[-1]
     assert 'speed_band' not in off.status
+    observer = TireStiffnessObserver(synthetic_params())
+    run(observer, synthesize(np.full(4, MODEL.k), 2.0, seed=82))
+    assert observer.tooth_angle_mode.all()
+    resets = observer.counters['resets']
+    assert 'speed_band' not in run(observer, omega)[-1].status
+    assert observer.counters['resets'] == resets
 
 
 def test_calibration_roundtrip_and_corrupt_dict_refused():

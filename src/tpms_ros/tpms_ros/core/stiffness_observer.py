@@ -303,11 +303,13 @@ class StiffnessObserverParams(StoredCalibrationCheckParams):
         low=0.0, high=600.0)
     tooth_phase_s: float = param(
         0.5, 'memory time constant of the tooth-edge phase tracker, s', low=1e-3, high=60.0)
-    # With 48 teeth at 1 kHz and 0.9: 113 rad/s.
+    # With 48 teeth at 1 kHz and 0.9: 113 rad/s. A window average (the tooth correction's
+    # angle domain) has no tooth count to lose and averages the ring over its window's teeth,
+    # so it stays in use (tooth_correction, Fast wheels).
     max_tooth_rate_fraction: float = param(
         0.9, 'tooth-edge rate (speed x teeth / 2 pi) above this fraction of the sample rate '
-        "masks the wheel ('speed_band'): edges can then fall between samples", low=0.01,
-        high=1.0)
+        "masks a held-period wheel ('speed_band'): edges can then fall between samples",
+        low=0.01, high=1.0)
     # --- encoder noise: the ECU timer's quantisation of the speed, taken out of the least
     # squares (docs/methods/tire_stiffness_observer.md, "Encoder noise") ---
     # The regressors carry the noise too (errors in variables), so the least squares read a
@@ -534,11 +536,12 @@ _B1, _B2 = types.boolean[:], types.boolean[:, :]
 _I1, _I2 = types.int64[:], types.int64[:, :]
 
 
-@njit(types.void(_F2, _B1, _F1, types.int64, types.int64, types.boolean,
+@njit(types.void(_F2, _B1, _F1, types.int64, types.int64, _B1, types.boolean,
                  _F1, _I1, _B1, _I1, _F1, _I1, _I1, _I2, _B2, _B2, _F2, _I2),
       cache=True, error_model='numpy')
 def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarray,
-                  stuck_samples: int, settle_samples: int, tooth_correction: bool,
+                  stuck_samples: int, settle_samples: int, counted: np.ndarray,
+                  tooth_correction: bool,
                   last_value: np.ndarray, run: np.ndarray, prev_good: np.ndarray,
                   prev_code: np.ndarray, hold: np.ndarray, since_reset: np.ndarray,
                   reset_cause: np.ndarray, code: np.ndarray, good: np.ndarray,
@@ -560,6 +563,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
         stuck_samples, settle_samples: run of equal readings that is a stuck sensor (and
             :data:`STUCK_TOOTH_PERIODS` tooth periods of a non-zero reading); samples not used
             after a reset.
+        counted: (4,) wheels whose tooth count an overrun loses (held periods).
         tooth_correction: the tooth-rate overrun check is on.
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause: (4,) carried
             per wheel: last reading, its run of equal readings, last sample good and its code
@@ -606,7 +610,7 @@ def _sensor_chunk(omega: np.ndarray, timing_break: np.ndarray, limits: np.ndarra
             elif run[w] >= stuck_limit:
                 sample_code = _STUCK
                 counts[2, w] += 1
-            elif tooth_correction and plausible[w] * teeth_per_rad > tooth_limit:
+            elif tooth_correction and counted[w] and plausible[w] * teeth_per_rad > tooth_limit:
                 # Edges faster than the samples: the tooth count (and the correction) is lost, so
                 # the wheel is treated as unusable and its tracking restarts when it slows down.
                 sample_code = _OVERRUN
@@ -642,7 +646,8 @@ def sensor_state() -> tuple[np.ndarray, ...]:
 
 
 def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: np.ndarray,
-                  carried: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+                  carried: tuple[np.ndarray, ...], counted: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, ...]:
     """The per-sample sensor checks of a chunk (:func:`_sensor_chunk` with the parameters'
     limits).
 
@@ -652,6 +657,8 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
             time line.
         carried: the per-wheel state carried across chunks (:func:`sensor_state`), updated in
             place.
+        counted: (4,) wheels whose tooth correction counts teeth (held periods, not the angle
+            domain): only these overrun (default: all).
 
     Returns:
         code, good, reset, filled (each (n, 4)) and the (4, 4) counts of invalid, dead, stuck
@@ -669,7 +676,8 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     _sensor_chunk(omega, timing_break, np.array([
         p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
         p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs, fs]),
-        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)), p.tooth_correction,
+        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)),
+        np.ones(N_WHEELS, dtype=bool) if counted is None else counted, p.tooth_correction,
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
         reset, filled, counts)
     return code, good, reset, filled, counts
@@ -745,7 +753,8 @@ class TireStiffnessObserver:
         # and the blocks are not used, so that the least squares and the calibration start
         # with the noise removed. The lattice, the sample count and the sample at which the
         # timer was read survive a reset (the timer is the ECU's).
-        self._timer_lattice = (TimerLattice(p.encoder_teeth, p.sample_rate_hz)
+        self._timer_lattice = (TimerLattice(p.encoder_teeth, p.sample_rate_hz,
+                                            fast_edge_rate=p.max_tooth_rate_fraction)
                                if p.encoder_noise_removal and p.encoder_timer_s == 0.0
                                and p.encoder_speed_method == 'tooth_period' else None)
         if not p.encoder_noise_removal:
@@ -817,7 +826,8 @@ class TireStiffnessObserver:
         self._block_start = self._samples
         self._tooth = ToothErrorCorrector(N_WHEELS, p.encoder_teeth, p.sample_rate_hz,
                                           p.tooth_learning_s, p.tooth_phase_s, p.block_samples,
-                                          p.tooth_learned_s)
+                                          p.tooth_learned_s,
+                                          fast_edge_rate=p.max_tooth_rate_fraction)
         self._ls = [BlockLeastSquares(f.wheels.shape[0], f.n_params, p.forgetting_factor,
                                     p.batch_window_blocks,
                                     p.min_block_fraction * p.block_samples)
@@ -891,6 +901,12 @@ class TireStiffnessObserver:
         samples ('torque_invalid', 'steering_invalid': that gate is then skipped).
         """
         return {name: tuple(int(v) for v in values) for name, values in self._counters.items()}
+
+    @property
+    def tooth_angle_mode(self) -> np.ndarray:
+        """(4,) wheels whose speeds are not held tooth periods (a window average, say): their
+        tooth correction works in the angle domain (a copy)."""
+        return self._tooth.angle_mode
 
     @property
     def tooth_pattern(self) -> np.ndarray:
@@ -1297,7 +1313,7 @@ class TireStiffnessObserver:
         # is reset when good data resumes, so they never reach an estimate.
         code, good, reset, filled, counts = sensor_checks(p, omega, timing_break, (
             self._last_value, self._run, self._prev_good, self._prev_code, self._hold,
-            self._since_reset, self._reset_cause))
+            self._since_reset, self._reset_cause), counted=~self.tooth_angle_mode)
         for row, name in enumerate(('invalid_sample', 'dead_sensor', 'stuck_sensor',
                                     'settling')):
             self._counters[name] += counts[row]

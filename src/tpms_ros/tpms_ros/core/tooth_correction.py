@@ -36,7 +36,7 @@ REFIND_CORRELATION = 0.8
 # it is learned in, and the averaging windows it is fitted for, in samples (0: no window, one
 # pattern at every speed).
 RATE_BAND = 0.02
-RATE_BANDS = 50
+RATE_BANDS = 100
 WINDOW_SAMPLES = np.concatenate(([0.0], np.arange(1.0, 12.01, 0.25)))
 # The ring's spectrum is fitted with this much of the bands' weight added to each harmonic's
 # normal equation (a response below about its square root counts as none).
@@ -110,6 +110,13 @@ class ToothErrorCorrector:
       pattern the model gives at its edge rate: all the data make one ring's estimate, each
       speed sees it as its window does.
 
+    * **Fast wheels.** From ``fast_edge_rate`` edges per sample on, edges come about as often
+      as samples or more often: a change no longer marks one edge, and a window average
+      changes at every sample, so these samples do not count for the speed form. A window
+      average (angle domain: no count to lose) learns from them too, in bands up to 2 edges
+      per sample; the stiffness observer masks a fast held-period wheel and resets it when it
+      slows down.
+
     * **Learned.** A wheel's pattern is *learned* once ``learned_s`` of learning samples have
       gone into it; until then :meth:`process` says so per sample and the stiffness observer
       does not use them (issue 21: a calibration on a half-learned pattern read a tire 18 kPa
@@ -132,12 +139,14 @@ class ToothErrorCorrector:
         refresh_samples: the applied pattern is refreshed every this many samples.
         learned_s: learning samples after which a wheel's pattern counts as learned, s.
         form_s: memory time constant of the speed-form recognition, s.
+        fast_edge_rate: edges per sample from which a wheel is fast (see Fast wheels).
     """
 
     def __init__(self, n_wheels: int, teeth: int, sample_rate_hz: float, learning_s: float,
                  phase_s: float, refresh_samples: int, learned_s: float,
-                 form_s: float = 2.0) -> None:
+                 form_s: float = 2.0, fast_edge_rate: float = 0.9) -> None:
         self.teeth = teeth
+        self._fast_edge_rate = fast_edge_rate
         self._learned_samples = learned_s * sample_rate_hz
         self._refind_samples = REFIND_S * sample_rate_hz
         self._cycle = 1.0 / (2.0 * np.pi / teeth * sample_rate_hz)  # teeth per (rad/s) sample
@@ -256,7 +265,9 @@ class ToothErrorCorrector:
     def _segment(self, speed: np.ndarray, reference: np.ndarray,
                  learn: np.ndarray) -> np.ndarray:
         n, n_wheels = speed.shape
-        phase = self._phase + np.cumsum(speed, axis=0) * self._cycle
+        edge_rate = speed * self._cycle                 # edges per sample
+        fast = edge_rate > self._fast_edge_rate
+        phase = self._phase + np.cumsum(edge_rate, axis=0)
         previous = np.concatenate((self._previous[None], speed[:-1]))
         change = speed != previous
         rows = np.arange(n)[:, None]
@@ -281,7 +292,7 @@ class ToothErrorCorrector:
         index = tooth % self.teeth
         bins = BINS_PER_TOOTH * self.teeth
         angle_index = np.floor(phase * BINS_PER_TOOTH).astype(np.int64) % bins
-        band = np.minimum((speed * self._cycle / RATE_BAND).astype(np.int64), RATE_BANDS - 1)
+        band = np.minimum((edge_rate / RATE_BAND).astype(np.int64), RATE_BANDS - 1)
         wheel_offset = np.arange(n_wheels)[None]
         band_slot = angle_index + bins * (band + RATE_BANDS * wheel_offset)
         log_error = np.where(
@@ -313,12 +324,11 @@ class ToothErrorCorrector:
             band_slot.ravel(), (weight * ratio).ravel(), size).reshape(shape)
         self._band_weight = fade * self._band_weight + np.bincount(
             band_slot.ravel(), weight.ravel(), size).reshape(shape)
-        # Speed form: changes per tooth of angle over valid samples.
-        form_weight = (self._form_decay ** (n - 1 - rows)) * usable
+        # Speed form: changes per tooth of angle over valid samples that are not fast.
+        form_weight = (self._form_decay ** (n - 1 - rows)) * (usable & ~fast)
         form_fade = self._form_decay ** n
         self._changes = form_fade * self._changes + (form_weight * change).sum(axis=0)
-        self._advance = form_fade * self._advance \
-            + (form_weight * speed * self._cycle).sum(axis=0)
+        self._advance = form_fade * self._advance + (form_weight * edge_rate).sum(axis=0)
 
         # Carry the state; shift phase and offset together by whole rings (keeps them small).
         ring = np.floor(offset[-1] / self.teeth) * self.teeth

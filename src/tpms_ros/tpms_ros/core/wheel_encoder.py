@@ -224,11 +224,15 @@ class TimerLattice:
         max_readings: readings after which it decides on what it has (0 below 3 distinct
             ones), so that a steady drive on a coarse timer does not keep it waiting.
         form_s: memory of :meth:`watch`'s changes per tooth, s.
+        fast_edge_rate: edges per sample from which the changes are not counted (they no
+            longer mark single edges).
     """
 
     def __init__(self, teeth: int, sample_rate_hz: float, distinct: int = 150,
                  coarse_distinct: int = 40, repeats: int = 50,
-                 max_readings: int = 40_000, form_s: float = 2.0) -> None:
+                 max_readings: int = 40_000, form_s: float = 2.0,
+                 fast_edge_rate: float = 0.9) -> None:
+        self._fast_edge_rate = fast_edge_rate
         self._pitch = 2.0 * math.pi / teeth
         self._form_decay = math.exp(-1.0 / (form_s * sample_rate_hz))
         self._form = np.zeros((1, 2))     # watch's decaying sums of changes and teeth passed
@@ -320,12 +324,12 @@ class TimerLattice:
     def _changes_and_teeth(self, speed: np.ndarray, valid: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
         """Per row: the readings that changed since the wheel's previous valid sample (both
-        valid), and the teeth the wheels passed meanwhile; the last row is kept for the next
-        call."""
+        valid, the wheel not fast: ``fast_edge_rate``), and the teeth the wheels passed
+        meanwhile; the last row is kept for the next call."""
         previous = np.concatenate((speed[:1] * np.nan if self._previous is None
                                    else self._previous[None], speed[:-1]))
         valid_previous = np.concatenate((np.isfinite(previous[:1]), valid[:-1]))
-        pair = valid & valid_previous
+        pair = valid & valid_previous & (speed * self._teeth_per_sample <= self._fast_edge_rate)
         self._previous = np.where(valid[-1], speed[-1], np.nan)
         return ((pair & (speed != previous)).sum(axis=1).astype(float),
                 np.where(pair, speed, 0.0).sum(axis=1) * self._teeth_per_sample)
