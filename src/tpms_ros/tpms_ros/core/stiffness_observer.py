@@ -646,8 +646,7 @@ def sensor_state() -> tuple[np.ndarray, ...]:
 
 
 def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: np.ndarray,
-                  carried: tuple[np.ndarray, ...], counted: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, ...]:
+                  carried: tuple[np.ndarray, ...], counted: np.ndarray) -> tuple[np.ndarray, ...]:
     """The per-sample sensor checks of a chunk (:func:`_sensor_chunk` with the parameters'
     limits).
 
@@ -658,7 +657,7 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
         carried: the per-wheel state carried across chunks (:func:`sensor_state`), updated in
             place.
         counted: (4,) wheels whose tooth correction counts teeth (held periods, not the angle
-            domain): only these overrun (default: all).
+            domain): only these overrun.
 
     Returns:
         code, good, reset, filled (each (n, 4)) and the (4, 4) counts of invalid, dead, stuck
@@ -676,8 +675,7 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     _sensor_chunk(omega, timing_break, np.array([
         p.max_omega_rad_s, p.dead_omega_rad_s, max(speed_min, 1e-9),
         p.encoder_teeth / (2.0 * np.pi), p.max_tooth_rate_fraction * fs, fs]),
-        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)),
-        np.ones(N_WHEELS, dtype=bool) if counted is None else counted, p.tooth_correction,
+        int(round(p.stuck_s * fs)), int(round(p.settle_s * fs)), counted, p.tooth_correction,
         last_value, run, prev_good, prev_code, hold, since_reset, reset_cause, code, good,
         reset, filled, counts)
     return code, good, reset, filled, counts
