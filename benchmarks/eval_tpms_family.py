@@ -185,7 +185,7 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
     """Core defaults plus only what the user of this car knows."""
     user = car.user_parameters()
     axle = car.layout
-    vibration = VibrationParams(driveline_compensation=axle)
+    vibration = VibrationParams(driveline_compensation=axle, encoder_teeth=user['encoder_teeth'])
     radius = WheelRadiusParams(nominal_radius_m=user['nominal_radius_m'],
                                track_front_m=user['track_front_m'],
                                track_rear_m=user['track_rear_m'], driven_axle=axle,

@@ -15,6 +15,7 @@ from tpms_ros.core.vibration_analysis import (
     ar2_rls_reference,
 )
 from tpms_ros.core.vibration_kernel import resonance_frequency
+from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 from vehicle_monitor_common.calibration_store import CalibrationManager
 
 # The paper's car: 200 kPa ~ 40 Hz, 120 kPa ~ 35 Hz => f ~ p^alpha; a 15 % loss is this drop
@@ -89,7 +90,9 @@ def test_estimate_converges(freq: float, fs: float) -> None:
     ~0.5 Hz (measured), constant per tire, so calibration removes it.
     """
     omega = wheel_speeds([np.full(4, freq)], [30.0], fs, seed=3)
-    analyzer = VibrationAnalyzer(VibrationParams(sample_rate_hz=fs))
+    # The speeds are continuous, no ring's: 24 teeth keep them clear of the edge-beat gate (48
+    # at 500 Hz would put their edges 1.07 per sample, a beat at 35 Hz).
+    analyzer = VibrationAnalyzer(VibrationParams(sample_rate_hz=fs, encoder_teeth=24))
     est = analyzer.process(omega)
     rate = analyzer.params.effective_rate_hz
     after = est.trace_hz[int(10 * rate):]
@@ -300,3 +303,35 @@ def test_calibration_window_goes_on_until_every_tire_has_valid_data() -> None:
     assert manager.state == 'calibrated' and 16.0 <= done_s <= 22.0
     assert analyzer.calibration is not None
     np.testing.assert_allclose(analyzer.calibration.nominal_frequency_hz, 42.0, atol=1.0)
+
+
+def test_held_tooth_periods_are_gated_where_their_edges_beat_in_the_band() -> None:
+    """A held tooth period at e edges per sample carries the ring's per-tooth error at the beat
+    |e - round(e)| fs; inside the passband the AR(2) takes it for the tire (issue 21). FL and
+    FR report held tooth periods, RL and RR a 6 ms window average, from one 0.25 % ring at
+    80 rad/s (0.61 edges per sample), then 136 rad/s (1.04: a 39 Hz beat), then 160 rad/s
+    (1.22: 222 Hz). The held wheels are gated through the 136 rad/s stretch only, and unknown
+    by its end; the window averages (the form is learned in the first stretch) never are."""
+    fs, teeth = 1000.0, 48
+    t = np.arange(0.0, 60.0, 1e-4)
+    rng = np.random.default_rng(11)
+    true = (np.interp(t, [0, 15, 18, 40, 42, 60], [80, 80, 136, 136, 160, 160])
+            + 0.05 * np.sin(2 * np.pi * 40.0 * t))
+    errors = rng.normal(0.0, 0.0025 * 2 * np.pi / teeth, teeth)
+    t_out = np.arange(0.01, 60.0, 1.0 / fs)
+    omega = np.stack([encoder_wheel_speed(t, true, t_out, errors, 0.7, 2e-6, method)
+                      for method in ('tooth_period', 'tooth_period', 'window_average',
+                                     'window_average')], axis=1)
+    analyzer = VibrationAnalyzer(VibrationParams(sample_rate_hz=fs, encoder_teeth=teeth))
+    edges = true[::10][:t_out.size] * teeth / (2 * np.pi * fs)
+    in_band = np.abs(edges - np.round(edges)) * fs < analyzer.params.passband_hz[1]
+    known = []
+    for chunk in np.array_split(omega, 590):
+        known.append(analyzer.process(chunk).known)
+    assert analyzer.held_tooth_periods.tolist() == [True, True, False, False]
+    gated = analyzer.beat_gated
+    assert gated[2:].tolist() == [0, 0]
+    assert np.all(np.abs(gated[:2] - in_band.sum()) < 0.01 * in_band.sum())
+    known_at = np.array(known)           # per 0.1 s
+    assert known_at[390, 2:].all() and not known_at[390, :2].any()    # at 39 s
+    assert known_at[-1].all()

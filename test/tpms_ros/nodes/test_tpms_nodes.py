@@ -135,7 +135,10 @@ VIB_TEST = {'sample_rate_hz': FS, 'analysis_rate_hz': FS, 'memory_s': 2.0,
             'calibration_duration_s': 4.0, 'diagnostics_period_s': 0.1, 'bad_hold_s': 0.5,
             # a stored calibration is used at once here; its check against the tires has its
             # own test (test_vibration_calibration_from_other_tires_is_refused)
-            'calibration_check_s': 0.0}
+            'calibration_check_s': 0.0,
+            # The speeds are continuous, no ring's: 9 teeth put them at 0.5 tooth edges per
+            # sample, clear of the edge-beat gate (48 would put 2.7, a beat at 66 Hz)
+            'encoder_teeth': 9}
 
 
 def _vibration_node(make_node: Callable[..., Any], calibration_file: Path, namespace: str = '',

@@ -54,6 +54,58 @@ WINDOW_STEADY = 0.5
 WINDOW_PREFERENCE = 1.1
 
 
+class SpeedForm:
+    """How an ABS ECU forms each wheel's speed, recognised from the speeds (streaming).
+
+    A held tooth period changes value at most once per tooth edge, so at most once per tooth of
+    angle; a window average also changes when an edge leaves its window, up to twice. The
+    changes per tooth of angle over usable samples slower than ``fast_edge_rate`` edges per
+    sample (faster, edges come about as often as samples or more often and a change no longer
+    marks one), exponentially weighted over ``form_s``, decide with hysteresis
+    (``ANGLE_MODE_ON`` / ``ANGLE_MODE_OFF``) once ``MIN_FORM_TEETH`` of angle are in.
+    :meth:`add` takes the samples, :meth:`judge` switches; the caller calls it on a fixed
+    sample clock, so the result does not depend on how the stream is chunked. A wheel not yet
+    judged counts as held tooth periods.
+
+    Args:
+        n_wheels: number of wheels (columns).
+        sample_rate_hz: sample rate of the speeds.
+        form_s: memory time constant, s.
+        fast_edge_rate: edges per sample from which a sample does not count.
+    """
+
+    def __init__(self, n_wheels: int, sample_rate_hz: float, form_s: float = 2.0,
+                 fast_edge_rate: float = 0.9) -> None:
+        self._decay = math.exp(-1.0 / (form_s * sample_rate_hz))
+        self._fast_edge_rate = fast_edge_rate
+        self._changes = np.zeros(n_wheels)
+        self._advance = np.zeros(n_wheels)
+        self._angle_mode = np.zeros(n_wheels, dtype=bool)
+
+    @property
+    def angle_mode(self) -> np.ndarray:
+        """(wheels,) True where the speeds are not held tooth periods (a window average)."""
+        return self._angle_mode.copy()
+
+    def add(self, change: np.ndarray, edge_rate: np.ndarray, usable: np.ndarray) -> None:
+        """Count a segment's samples (n, wheels): whether each changed from the one before,
+        its tooth-edge rate (edges per sample), and whether it is valid data."""
+        n = change.shape[0]
+        rows = np.arange(n)[:, None]
+        weight = (self._decay ** (n - 1 - rows)) * (usable & (edge_rate <= self._fast_edge_rate))
+        fade = self._decay ** n
+        self._changes = fade * self._changes + (weight * change).sum(axis=0)
+        self._advance = fade * self._advance + (weight * edge_rate).sum(axis=0)
+
+    def judge(self) -> None:
+        """Decide each wheel's form from the samples added so far (with hysteresis)."""
+        judged = self._advance >= MIN_FORM_TEETH
+        per_tooth = self._changes / np.maximum(self._advance, 1e-12)
+        self._angle_mode = np.where(
+            judged & (per_tooth > ANGLE_MODE_ON), True,
+            np.where(judged & (per_tooth < ANGLE_MODE_OFF), False, self._angle_mode))
+
+
 class ToothErrorCorrector:
     """Learns and removes the tooth-spacing error of ABS encoder rings, streaming, per wheel.
 
@@ -146,7 +198,6 @@ class ToothErrorCorrector:
                  phase_s: float, refresh_samples: int, learned_s: float,
                  form_s: float = 2.0, fast_edge_rate: float = 0.9) -> None:
         self.teeth = teeth
-        self._fast_edge_rate = fast_edge_rate
         self._learned_samples = learned_s * sample_rate_hz
         self._refind_samples = REFIND_S * sample_rate_hz
         self._cycle = 1.0 / (2.0 * np.pi / teeth * sample_rate_hz)  # teeth per (rad/s) sample
@@ -195,10 +246,7 @@ class ToothErrorCorrector:
         cycles = harmonics[None, None, :] * (WINDOW_SAMPLES[:, None, None] * rates[None, :, None]
                                              / teeth)
         self._window_response = np.sinc(cycles)
-        self._form_decay = math.exp(-1.0 / (form_s * sample_rate_hz))
-        self._changes = np.zeros(n_wheels)
-        self._advance = np.zeros(n_wheels)
-        self._angle_mode = np.zeros(n_wheels, dtype=bool)
+        self._form = SpeedForm(n_wheels, sample_rate_hz, form_s, fast_edge_rate)
         self._learned_count = np.zeros(n_wheels)       # learning samples since the reset
         self._learned = np.zeros(n_wheels, dtype=bool)
         self._kept = np.zeros((n_wheels, teeth))       # the pattern before the last reset
@@ -208,7 +256,7 @@ class ToothErrorCorrector:
     @property
     def angle_mode(self) -> np.ndarray:
         """(wheels,) True where the input is not a held tooth period (angle-domain pattern)."""
-        return self._angle_mode.copy()
+        return self._form.angle_mode
 
     @property
     def pattern(self) -> np.ndarray:
@@ -266,7 +314,7 @@ class ToothErrorCorrector:
                  learn: np.ndarray) -> np.ndarray:
         n, n_wheels = speed.shape
         edge_rate = speed * self._cycle                 # edges per sample
-        fast = edge_rate > self._fast_edge_rate
+        angle_mode = self._form.angle_mode
         phase = self._phase + np.cumsum(edge_rate, axis=0)
         previous = np.concatenate((self._previous[None], speed[:-1]))
         change = speed != previous
@@ -296,7 +344,7 @@ class ToothErrorCorrector:
         wheel_offset = np.arange(n_wheels)[None]
         band_slot = angle_index + bins * (band + RATE_BANDS * wheel_offset)
         log_error = np.where(
-            self._angle_mode[None],
+            angle_mode[None],
             self._band_pattern.ravel()[band_slot],
             np.take_along_axis(self._pattern, index.T, axis=1).T)
         corrected = speed * np.exp(-log_error)
@@ -324,11 +372,7 @@ class ToothErrorCorrector:
             band_slot.ravel(), (weight * ratio).ravel(), size).reshape(shape)
         self._band_weight = fade * self._band_weight + np.bincount(
             band_slot.ravel(), weight.ravel(), size).reshape(shape)
-        # Speed form: changes per tooth of angle over valid samples that are not fast.
-        form_weight = (self._form_decay ** (n - 1 - rows)) * (usable & ~fast)
-        form_fade = self._form_decay ** n
-        self._changes = form_fade * self._changes + (form_weight * change).sum(axis=0)
-        self._advance = form_fade * self._advance + (form_weight * edge_rate).sum(axis=0)
+        self._form.add(change, edge_rate, usable)
 
         # Carry the state; shift phase and offset together by whole rings (keeps them small).
         ring = np.floor(offset[-1] / self.teeth) * self.teeth
@@ -413,10 +457,11 @@ class ToothErrorCorrector:
         return WINDOW_SAMPLES[self._window]
 
     def _refresh_pattern(self) -> None:
+        angle_mode = self._form.angle_mode
         look = np.flatnonzero(self._has_kept & ~self._learned
                               & (self._learned_count >= self._refind_samples))
-        angle = look[self._angle_mode[look]]
-        teeth = look[~self._angle_mode[look]]
+        angle = look[angle_mode[look]]
+        teeth = look[~angle_mode[look]]
         if angle.size:
             found, shift = self._refind(angle, self._angle_sum, self._angle_weight,
                                         self._angle_kept)
@@ -429,13 +474,13 @@ class ToothErrorCorrector:
             self._ring_known[angle[take]] = True
         if teeth.size:
             self._learned[teeth] = self._refind(teeth, self._sum, self._weight, self._kept)[0]
-        for wheel in np.flatnonzero(self._angle_mode).tolist():
+        for wheel in np.flatnonzero(angle_mode).tolist():
             self._fit_window(wheel)
         # Only a wheel's first learning waits for its window: the window is the ECU's, and at
         # motorway edge rates (few, narrow bands) its fit wanders while resets at the tooth-rate
         # limit make the wheels learn again and again (tuning car 21514: a 25 % puncture
         # missed when every relearning waited).
-        steady = (~self._angle_mode | self._has_kept
+        steady = (~angle_mode | self._has_kept
                   | (self._window_held >= self._steady_refreshes))
         self._learned |= (self._learned_count >= self._learned_samples) & steady
         self._pattern = self._centred(self._sum, self._weight)
@@ -448,9 +493,5 @@ class ToothErrorCorrector:
             spectrum[..., 0] = 0.0
             self._band_pattern[modelled] = np.fft.irfft(spectrum, self._angle_sum.shape[1],
                                                         axis=-1)
-        judged = self._advance >= MIN_FORM_TEETH
-        per_tooth = self._changes / np.maximum(self._advance, 1e-12)
-        self._angle_mode = np.where(
-            judged & (per_tooth > ANGLE_MODE_ON), True,
-            np.where(judged & (per_tooth < ANGLE_MODE_OFF), False, self._angle_mode))
+        self._form.judge()
 

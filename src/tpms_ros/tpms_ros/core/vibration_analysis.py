@@ -42,7 +42,9 @@ stamps and gaps (a gap: :meth:`VibrationAnalyzer.reset_filters`). Bad samples (n
 negative, above ``max_wheel_speed_rad_s``) are rejected and counted: the filter input holds
 the last good value and the regression ignores the samples the hold disturbs, so the state is
 not corrupted. Samples below ``min_wheel_speed_rad_s`` (too little road excitation) are gated
-out the same way. No ROS import.
+out the same way, and so are the samples of a wheel reporting held tooth periods while its tooth
+edges beat with the sampling inside the passband (``encoder_teeth``; docs/methods/
+vibration_analyzer.md, "Edge beat"). No ROS import.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from tpms_ros.core.nominal_calibration import (
     check_calibration_window,
 )
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES, TpmsIndication
+from tpms_ros.core.tooth_correction import SpeedForm
 from tpms_ros.core.vibration_kernel import vibration_chunk
 from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
@@ -83,6 +86,9 @@ the torsional vibration (not phase-locked to the wheel angle, it averages out), 
 tyre or sensor changes."""
 TOOTH_SMOOTH_HZ = 3.0
 """Corner of the low-pass giving the smooth wheel speed the tooth errors are relative to, Hz."""
+FORM_JUDGE_S = 0.1
+"""The ECU's speed form (:class:`~tpms_ros.core.tooth_correction.SpeedForm`) is decided on a
+clock of this much data, s (a fixed clock: the chunking cannot change the result)."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +140,10 @@ class VibrationParams(StoredCalibrationCheckParams):
                                          'weak: samples are gated, rad/s', low=0.0, high=1000.0)
     max_wheel_speed_rad_s: float = param(600.0, 'wheel speeds above this are non-physical and '
                                          'rejected, rad/s', low=1.0, high=5000.0)
+    encoder_teeth: int = param(48, 'teeth per encoder ring (paper: 48): with the sample rate '
+                               'it gives the tooth-edge rate, whose beat with the sampling a '
+                               'held tooth period carries into the band', low=2, high=1000,
+                               read_only=True)
     stuck_s: float = param(0.1, 'an exactly repeated wheel speed for this long is a stuck '
                            'sensor, s', low=1e-3, high=60.0, read_only=True)
     guard_s: float = param(0.05, 'the regression skips this long after a bad sample (filter '
@@ -177,6 +187,9 @@ class VibrationParams(StoredCalibrationCheckParams):
         if not 1 <= self.filter_order <= 8:
             raise ValueError(f'VibrationParams.filter_order must be in 1..8, got '
                              f'{self.filter_order}')
+        if not (isinstance(self.encoder_teeth, int) and self.encoder_teeth >= 2):
+            raise ValueError('VibrationParams.encoder_teeth must be an int >= 2, '
+                             f'got {self.encoder_teeth!r}')
         if not self.min_wheel_speed_rad_s < self.max_wheel_speed_rad_s:
             raise ValueError('VibrationParams.min_wheel_speed_rad_s must be < '
                              'max_wheel_speed_rad_s')
@@ -342,6 +355,11 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._driven = np.array({'none': (-1, -1), 'front': (0, 1), 'rear': (2, 3),
                                  'all': (0, 1, 2, 3)}[p.driveline_compensation],
                                 dtype=np.int64)
+        # tooth edges per sample of a wheel turning at 1 rad/s, and the ECU's speed form
+        self._edge_rate_per_rad_s = p.encoder_teeth / (2.0 * math.pi * p.sample_rate_hz)
+        self._form = SpeedForm(N_TIRES, p.sample_rate_hz)
+        self._form_clock = max(1, int(round(FORM_JUDGE_S * p.sample_rate_hz)))
+        self._form_count = 0
         self._guard_samples = int(math.ceil(p.guard_s * p.sample_rate_hz))
         self._counts = np.array([max(2, int(math.ceil(p.stuck_s * p.sample_rate_hz))),
                                  self._guard_samples], dtype=np.int64)
@@ -350,6 +368,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self.calibration_check = StoredCalibrationCheck(N_TIRES)
         self.rejected = np.zeros(N_TIRES, dtype=np.int64)
         self.gated = np.zeros(N_TIRES, dtype=np.int64)
+        self.beat_gated = np.zeros(N_TIRES, dtype=np.int64)
         self.reset_filters()
 
     # ---------------------------------------------------------------- state
@@ -369,6 +388,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
                                       np.full(N_TIRES, np.nan),
                                       np.full(N_TIRES, float(self._guard_samples))])
         self._phase = 0                                 # next chunk index to keep
+        self._previous = np.full(N_TIRES, np.nan)       # last input (speed form's changes)
         self._y_hist = np.zeros((2, N_TIRES))           # y_{t-2}, y_{t-1}
         self._v_hist = np.zeros((2, N_TIRES), dtype=bool)
         # exponentially weighted sums R11, R12, R22, q1, q2, n as filter states (lambda x)
@@ -395,6 +415,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._tooth_sum[:, w] = 0.0
         self._wheel_started[w] = False
         self._wheel_state[:, w] = (np.nan, 0.0, np.nan, float(self._guard_samples))
+        self._previous[w] = np.nan
         self._y_hist[:, w] = 0.0
         self._v_hist[:, w] = False
         reg = self.params.rls_regularization
@@ -404,6 +425,12 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._latest[w] = np.nan
         self._latest_a[:, w] = 0.0
         self._latest_known[w] = False
+
+    @property
+    def held_tooth_periods(self) -> np.ndarray:
+        """(4,) wheels whose speeds read as held tooth periods (not yet judged: held), the
+        ones the edge-beat gate applies to."""
+        return ~self._form.angle_mode
 
     def known_wheels(self) -> np.ndarray:
         """(4,) whether each wheel's latest resonance estimate is known."""
@@ -477,12 +504,13 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         keep = np.arange(self._phase, n, p.decimation)
         self._phase = int(keep[-1] + p.decimation - n) if keep.size else self._phase - n
         trace_hz = np.empty((keep.size, N_TIRES))
+        beat = self._edge_beat(omega)
         # The runtime parameters (limits) are read at each call.
         limits = np.array([p.max_wheel_speed_rad_s, p.min_wheel_speed_rad_s,
                            1.0 / p.sample_rate_hz,
                            self._tooth_lambda, self._lambda, p.effective_rate_hz,
                            p.min_valid_fraction])
-        vibration_chunk(omega, int(keep[0]) if keep.size else n, p.decimation, limits,
+        vibration_chunk(omega, beat, int(keep[0]) if keep.size else n, p.decimation, limits,
                         self._counts, self._driven, self._sos, self._sos_zi_unit,
                         self._sos_state, self._lp_sos, self._lp_zi_unit, self._lp_state,
                         self._tooth_correction, self._tooth_sum, self._angle,
@@ -496,6 +524,45 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
             elif self.calibration_check.pending:
                 self._check_calibration(trace_hz)
         return self._estimate(trace_hz, keep)
+
+    def _edge_beat(self, omega: np.ndarray) -> np.ndarray:
+        """(N, 4) samples of held-tooth-period wheels whose tooth edges beat with the sampling
+        inside the passband (docs/methods/vibration_analyzer.md, "Edge beat"); the speed form
+        is learned from the chunk on the way.
+
+        A held period reports the last tooth's speed at each sample. At ``e`` tooth edges per
+        sample the tooth it reports advances by ``e`` per sample, so which tooth is seen, and
+        with it the ring's per-tooth spacing error, is modulated at the beat
+        ``|e - round(e)| fs`` and its harmonics. Near ``e = 1`` (a 48-tooth ring on a 0.3 m
+        wheel at about 130 km/h) that beat sweeps through the tire's band and the AR(2) takes it
+        for the resonance (issue 21: healthy tires' confidence above 0.5 on 5-14 % of the time
+        with the beat below the passband's top, 0.5-0.8 % above it). A window average spreads
+        each reading over several teeth and shows no such rise, so only held-period wheels are
+        gated.
+        """
+        p = self.params
+        n = omega.shape[0]
+        usable = (np.isfinite(omega) & (omega >= p.min_wheel_speed_rad_s)
+                  & (omega <= p.max_wheel_speed_rad_s))
+        edge_rate = np.where(usable, omega * self._edge_rate_per_rad_s, 0.0)
+        change = omega != np.concatenate((self._previous[None], omega[:-1]))
+        held = np.empty((n, N_TIRES), dtype=bool)
+        start = 0
+        while start < n:
+            stop = min(n, start + self._form_clock - self._form_count % self._form_clock)
+            held[start:stop] = ~self._form.angle_mode
+            self._form.add(change[start:stop], edge_rate[start:stop], usable[start:stop])
+            self._form_count += stop - start
+            if self._form_count % self._form_clock == 0:
+                self._form.judge()
+            start = stop
+        if n:
+            self._previous = omega[-1].copy()
+        nearest = np.round(edge_rate)
+        beat = (held & usable & (nearest >= 1.0)
+                & (np.abs(edge_rate - nearest) * p.sample_rate_hz < p.passband_hz[1]))
+        self.beat_gated += beat.sum(axis=0)
+        return beat
 
     def _accumulate_calibration(self, trace_hz: np.ndarray) -> None:
         settle = int(round(self.params.calibration_settle_s * self.params.effective_rate_hz))

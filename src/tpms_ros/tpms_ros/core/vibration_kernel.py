@@ -23,7 +23,8 @@ import numpy as np
 _F1, _F2, _F3 = types.float64[:], types.float64[:, :], types.float64[:, :, :]
 _B1, _B2, _I1 = types.boolean[:], types.boolean[:, :], types.int64[:]
 _SIGNATURE = types.void(
-    _F2, types.int64, types.int64, _F1, _I1, _I1,          # omega, keep, limits, counts, driven
+    _F2, _B2, types.int64, types.int64, _F1, _I1, _I1,     # omega, beat, keep, limits, counts,
+                                                           # driven
     _F2, _F2, _F3, _F2, _F2, _F3,                          # band-pass, low-pass
     types.boolean, types.complex128[:, :], _F1,            # tooth correction
     _F2, _B1, _I1, _I1,                                    # per-wheel state and counts
@@ -56,7 +57,7 @@ def _biquads(sos: np.ndarray, state: np.ndarray, wheel: int, x: float) -> float:
 
 
 @njit(_SIGNATURE, cache=True, error_model='numpy')
-def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
+def vibration_chunk(omega: np.ndarray, beat: np.ndarray, first_keep: int, decimation: int,
                     limits: np.ndarray, counts: np.ndarray, driven: np.ndarray,
                     sos: np.ndarray, sos_zi_unit: np.ndarray, sos_state: np.ndarray,
                     lp_sos: np.ndarray, lp_zi_unit: np.ndarray, lp_state: np.ndarray,
@@ -70,6 +71,9 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
 
     Args:
         omega: (N, W) wheel speeds at the sample rate.
+        beat: (N, W) samples gated for the beat of their tooth edges with the sampling
+            (:meth:`tpms_ros.core.vibration_analysis.VibrationAnalyzer.process`), as those
+            below the minimum speed are; they are not counted in ``gated``.
         first_keep, decimation: rows first_keep, first_keep + decimation, ... go to the
             regression (the decimation's phase, carried by the caller).
         limits: [max_wheel_speed_rad_s, min_wheel_speed_rad_s, sample interval s, tooth forgetting,
@@ -110,7 +114,7 @@ def vibration_chunk(omega: np.ndarray, first_keep: int, decimation: int,
             is_bad = (not math.isfinite(value) or value < 0.0 or value > max_speed
                       or repeats >= stuck_samples)
             bad[i, w] = is_bad
-            slow[i, w] = not is_bad and value < min_speed
+            slow[i, w] = not is_bad and (value < min_speed or beat[i, w])
             if is_bad:
                 rejected[w] += 1
             elif value < min_speed:

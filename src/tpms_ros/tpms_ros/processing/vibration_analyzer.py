@@ -320,6 +320,7 @@ class VibrationAnalyzerProcessor(
             **{f'rejected_{k}': v for k, v in rejected.items()},
             'rejected_bad_value_per_wheel': rejected_values.tolist(),
             'gated_low_speed_per_wheel': self.core.gated.tolist(),
+            'gated_edge_beat_per_wheel': self.core.beat_gated.tolist(),
             'missing_samples': self.counts['missing_samples'],
             'gaps': self.counts['gaps'],
             'wheel_filter_resets': self.counts['wheel_resets'],
