@@ -355,6 +355,23 @@ def test_vibration_corrupt_calibration_file_is_reported(
     assert status.level == b'\x01' and _values(status)['calibration_state'] == 'file_corrupt'
 
 
+def test_vibration_says_when_held_tooth_periods_beat_in_the_band(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool], tmp_path: Path) -> None:
+    """A 48-tooth ring at 70 rad/s and 200 Hz puts 2.67 tooth edges in a sample: held tooth
+    periods would beat with the sampling at 66 Hz, inside the band. The samples are gated, the
+    status says so and counts them per wheel; nothing is flagged."""
+    _vibration_node(make_node, tmp_path / 'vibration.yaml', encoder_teeth=48)
+    tester = make_node('tester')
+    out = Collector(tester, {'/tpms/tire_resonance': TireResonance,
+                             '/tpms/indication/vibration': TpmsIndication})
+    WheelFeeder(tester, out, spin_until).feed(_resonant_wheel_speeds(400, NOMINAL_HZ, seed=8))
+    status = _vibration_status_saying(out, spin_until, 'beating with the sampling')
+    assert status.level == b'\x01'
+    gated = yaml.safe_load(_values(status)['gated_edge_beat_per_wheel'])
+    assert len(gated) == 4 and min(gated) > 300
+    assert not any(any(m.underinflated) for m in out.msgs['/tpms/indication/vibration'])
+
+
 def _vibration_status_saying(out: Collector, spin_until: Callable[..., bool], text: str) -> Any:
     """The vibration analyzer's first /diagnostics status whose message has ``text``."""
     found: list[Any] = []

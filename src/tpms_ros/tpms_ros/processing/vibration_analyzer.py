@@ -141,6 +141,7 @@ class VibrationAnalyzerProcessor(
         self._rate_was_wrong = False
         self._rate = RateMeter()
         self._new_rejections = NewSinceLastStatus()
+        self._new_beat_gated = NewSinceLastStatus()
 
     def set_node_params(self, node_params: VibrationAnalyzerNodeParams) -> None:
         """New node parameters take effect at once (the gap limit on the next sample)."""
@@ -352,6 +353,12 @@ class VibrationAnalyzerProcessor(
         new_rejections = self._new_rejections.text(rejected)
         if new_rejections:
             problems.warn('wheel-speed messages rejected: ' + new_rejections)
+        beat_gated = self._new_beat_gated.text(dict(zip(TIRE_NAMES,
+                                                        self.core.beat_gated.tolist(),
+                                                        strict=True)))
+        if beat_gated:
+            problems.warn('wheel speeds gated, held tooth periods beating with the sampling '
+                          f'inside the band at this speed (samples): {beat_gated}')
         if self.core.calibration_check.pending:
             problems.warn(self.core.calibration_check.status(p))
         problems.extend(tire_problems)
