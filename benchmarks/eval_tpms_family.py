@@ -331,6 +331,50 @@ def load_trace(path: Path) -> tuple[Job, tuple[int, ...], float, dict[str, Any]]
     return Job(**job), tuple(saved['tires']), float(saved['reached_s']), saved['trace']
 
 
+BEAT_EDGES_HZ = (0.0, 10.0, 20.0, 26.0, 40.0, 55.0, 67.5, 80.0, 100.0, 150.0, 250.0)
+
+
+def beat_table(directories: list[Path]) -> None:
+    """Print how often the vibration method is confident on a healthy tire (0.5 or more), by
+    the beat of the tooth edges with the sampling, |e - round(e)| fs (e: edges per sample), on
+    the cars whose ECU holds tooth periods (docs/methods/vibration_analyzer.md, "Edge beat"):
+    every tick of the traces written with ``--traces`` in ``directories``, after the
+    calibration, before the fault (after it, the healthy tires only). The edge rate is the
+    vehicle speed over the nominal radius, a few per cent off each wheel's."""
+    fs = VibrationParams().sample_rate_hz     # the rate every family car's ECU reports at
+    ticks = np.zeros(len(BEAT_EDGES_HZ) - 1, dtype=np.int64)
+    confident = np.zeros_like(ticks)
+    runs = 0
+    for path in sorted(p for d in directories for p in d.glob('*.pkl')):
+        job, tires, _, tr = load_trace(path)
+        car = family_car(job)
+        if car.sensors.speed_method != 'tooth_period':
+            continue
+        runs += 1
+        user = car.user_parameters()
+        edges = (tr['speed'] / user['nominal_radius_m'] * car.sensors.teeth
+                 / (2.0 * np.pi * fs))
+        beat = np.abs(edges - np.round(edges)) * fs
+        t = tr['t']
+        used = (t >= job.settings.calibration_s) & (edges >= 0.75)
+        if tires:
+            used &= t < job.settings.fault_s
+        healthy = [w for w in range(4) if w not in tires]
+        conf = tr['conf']['vibration'][:, healthy]
+        band = np.digitize(beat, BEAT_EDGES_HZ) - 1
+        for k in range(ticks.size):
+            rows = used & (band == k)
+            ticks[k] += conf[rows].size
+            confident[k] += int((conf[rows] >= 0.5).sum())
+    print(f'{runs} runs with held tooth periods, from 0.75 edges per sample; healthy tires')
+    print('| beat (Hz) | ' + ' | '.join(f'{a:g}-{b:g}' for a, b in
+                                      zip(BEAT_EDGES_HZ[:-1], BEAT_EDGES_HZ[1:])) + ' |')
+    print('| --- ' * (ticks.size + 1) + '|')
+    print('| tire-ticks | ' + ' | '.join(str(n) for n in ticks) + ' |')
+    print('| confidence >= 0.5 | ' + ' | '.join(
+        f'{100.0 * c / n:.1f} %' if n else '-' for c, n in zip(confident, ticks)) + ' |')
+
+
 def revote(tr: dict[str, Any], params: VoterParams) -> np.ndarray:
     """(ticks, 4) warnings of a voter with ``params`` on a run's recorded indications (the
     ``indications`` of :func:`replay`): what that voter would have warned in the run."""
@@ -747,6 +791,9 @@ def main() -> None:
     parser.add_argument('--out', type=Path, default=Path('/tmp/tpms_family_eval.json'))
     parser.add_argument('--report', type=Path, nargs='+',
                         help='print Markdown tables from result files instead of running')
+    parser.add_argument('--beat-table', type=Path, nargs='+', metavar='TRACES',
+                        help="print the vibration method's confidence on healthy tires by the "
+                             'edge beat, from --traces directories, instead of running')
     parser.add_argument('--scoreboard', type=Path, default=None,
                         help='also write the per-target result file the main job shows '
                              '(docs/results/tpms_family.json)')
@@ -754,6 +801,9 @@ def main() -> None:
                         help="commit the runs were made on (default: the checkout's HEAD; "
                              'with --report, the one the result file saved)')
     args = parser.parse_args()
+    if args.beat_table:
+        beat_table(args.beat_table)
+        return
     if args.report:
         saved, header = load_records(args.report)
         report(saved)
