@@ -367,12 +367,13 @@ def beat_table(directories: list[Path]) -> None:
             ticks[k] += conf[rows].size
             confident[k] += int((conf[rows] >= 0.5).sum())
     print(f'{runs} runs with held tooth periods, from 0.75 edges per sample; healthy tires')
-    print('| beat (Hz) | ' + ' | '.join(f'{a:g}-{b:g}' for a, b in
-                                      zip(BEAT_EDGES_HZ[:-1], BEAT_EDGES_HZ[1:])) + ' |')
+    bands = zip(BEAT_EDGES_HZ[:-1], BEAT_EDGES_HZ[1:], strict=True)
+    print('| beat (Hz) | ' + ' | '.join(f'{a:g}-{b:g}' for a, b in bands) + ' |')
     print('| --- ' * (ticks.size + 1) + '|')
     print('| tire-ticks | ' + ' | '.join(str(n) for n in ticks) + ' |')
     print('| confidence >= 0.5 | ' + ' | '.join(
-        f'{100.0 * c / n:.1f} %' if n else '-' for c, n in zip(confident, ticks)) + ' |')
+        f'{100.0 * c / n:.1f} %' if n else '-'
+        for c, n in zip(confident, ticks, strict=True)) + ' |')
 
 
 def revote(tr: dict[str, Any], params: VoterParams) -> np.ndarray:
