@@ -8,6 +8,7 @@ import importlib.util
 import json
 import math
 from pathlib import Path
+import pickle
 import sys
 from types import ModuleType
 from typing import Any
@@ -194,3 +195,40 @@ def test_stiffness_settings_reach_the_observer() -> None:
     default = tpms.method_params(car, tpms.Settings())[2]
     assert dataclasses.replace(stiffness, forgetting_factor=default.forgetting_factor,
                                tooth_learning_s=default.tooth_learning_s) == default
+
+
+def test_beat_table_counts_held_period_cars_by_edge_beat(tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]
+                                                         ) -> None:
+    """``--beat-table``: healthy tires after calibration on cars with held tooth periods, by
+    |e - round(e)| fs. A hand-made trace of tuning car 21500 (held periods): 10 ticks whose
+    speed puts 1.005 edges in a sample (beat 5 Hz), FR confident on 4 of them, and 10 ticks at
+    1.09 (90 Hz) with no confidence; FL is the faulty tire (left out), ticks before the
+    calibration are left out. A window-average car's trace is skipped."""
+    settings = tpms.Settings()
+    held = tpms.family_car(tpms.Job(21500, 'puncture15', 'rural', settings))
+    assert held.sensors.speed_method == 'tooth_period'
+    radius = held.user_parameters()['nominal_radius_m']
+    per_edge_rate = 2.0 * np.pi * 1000.0 / held.sensors.teeth * radius   # m/s at 1 edge/sample
+    t = np.concatenate([np.full(5, 10.0), np.linspace(100.0, 140.0, 20)])
+    speed = np.concatenate([np.full(5, 1.005), np.full(10, 1.005), np.full(10, 1.09)]) \
+        * per_edge_rate
+    conf = np.zeros((t.size, 4))
+    conf[:5] = 1.0                       # before the calibration: not counted
+    conf[5:9, 1] = 0.6                   # FR confident on 4 of the 10 ticks at a 5 Hz beat
+    conf[5:, 0] = 1.0                    # FL, the faulty tire: not counted
+    for seed, name in ((21500, 'held'), (21501, 'window')):
+        job = tpms.Job(seed, 'puncture15', 'rural', settings)
+        saved = {'job': dataclasses.asdict(job), 'tires': (0,), 'reached_s': 150.0,
+                 'trace': {'t': t, 'speed': speed, 'conf': {'vibration': conf}}}
+        (tmp_path / f'{name}.pkl').write_bytes(pickle.dumps(saved))
+    assert tpms.family_car(tpms.Job(21501, 'puncture15', 'rural', settings)
+                           ).sensors.speed_method == 'window_average'
+    tpms.beat_table([tmp_path])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith('1 runs with held tooth periods')
+    ticks = lines[3].split('|')[2:-1]
+    shares = lines[4].split('|')[2:-1]
+    # 3 healthy tires x 10 ticks in the 0-10 Hz band and in the 80-100 Hz band
+    assert [int(n) for n in ticks] == [30, 0, 0, 0, 0, 0, 0, 30, 0, 0]
+    assert shares[0].strip() == '13.3 %' and shares[7].strip() == '0.0 %'
