@@ -534,9 +534,10 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         sample the tooth it reports advances by ``e`` per sample, so which tooth is seen, and
         with it the ring's per-tooth spacing error, is modulated at the beat
         ``|e - round(e)| fs`` and its harmonics. Near ``e = 1`` (a 48-tooth ring on a 0.3 m
-        wheel at about 130 km/h) that beat sweeps through the tire's band and the AR(2) takes it
-        for the resonance (issue 21: healthy tires' confidence above 0.5 on 5-14 % of the time
-        with the beat below the passband's top, 0.5-0.8 % above it). A window average spreads
+        wheel at 1 kHz: about 130-150 km/h) that beat sweeps through the tire's band and the
+        AR(2) takes it for the resonance (issue 21, eight tuning cars: healthy tires'
+        confidence at 0.5 or more on 1.5-14 % of the time with the beat below the passband's
+        top, the more the lower the beat, 0.5-1.3 % above it). A window average spreads
         each reading over several teeth and shows no such rise, so only held-period wheels are
         gated.
         """
