@@ -38,8 +38,9 @@ also writes one row per target of the issue (pass rate, worst case) as the main 
 scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
 ``docs/results/tpms_family.json``), after a run or from saved runs:
 ``python benchmarks/eval_tpms_family.py --report RUNS.json [MORE.json] --scoreboard PATH
-[--commit SHA]``. ``--stiffness-set NAME=VALUE`` (repeatable) sets a stiffness observer
-parameter in every run, for ablations on the tuning cars (``--tuning``).
+[--commit SHA]``. ``--stiffness-set NAME=VALUE`` and ``--vibration-set NAME=VALUE``
+(repeatable) set a stiffness observer or vibration analyzer parameter in every run, for
+ablations on the tuning cars (``--tuning``).
 ``--traces DIR`` keeps each run's indications as the voter got them, tick by tick, so another
 voting rule can be judged on the same runs without replaying them (:func:`load_trace`,
 :func:`revote`, :func:`score`).
@@ -137,6 +138,8 @@ class Settings:
     ring_scale: float = 1.0
     # Stiffness observer parameters set for every run (dotted name -> value), for ablations.
     stiffness_set: dict[str, Any] = field(default_factory=dict)
+    # Vibration analyzer parameters set for every run, likewise.
+    vibration_set: dict[str, Any] = field(default_factory=dict)
     # How the car's ABS ECU forms the speed (FamilyCar.ecu_parameters) given to the stiffness
     # observer; default: not known, the observer reads the timer from held tooth periods.
     ecu_given: bool = False
@@ -185,7 +188,9 @@ def method_params(car: FamilyCar, settings: Settings) -> tuple[VibrationParams,
     """Core defaults plus only what the user of this car knows."""
     user = car.user_parameters()
     axle = car.layout
-    vibration = VibrationParams(driveline_compensation=axle, encoder_teeth=user['encoder_teeth'])
+    vibration = with_values(VibrationParams(driveline_compensation=axle,
+                                            encoder_teeth=user['encoder_teeth']),
+                            settings.vibration_set)
     radius = WheelRadiusParams(nominal_radius_m=user['nominal_radius_m'],
                                track_front_m=user['track_front_m'],
                                track_rear_m=user['track_rear_m'], driven_axle=axle,
@@ -784,6 +789,9 @@ def main() -> None:
     parser.add_argument('--stiffness-set', action='append', default=[], metavar='NAME=VALUE',
                         help='a stiffness observer parameter for every run (repeatable), e.g. '
                              'forgetting_factor=0.995')
+    parser.add_argument('--vibration-set', action='append', default=[], metavar='NAME=VALUE',
+                        help='a vibration analyzer parameter for every run (repeatable), e.g. '
+                             'rel_noise_floor=0.01')
     parser.add_argument('--sim-cache', default='',
                         help='directory keeping the simulated drives for later replays')
     parser.add_argument('--traces', default='',
@@ -819,10 +827,14 @@ def main() -> None:
         stiffness_set = parse_assignments(args.stiffness_set, StiffnessObserverParams())
     except ConfigurationError as exc:
         parser.error(f'--stiffness-set: {exc}')
+    try:
+        vibration_set = parse_assignments(args.vibration_set, VibrationParams())
+    except ConfigurationError as exc:
+        parser.error(f'--vibration-set: {exc}')
     settings = Settings(args.calibration_s, args.fault_s, args.observe_s,
                         args.diffusion_pct_per_min, not args.no_tooth_correction,
                         args.law_given, args.sim_cache, args.traces, args.ring_scale,
-                        stiffness_set, ecu_given=args.ecu_given)
+                        stiffness_set, vibration_set, ecu_given=args.ecu_given)
     pool_seeds = TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS
     seeds = [int(x) for x in args.seeds.split(',')] if args.seeds else \
         list(pool_seeds[:args.cars])
