@@ -186,15 +186,21 @@ def test_each_case_is_observed_for_its_targets_window() -> None:
     assert tpms.DETECTION_LIMIT_S['diffusion20'] == 120.0
 
 
-def test_stiffness_settings_reach_the_observer() -> None:
-    """``--stiffness-set`` values are the observer's parameters in every run."""
+def test_method_settings_reach_the_observer_and_the_analyzer() -> None:
+    """``--stiffness-set`` and ``--vibration-set`` values are the stiffness observer's and the
+    vibration analyzer's parameters in every run, and change nothing else."""
     car = tpms.sample_car(21500)
-    settings = tpms.Settings(stiffness_set={'forgetting_factor': 0.99, 'tooth_learning_s': 60.0})
-    stiffness = tpms.method_params(car, settings)[2]
+    settings = tpms.Settings(stiffness_set={'forgetting_factor': 0.99, 'tooth_learning_s': 60.0},
+                             vibration_set={'rel_noise_floor': 0.01})
+    vibration, radius, stiffness = tpms.method_params(car, settings)
     assert (stiffness.forgetting_factor, stiffness.tooth_learning_s) == (0.99, 60.0)
-    default = tpms.method_params(car, tpms.Settings())[2]
+    assert vibration.rel_noise_floor == 0.01
+    default_vibration, default_radius, default = tpms.method_params(car, tpms.Settings())
     assert dataclasses.replace(stiffness, forgetting_factor=default.forgetting_factor,
                                tooth_learning_s=default.tooth_learning_s) == default
+    assert dataclasses.replace(
+        vibration, rel_noise_floor=default_vibration.rel_noise_floor) == default_vibration
+    assert radius == default_radius
 
 
 def test_beat_table_counts_held_period_cars_by_edge_beat(tmp_path: Path,
