@@ -51,7 +51,6 @@ BAG = BAGS / 'road_puncture_15pct_fl'
 TOPICS = {'/vehicle/wheel_speeds': 'vehicle/wheel_speeds'}
 WHEELS = 'vehicle/wheel_speeds'
 INDICATION = 'tpms/indication/vibration'
-FAST_FLOOR = 0.005    # rel_noise_floor (default)
 FAST = {'driveline_compensation': 'rear', 'calibration_duration_s': 40.0,
         'calibration_settle_s': 10.0, 'min_calibration_s': 10.0, 'calibration_file': 'none',
         'z_flag': 5.0}
@@ -189,9 +188,8 @@ def test_fault_is_named_never_a_tire_fault_and_recovers(
         off = np.nanmin(np.stack([np.abs(frequency - ref_f[i]) for i in around]), axis=0)
     false = valid & close[:, None] & ~(off <= FALSE_HZ)
     assert not false.any(), (name, off[false.any(axis=1)])
-    cal = calibrated(calibration).core.calibration
-    assert cal is not None
-    sigma = np.maximum(cal.noise_hz, FAST_FLOOR * cal.nominal_frequency_hz)
+    sigma = calibrated(calibration).core.frequency_sigma_hz()
+    assert np.isfinite(sigma).all()
     back = close[:, None] & valid & ref_valid[nearest] & (off <= TOL_SIGMA * sigma)
     good = back.all(axis=1)
     bad_after = np.flatnonzero(~good)

@@ -587,13 +587,21 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         )
 
     # ---------------------------------------------------------- indication
+    def frequency_sigma_hz(self) -> np.ndarray:
+        """(4,) the noise the indication divides by: the calibration's, at least
+        ``rel_noise_floor`` of the nominal frequency (NaN without a calibration), Hz."""
+        cal = self._calibration
+        if cal is None:
+            return np.full(N_TIRES, np.nan)
+        return np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
+
     def frequency_drop_sigma(self) -> np.ndarray:
         """(4,) frequency drop below nominal in noise sigmas (NaN where unknown)."""
         cal = self._calibration
         if cal is None or self.calibration_check.pending:
             return np.full(N_TIRES, np.nan)
-        sigma = np.maximum(cal.noise_hz, self.params.rel_noise_floor * cal.nominal_frequency_hz)
-        return np.where(self._latest_known, (cal.nominal_frequency_hz - self._latest) / sigma,
+        return np.where(self._latest_known,
+                        (cal.nominal_frequency_hz - self._latest) / self.frequency_sigma_hz(),
                         np.nan)
 
     def indication(self, stamp_s: float) -> TpmsIndication:

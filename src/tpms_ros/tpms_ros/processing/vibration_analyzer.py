@@ -288,8 +288,7 @@ class VibrationAnalyzerProcessor(
         resonance: dict[str, Any] = {
             'frequency_hz': np.where(valid, estimate.frequency_hz, np.nan).tolist()}
         if cal is not None:
-            floor = self.params.rel_noise_floor * cal.nominal_frequency_hz
-            sigma = np.maximum(cal.noise_hz, floor)
+            sigma = self.core.frequency_sigma_hz()
             resonance['frequency_std_hz'] = np.where(valid, sigma, np.nan).tolist()
             resonance['nominal_frequency_hz'] = cal.nominal_frequency_hz.tolist()
         else:
