@@ -8,8 +8,9 @@ roughness and shows in the wheel speed. Its frequency drops with pressure. Per w
    measured speed periodically in wheel angle, lines at k x the rotation rate sweep through
    the band with speed and pull the AR(2); Persson 2002 pre-processes for this): the pattern
    is learned online per wheel by synchronous averaging of the relative speed deviation
-   against the integrated wheel angle (``TOOTH_HARMONICS`` Fourier coefficients, exponential
-   memory ``TOOTH_MEMORY_S``) and divided out; then de-trend and band-pass around the mode
+   against the integrated wheel angle (Fourier coefficients up to the passband's top at the
+   slowest wheel analysed, :attr:`VibrationParams.tooth_harmonics`; exponential memory
+   ``TOOTH_MEMORY_S``) and divided out; then de-trend and band-pass around the mode
    (Butterworth second-order sections, as ``sosfilt``, with carried state; the filter's
    initial state is the steady state of the first sample, so the large DC of the wheel speed
    does not ring), then decimation to ``analysis_rate_hz`` (the
@@ -76,10 +77,9 @@ VERTICAL_MODE_HZ = (10.0, 20.0)
 
 CALIBRATION_VERSION = 1
 
-TOOTH_HARMONICS = 16
-"""Harmonics of the wheel revolution learned by the tooth-error correction. The encoder's
-tooth-spacing errors repeat every revolution, so they put lines at k x the wheel's rotation
-rate; 16 cover the passband from about 30 km/h up (k f_rev > 67 Hz above that)."""
+MAX_TOOTH_HARMONICS = 96
+"""At most this many harmonics are learned (a gate at a crawl would ask for hundreds; each costs
+two complex products per sample and wheel)."""
 TOOTH_MEMORY_S = 20.0
 """Memory of the synchronous averaging that learns the tooth-error pattern, s: long against
 the torsional vibration (not phase-locked to the wheel angle, it averages out), short against
@@ -227,6 +227,23 @@ class VibrationParams(StoredCalibrationCheckParams):
         return self.sample_rate_hz / self.decimation
 
     @property
+    def tooth_harmonics(self) -> int:
+        """Harmonics of the wheel revolution the tooth-error correction learns.
+
+        The ring's spacing errors repeat every revolution: lines at k x the rotation rate, and
+        as many of them fall in the passband as its top divided by the rotation rate. They must
+        all be learned down to the slowest wheel analysed (``min_wheel_speed_rad_s``): an
+        unlearned line inside the band is read as the resonance (issue 21: 16 harmonics, a
+        0.37 m wheel at 33 km/h, a 0.22 % ring; lines 17 and up at 63-67 Hz pulled a true
+        40 Hz to 50-53 Hz, and the calibration's noise to 3-5 Hz). Fixed when the analyzer is
+        built (the learned sums' size), from the minimum speed then in force.
+        """
+        if self.min_wheel_speed_rad_s <= 0.0:
+            return MAX_TOOTH_HARMONICS
+        revolution_hz = self.min_wheel_speed_rad_s / (2.0 * math.pi)
+        return min(MAX_TOOTH_HARMONICS, math.ceil(self.passband_hz[1] / revolution_hz))
+
+    @property
     def forgetting(self) -> float:
         """RLS forgetting factor lambda."""
         return math.exp(-1.0 / (self.memory_s * self.effective_rate_hz))
@@ -351,6 +368,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         self._lp_sos = signal.butter(2, TOOTH_SMOOTH_HZ, fs=p.sample_rate_hz, output='sos')
         self._lp_zi_unit = signal.sosfilt_zi(self._lp_sos)
         self._tooth_lambda = math.exp(-1.0 / (TOOTH_MEMORY_S * p.sample_rate_hz))
+        self._harmonics = p.tooth_harmonics
         self._lambda = p.forgetting
         self._driven = np.array({'none': (-1, -1), 'front': (0, 1), 'rear': (2, 3),
                                  'all': (0, 1, 2, 3)}[p.driveline_compensation],
@@ -380,7 +398,7 @@ class VibrationAnalyzer(CalibratedCore[VibrationCalibration]):
         # The learned pattern is tied to the angle origin, so a gap restarts it too.
         self._angle = np.zeros(N_TIRES)
         self._lp_state = np.zeros((self._lp_sos.shape[0], 2, N_TIRES))
-        self._tooth_sum = np.zeros((TOOTH_HARMONICS + 1, N_TIRES), dtype=complex)
+        self._tooth_sum = np.zeros((self._harmonics + 1, N_TIRES), dtype=complex)
         self._wheel_started = np.zeros(N_TIRES, dtype=bool)
         # previous input and its repeat count (stuck sensor), held good input (NaN before
         # the first), samples since the last bad or gated one

@@ -1,7 +1,7 @@
 """The vibration analysis of one chunk of wheel speeds as one compiled kernel (numba).
 
 Why compiled: per chunk, the analysis is some sixty small array operations (stuck-sensor run
-lengths, hold of bad samples, tooth-error correction with sixteen harmonics, band-pass, RLS
+lengths, hold of bad samples, tooth-error correction with 43 harmonics by default, band-pass, RLS
 sums, AR(2) solve); as numpy calls they cost about 0.5 ms per chunk whatever its length, most of
 it call overhead. That fixed cost is what a node pays when an output falls due, so it set the
 node's output latency. Here the same recursions run sample by sample in one call.
