@@ -3,19 +3,15 @@ names the calibration's road (benchmarks/stiffness_by_surface.py)."""
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 from pathlib import Path
 import sys
 
 import numpy as np
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / 'benchmarks'
-sys.path.insert(0, str(BENCHMARKS))    # the script imports eval_tpms_family beside it
-_spec = importlib.util.spec_from_file_location('stiffness_by_surface',
-                                               BENCHMARKS / 'stiffness_by_surface.py')
-assert _spec is not None and _spec.loader is not None
-by_surface = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(by_surface)
+sys.path.insert(0, str(BENCHMARKS))    # the scripts import eval_tpms_family beside them
+by_surface = importlib.import_module('stiffness_by_surface')
 
 
 def test_estimates_are_grouped_by_the_road_they_were_made_on() -> None:
