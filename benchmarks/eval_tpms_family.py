@@ -56,6 +56,7 @@ import multiprocessing
 import os
 from pathlib import Path
 import pickle
+import re
 import time
 from typing import Any
 
@@ -487,6 +488,16 @@ def simulate_job(job: Job, car: FamilyCar, events: list, duration: float
             pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
         partial.replace(path)
     return result
+
+
+def kept_drive(path: Path) -> tuple[RoadSimulationResult, FamilyCar]:
+    """A drive that ``--sim-cache`` kept, and its car as sampled from the seed in the file's
+    name (``car<seed>_...``; the ring's error as sampled, whatever ``--ring-scale`` the drive
+    was made with)."""
+    with path.open('rb') as f:
+        result: RoadSimulationResult = pickle.load(f)
+    seed = int(re.search(r'car(\d+)', path.name).group(1))   # type: ignore[union-attr]
+    return result, sample_car(seed)
 
 
 def family_car(job: Job) -> FamilyCar:

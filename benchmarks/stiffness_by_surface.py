@@ -17,15 +17,18 @@ import argparse
 from collections import defaultdict
 from multiprocessing import Pool
 from pathlib import Path
-import pickle
-import re
 
-from eval_tpms_family import DRIVER_MAX_AGE_S, STIFFNESS_CHUNK_S, Settings, method_params
+from eval_tpms_family import (
+    DRIVER_MAX_AGE_S,
+    STIFFNESS_CHUNK_S,
+    Settings,
+    kept_drive,
+    method_params,
+)
 import numpy as np
 
 from tpms_ros.core.stiffness_observer import TireStiffnessObserver
 from tpms_ros.core.wheel_radius_analysis import sample_and_hold
-from tpms_ros.simulation.car_family import sample_car
 from tpms_ros.simulation.road_simulator import to_topic_series
 
 # Estimates before this are in or right after the calibration window (eval_tpms_family's 90 s).
@@ -36,10 +39,7 @@ MIN_ESTIMATES = 40
 
 def surface_errors(path: Path) -> tuple[str, str, dict[str, float]]:
     """(drive name, calibration surface, {surface: mean error % of placard}) of one drive."""
-    with path.open('rb') as f:
-        result = pickle.load(f)
-    seed = int(re.search(r'car(\d+)', path.name).group(1))   # type: ignore[union-attr]
-    car = sample_car(seed)
+    result, car = kept_drive(path)
     params = method_params(car, Settings())[2]
     observer = TireStiffnessObserver(params)
     observer.start_calibration()

@@ -16,15 +16,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-import pickle
-import re
 from typing import Any
 
-from eval_tpms_family import VIBRATION_BLOCK_S, Settings, method_params
+from eval_tpms_family import VIBRATION_BLOCK_S, Settings, kept_drive, method_params
 import numpy as np
 
 from tpms_ros.core.vibration_analysis import VibrationAnalyzer, VibrationParams
-from tpms_ros.simulation.car_family import sample_car
 from vehicle_monitor_common.parameters import parse_assignments
 
 
@@ -32,10 +29,8 @@ def analyse(path: Path, calibration_s: float, vibration_set: dict[str, Any]
             ) -> dict[str, np.ndarray]:
     """Run the core on the cached drive; per 0.1 s block: stamp, mean wheel speed of the four
     wheels (rad/s), each tire's resonance (Hz) and confidence, plus the calibration."""
-    with path.open('rb') as f:
-        result = pickle.load(f)
-    seed = int(re.search(r'car(\d+)', path.name).group(1))   # type: ignore[union-attr]
-    params = method_params(sample_car(seed), Settings(vibration_set=vibration_set))[0]
+    result, car = kept_drive(path)
+    params = method_params(car, Settings(vibration_set=vibration_set))[0]
     analyzer = VibrationAnalyzer(params)
     analyzer.start_calibration()
     block = max(1, round(VIBRATION_BLOCK_S * params.sample_rate_hz))

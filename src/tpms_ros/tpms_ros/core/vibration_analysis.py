@@ -79,7 +79,7 @@ CALIBRATION_VERSION = 1
 
 MAX_TOOTH_HARMONICS = 96
 """At most this many harmonics are learned (a gate at a crawl would ask for hundreds; each costs
-two complex products per sample and wheel)."""
+about a dozen multiplications and two divisions per sample and wheel in the kernel)."""
 TOOTH_MEMORY_S = 20.0
 """Memory of the synchronous averaging that learns the tooth-error pattern, s: long against
 the torsional vibration (not phase-locked to the wheel angle, it averages out), short against
