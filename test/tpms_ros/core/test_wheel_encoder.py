@@ -59,6 +59,67 @@ def test_quantisation_noise_does_not_depend_on_the_chunking():
     np.testing.assert_allclose(np.concatenate(parts), whole, atol=1e-9)
 
 
+class NumpyQuantisationNoise(QuantisationNoise):
+    """The numpy form of ``QuantisationNoise.process`` that the compiled edge times and speed
+    error replaced (the reference they are held to)."""
+
+    def process(self, speed: np.ndarray) -> np.ndarray:
+        n = speed.shape[0]
+        t = (self._samples + np.arange(n + 1)) * self._dt
+        self._samples += n
+        error = np.zeros(speed.shape)
+        for w in range(speed.shape[1]):
+            angle = self._angle[w] + np.concatenate(([0.0], np.cumsum(speed[:, w] * self._dt)))
+            tooth = np.floor(angle / self._pitch)
+            crossed = np.maximum(tooth[1:] - tooth[:-1], 0.0).astype(int)
+            rows = np.repeat(np.arange(n), crossed)
+            starts = np.repeat(tooth[:-1] + 1, crossed)
+            edge_tooth = starts + (np.arange(crossed.sum())
+                                   - np.repeat(np.cumsum(crossed) - crossed, crossed))
+            frac = (edge_tooth * self._pitch - angle[rows]) / np.maximum(
+                angle[rows + 1] - angle[rows], 1e-300)
+            new = t[rows] + frac * self._dt
+            exact = np.concatenate((self._exact[w], new))
+            stamped = np.concatenate((self._stamped[w],
+                                      new - self._rng[w].uniform(0.0, self._timer, new.size)))
+            if exact.size >= 2:
+                last = np.searchsorted(exact, t[1:], side='right') - 1
+                first = np.searchsorted(exact, t[1:] - self._window, side='right') - 1
+                first = np.minimum(first, last - 1)
+                ok = first >= 0
+                last, first = last[ok], first[ok]
+                count = self._pitch * (last - first)
+                error[ok, w] = (count / np.maximum(stamped[last] - stamped[first], 1e-12)
+                                - count / (exact[last] - exact[first]))
+            keep = max(int(np.searchsorted(exact, t[-1] - self._window, side='right')) - 2, 0)
+            self._exact[w], self._stamped[w] = exact[keep:], stamped[keep:]
+            self._angle[w] = angle[-1] - tooth[-1] * self._pitch
+        return error
+
+
+@pytest.mark.parametrize('method', ['tooth_period', 'window_average'])
+def test_quantisation_noise_is_its_numpy_form_to_the_bit(method):
+    """The compiled edges and errors are the numpy form's, over any chunking, a standstill,
+    speeds that turn the ring backwards and a reset."""
+    _, rim = _vibrating_wheel(6.0, seed=5)
+    speed = np.column_stack([rim[1:], rim[1:] + 30.0, 0.02 * rim[1:], rim[1:] - 55.5])
+    speed[2000:2300, 0] = 0.0
+    compiled = QuantisationNoise(4, TEETH, FS, TIMER_S, method, WINDOW_S)
+    reference = NumpyQuantisationNoise(4, TEETH, FS, TIMER_S, method, WINDOW_S)
+    rng = np.random.default_rng(6)
+    start, errors = 0, []
+    while start < speed.shape[0]:
+        step = int(rng.integers(0, 400))
+        if start <= 3000 < start + step:
+            compiled.reset(np.array([1]))
+            reference.reset(np.array([1]))
+        chunk = speed[start:start + step]
+        errors.append(compiled.process(chunk))
+        np.testing.assert_array_equal(errors[-1], reference.process(chunk))
+        start += step
+    assert np.all(np.count_nonzero(np.concatenate(errors), axis=0) > 1000)
+
+
 def test_quantisation_noise_waits_for_edges_after_a_reset():
     """A reset wheel reads no noise until it has two new edges; the other wheel goes on."""
     speed = np.full((400, 2), 55.0)

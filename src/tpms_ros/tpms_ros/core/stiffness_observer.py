@@ -66,6 +66,7 @@ from tpms_ros.core.block_least_squares import (
     ls_families,
     solve_normal,
 )
+from tpms_ros.core.filter_kernels import lfilter_columns, normalised, sosfilt_columns
 from tpms_ros.core.nominal_calibration import StoredCalibrationCheck, StoredCalibrationCheckParams
 from tpms_ros.core.tire_model import TorsionalTire
 from tpms_ros.core.tires import N_TIRES, TIRE_NAMES
@@ -746,6 +747,10 @@ class TireStiffnessObserver:
             design = design_observer(model, p.observer_pole_factor, fs)
             cmap = consistency_map(model, design, self._band_sos, fs)
             self._groups.append((wheels, design, cmap))
+        # The observer filters' coefficients as the compiled lfilter takes them, per group.
+        self._observer_filters = [[normalised(b, design.denominator)
+                                   for b in design.numerators]
+                                  for _, design, _ in self._groups]
         # The ECU timer: given, or read from the held tooth periods. Until it is read the
         # synthetic noise runs on a reference step (its products scale with the step squared)
         # and the blocks are not used, so that the least squares and the calibration start
@@ -1152,8 +1157,8 @@ class TireStiffnessObserver:
             (outputs (n, 4, 4) = [th, th_dot, w, band-passed speed], low-passed speed (n, 4),
             (n, 4) samples whose wheel's tooth pattern is learned (all without the correction)).
         """
-        low, self._lowpass_zi = sig.sosfilt(self._lowpass_sos, omega, axis=0,
-                                            zi=self._lowpass_zi)
+        low = np.empty_like(omega)
+        sosfilt_columns(self._lowpass_sos, omega, self._lowpass_zi, low)
         learned = np.ones(omega.shape, dtype=bool)
         if self.params.tooth_correction:
             # The pattern learns in the speed band only: below it the low-passed reference
@@ -1162,34 +1167,35 @@ class TireStiffnessObserver:
             in_band = low * (3.6 * self.params.rolling_radius_m) >= self.params.speed_min_kmh
             omega, learned = self._tooth.process(omega, low, good & in_band)
         out = np.empty(omega.shape + (4,))
-        out[:, :, 3], out[:, :, :3], self._band_zi = self._observe(omega, self._band_zi,
-                                                                   self._obs_zi)
+        out[:, :, 3], out[:, :, :3] = self._observe(omega, self._band_zi, self._obs_zi)
         return out, low, learned
 
     def _observe(self, speed: np.ndarray, band_zi: np.ndarray,
-                 obs_zi: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Band-pass and observer of (n, 4) speeds from the given filter states.
+                 obs_zi: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Band-pass and observer of (n, 4) speeds from the given filter states (``band_zi``
+        and ``obs_zi``, one per tire group, updated in place).
 
         Returns:
-            (band-passed speed (n, 4), observer outputs [th, th_dot, w] (n, 4, 3), the
-            band-pass's new state); ``obs_zi`` (one per tire group) is updated in place.
+            (band-passed speed (n, 4), observer outputs [th, th_dot, w] (n, 4, 3)).
         """
-        band, band_zi = sig.sosfilt(self._band_sos, speed, axis=0, zi=band_zi)
+        band = np.empty_like(speed)
+        sosfilt_columns(self._band_sos, speed, band_zi, band)
         out = np.empty(speed.shape + (3,))
-        for (wheels, design, _), zi in zip(self._groups, obs_zi, strict=True):
+        for (wheels, _, _), filters, zi in zip(self._groups, self._observer_filters, obs_zi,
+                                               strict=True):
             x = band[:, wheels]
-            for k in range(3):
-                out[:, wheels, k], zi[k] = sig.lfilter(design.numerators[k], design.denominator,
-                                                       x, axis=0, zi=zi[k])
-        return band, out, band_zi
+            y = np.empty_like(x)
+            for k, (b, a) in enumerate(filters):
+                lfilter_columns(b, a, x, zi[k], y)
+                out[:, wheels, k] = y
+        return band, out
 
     def _noise_products(self, speed: np.ndarray) -> np.ndarray:
         """(n, 4, 5) products of the synthetic quantisation noise's filtered [th, th_dot, w]
         per sample, at the wheels' (low-passed) speeds (n, 4)."""
         assert self._noise is not None
-        _, filtered, self._noise_band_zi = self._observe(self._noise.process(speed),
-                                                         self._noise_band_zi,
-                                                         self._noise_obs_zi)
+        _, filtered = self._observe(self._noise.process(speed), self._noise_band_zi,
+                                    self._noise_obs_zi)
         rows, cols = zip(*_NOISE_PRODUCTS, strict=True)
         return filtered[..., rows] * filtered[..., cols]
 

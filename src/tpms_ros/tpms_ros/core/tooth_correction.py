@@ -354,24 +354,15 @@ class ToothErrorCorrector:
         self._learned_count += usable.sum(axis=0)
         ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
         weight = (self._learn_decay ** (n - 1 - rows)) * usable
-        slot = (index + self.teeth * wheel_offset).ravel()
-        size = n_wheels * self.teeth
         fade = self._learn_decay ** n
-        self._sum = fade * self._sum + np.bincount(
-            slot, (weight * ratio).ravel(), size).reshape(n_wheels, self.teeth)
-        self._weight = fade * self._weight + np.bincount(
-            slot, weight.ravel(), size).reshape(n_wheels, self.teeth)
-        slot = (angle_index + bins * wheel_offset).ravel()
-        self._angle_sum = fade * self._angle_sum + np.bincount(
-            slot, (weight * ratio).ravel(), n_wheels * bins).reshape(n_wheels, bins)
-        self._angle_weight = fade * self._angle_weight + np.bincount(
-            slot, weight.ravel(), n_wheels * bins).reshape(n_wheels, bins)
-        size = n_wheels * RATE_BANDS * bins
-        shape = self._band_sum.shape
-        self._band_sum = fade * self._band_sum + np.bincount(
-            band_slot.ravel(), (weight * ratio).ravel(), size).reshape(shape)
-        self._band_weight = fade * self._band_weight + np.bincount(
-            band_slot.ravel(), weight.ravel(), size).reshape(shape)
+        weighted = (weight * ratio).ravel()
+        for slot, total, weights in (
+                ((index + self.teeth * wheel_offset).ravel(), self._sum, self._weight),
+                ((angle_index + bins * wheel_offset).ravel(), self._angle_sum,
+                 self._angle_weight),
+                (band_slot.ravel(), self._band_sum, self._band_weight)):
+            _forget_and_add(total, fade, slot, weighted)
+            _forget_and_add(weights, fade, slot, weight.ravel())
         self._form.add(change, edge_rate, usable)
 
         # Carry the state; shift phase and offset together by whole rings (keeps them small).
@@ -495,3 +486,12 @@ class ToothErrorCorrector:
                                                         axis=-1)
         self._form.judge()
 
+
+def _forget_and_add(total: np.ndarray, fade: float, slot: np.ndarray,
+                    values: np.ndarray) -> None:
+    """``total = fade * total + values scattered into the flat slots``, in place: a new array
+    per chunk for the rate-band sums (4 x 100 x 192 per wheel set) cost ten times the
+    arithmetic (fresh pages), a third of a millisecond on every call."""
+    total *= fade
+    flat = total.reshape(-1)
+    flat += np.bincount(slot, values, total.size)

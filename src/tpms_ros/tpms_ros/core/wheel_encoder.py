@@ -16,10 +16,13 @@ from __future__ import annotations
 import bisect
 import math
 
+from numba import njit, types
 import numpy as np
 import scipy.signal as sig
 
 from tpms_ros.core.tooth_correction import ANGLE_MODE_ON, MIN_FORM_TEETH
+
+_F1 = types.float64[:]
 
 SPEED_METHODS = ('tooth_period', 'window_average')
 """How an ECU forms the speed from the tooth edges (:func:`encoder_wheel_speed`)."""
@@ -156,42 +159,95 @@ class QuantisationNoise:
     def process(self, speed: np.ndarray) -> np.ndarray:
         """(n, wheels) smooth speeds, rad/s -> (n, wheels) quantisation error, rad/s."""
         n = speed.shape[0]
-        t = (self._samples + np.arange(n + 1)) * self._dt  # t[0]: the last sample before
-        self._samples += n
         error = np.zeros(speed.shape)
         for w in range(speed.shape[1]):
-            angle = self._angle[w] + np.concatenate(([0.0], np.cumsum(speed[:, w] * self._dt)))
-            tooth = np.floor(angle / self._pitch)
-            crossed = np.maximum(tooth[1:] - tooth[:-1], 0.0).astype(int)
-            rows = np.repeat(np.arange(n), crossed)
-            edge_tooth = _edge_teeth(tooth, crossed)
-            frac = (edge_tooth * self._pitch - angle[rows]) / np.maximum(
-                angle[rows + 1] - angle[rows], 1e-300)
-            new = t[rows] + frac * self._dt
+            new = np.empty(_max_edges(speed[:, w], self._dt, self._pitch))
+            count, self._angle[w] = _edge_times(np.ascontiguousarray(speed[:, w]),
+                                                self._angle[w], self._samples, self._dt,
+                                                self._pitch, new)
+            new = new[:count]
             exact = np.concatenate((self._exact[w], new))
             stamped = np.concatenate((self._stamped[w],
                                       new - self._rng[w].uniform(0.0, self._timer, new.size)))
-            if exact.size >= 2:
-                last = np.searchsorted(exact, t[1:], side='right') - 1
-                first = np.searchsorted(exact, t[1:] - self._window, side='right') - 1
-                first = np.minimum(first, last - 1)
-                ok = first >= 0
-                last, first = last[ok], first[ok]
-                count = self._pitch * (last - first)
-                error[ok, w] = (count / np.maximum(stamped[last] - stamped[first], 1e-12)
-                                - count / (exact[last] - exact[first]))
+            column = np.zeros(n)
+            keep = _speed_error(exact, stamped, self._samples, self._dt, self._window,
+                                self._pitch, column)
+            error[:, w] = column
             # Keep the edges a later reading can reach back to.
-            keep = max(int(np.searchsorted(exact, t[-1] - self._window, side='right')) - 2, 0)
             self._exact[w], self._stamped[w] = exact[keep:], stamped[keep:]
-            self._angle[w] = angle[-1] - tooth[-1] * self._pitch
+        self._samples += n
         return error
 
 
-def _edge_teeth(tooth: np.ndarray, crossed: np.ndarray) -> np.ndarray:
-    """The teeth crossed in each sample, in order: ``tooth[i] + 1 .. tooth[i + 1]``."""
-    starts = np.repeat(tooth[:-1] + 1, crossed)
-    offsets = np.arange(crossed.sum()) - np.repeat(np.cumsum(crossed) - crossed, crossed)
-    return starts + offsets
+def _max_edges(speed: np.ndarray, dt: float, pitch: float) -> int:
+    """At least the number of tooth edges ``speed`` (rad/s, one wheel) crosses in its samples:
+    the size :func:`_edge_times` may fill."""
+    return int(np.sum(np.maximum(speed, 0.0)) * dt / pitch) + speed.size + 1
+
+
+@njit(types.Tuple((types.int64, types.float64))(_F1, types.float64, types.int64,
+                                                types.float64, types.float64, _F1),
+      cache=True, error_model='numpy')
+def _edge_times(speed: np.ndarray, angle: float, samples: int, dt: float, pitch: float,
+                edges: np.ndarray) -> tuple[int, float]:
+    """The exact times of the tooth edges one wheel's ring crosses over a chunk, compiled
+    (numba): the ring turns by ``speed * dt`` per sample from ``angle`` (rad past its last
+    tooth), and an edge falls where the angle crosses a tooth, at the time interpolated within
+    its sample (sample ``i`` of the chunk ends at ``(samples + i + 1) * dt``).
+
+    Why compiled: as numpy (a cumulative angle, the teeth crossed per sample repeated into
+    edges) it was some fifteen array calls per wheel and chunk, with the error below a fifth
+    of the stiffness observer's cost per chunk. The operations are numpy's, in its order
+    (test/tpms_ros/core/test_wheel_encoder.py holds the two to the bit).
+
+    Returns:
+        (edges written to ``edges``, the angle past the last tooth at the chunk's end).
+    """
+    count = 0
+    total = 0.0             # numpy's cumsum: a running sum, then added to the start angle
+    before = angle
+    tooth_before = math.floor(before / pitch)
+    for i in range(speed.shape[0]):
+        total += speed[i] * dt
+        after = angle + total
+        tooth_after = math.floor(after / pitch)
+        crossed = int(max(tooth_after - tooth_before, 0.0))
+        if crossed:
+            start = (samples + i) * dt
+            span = max(after - before, 1e-300)
+            for k in range(crossed):
+                frac = ((tooth_before + 1.0 + k) * pitch - before) / span
+                edges[count] = start + frac * dt
+                count += 1
+        before, tooth_before = after, tooth_after
+    return count, before - tooth_before * pitch
+
+
+@njit(types.int64(_F1, _F1, types.int64, types.float64, types.float64, types.float64, _F1),
+      cache=True, error_model='numpy')
+def _speed_error(exact: np.ndarray, stamped: np.ndarray, samples: int, dt: float,
+                 window: float, pitch: float, error: np.ndarray) -> int:
+    """One wheel's speed from its stamped edges minus the speed from its exact ones at each
+    sample of a chunk, as :func:`encoder_wheel_speed` forms it (the edges in the last
+    ``window`` s, at least two; 0 where there are fewer), compiled (numba) with
+    :func:`_edge_times`.
+
+    Returns:
+        The index of the first edge a later chunk can still reach back to.
+    """
+    end = samples * dt
+    for i in range(error.shape[0]):
+        end = (samples + i + 1) * dt
+        if exact.shape[0] < 2:
+            continue
+        last = np.searchsorted(exact, end, side='right') - 1
+        first = min(np.searchsorted(exact, end - window, side='right') - 1, last - 1)
+        if first < 0:
+            continue
+        count = pitch * (last - first)
+        error[i] = (count / max(stamped[last] - stamped[first], 1e-12)
+                    - count / (exact[last] - exact[first]))
+    return max(int(np.searchsorted(exact, end - window, side='right')) - 2, 0)
 
 
 class TimerLattice:
