@@ -7,7 +7,14 @@ import pytest
 import scipy.signal as sig
 
 from tpms_ros.core import tooth_correction
-from tpms_ros.core.tooth_correction import ToothErrorCorrector
+from tpms_ros.core.tooth_correction import (
+    BINS_PER_TOOTH,
+    NO_EDGE,
+    RATE_BAND,
+    RATE_BANDS,
+    SLOW_HOLD,
+    ToothErrorCorrector,
+)
 from tpms_ros.core.wheel_encoder import encoder_wheel_speed
 
 FS = 1000.0
@@ -152,3 +159,116 @@ def test_a_window_average_faster_than_the_samples_stays_corrected(window_s: floa
     fast = slice(40000, None)
     assert corrector.angle_mode[0] and learned[fast].all()
     assert _error(out[fast], clean[fast]) < 0.6 * _error(measured[fast], clean[fast])
+
+
+class NumpyToothCorrector(ToothErrorCorrector):
+    """The numpy form of ``ToothErrorCorrector._segment`` that the compiled kernel replaced
+    (the reference it is held to)."""
+
+    def _segment(self, speed: np.ndarray, reference: np.ndarray,
+                 learn: np.ndarray) -> np.ndarray:
+        n, n_wheels = speed.shape
+        edge_rate = speed * self._cycle                 # edges per sample
+        angle_mode = self._form.angle_mode
+        phase = self._phase + np.cumsum(edge_rate, axis=0)
+        previous = np.concatenate((self._previous[None], speed[:-1]))
+        change = speed != previous
+        rows = np.arange(n)[:, None]
+        last = np.maximum.accumulate(np.where(change, rows, self._edge_row[None]), axis=0)
+        before = np.concatenate((self._edge_row[None], last[:-1]))
+        hold = rows - before
+        slow = change & (before != NO_EDGE) & (hold >= SLOW_HOLD)
+        # over a slow tooth the new value replaces the one held on the hold's earlier samples:
+        # the tooth phase is the integral plus those catch-ups
+        catch_up = np.where(slow, (hold - 1) * (speed - previous) * self._cycle, 0.0)
+        edge_phase = phase + (self._edge_phase - self._phase) + np.cumsum(catch_up, axis=0)
+        unit = np.where(change, np.exp(2j * np.pi * edge_phase), 0.0)
+        decay = self._phase_decay
+        phasor, _ = sig.lfilter([1.0], [1.0, -decay], unit, axis=0,
+                                zi=decay * self._phasor[None])
+        wrapped = np.angle(phasor) / (2.0 * np.pi)
+        step = np.diff(np.concatenate((self._offset[None], wrapped)), axis=0)
+        offset = self._offset + np.cumsum(step - np.round(step), axis=0)
+        counted = np.round(edge_phase - offset).astype(np.int64)
+        tooth = np.where(last >= 0, np.take_along_axis(counted, np.maximum(last, 0), axis=0),
+                         self._tooth[None])
+        index = tooth % self.teeth
+        bins = BINS_PER_TOOTH * self.teeth
+        angle_index = np.floor(phase * BINS_PER_TOOTH).astype(np.int64) % bins
+        band = np.minimum((edge_rate / RATE_BAND).astype(np.int64), RATE_BANDS - 1)
+        wheel_offset = np.arange(n_wheels)[None]
+        band_slot = angle_index + bins * (band + RATE_BANDS * wheel_offset)
+        log_error = np.where(
+            angle_mode[None],
+            self._band_pattern.ravel()[band_slot],
+            np.take_along_axis(self._pattern, index.T, axis=1).T)
+        corrected = speed * np.exp(-log_error)
+
+        # Learn: per-sample exponential forgetting, scattered into the teeth by bincount.
+        usable = learn & (speed > 0.0) & (reference > 0.0)
+        self._learned_count += usable.sum(axis=0)
+        ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
+        weight = (self._learn_decay ** (n - 1 - rows)) * usable
+        fade = self._learn_decay ** n
+        weighted = (weight * ratio).ravel()
+        for slot, total, weights in (
+                ((index + self.teeth * wheel_offset).ravel(), self._sum, self._weight),
+                ((angle_index + bins * wheel_offset).ravel(), self._angle_sum,
+                 self._angle_weight),
+                (band_slot.ravel(), self._band_sum, self._band_weight)):
+            total *= fade
+            total.reshape(-1)[:] += np.bincount(slot, weighted, total.size)
+            weights *= fade
+            weights.reshape(-1)[:] += np.bincount(slot, weight.ravel(), weights.size)
+        self._form.add(change, edge_rate, usable)
+
+        # Carry the state; shift phase and offset together by whole rings (keeps them small).
+        ring = np.floor(offset[-1] / self.teeth) * self.teeth
+        self._phase = phase[-1] - ring
+        self._edge_phase = edge_phase[-1] - ring
+        self._edge_row = np.where(last[-1] == NO_EDGE, NO_EDGE, last[-1] - n)
+        self._offset = offset[-1] - ring
+        self._phasor = phasor[-1]
+        self._tooth = tooth[-1] - ring.astype(np.int64)
+        self._previous = speed[-1].copy()
+        return corrected
+
+
+@pytest.mark.parametrize('method', ['tooth_period', 'window_average'])
+def test_the_compiled_segment_is_its_numpy_form(method: str) -> None:
+    """Corrected speeds and the learned state agree with the numpy form to a few units of the
+    last place (exp, log, atan2 and pow are the C library's in the kernel, numpy's own vector
+    versions in the reference) over 30 s of two wheels in uneven chunks, a crawl with stops
+    and a reset, whichever form (tooth count or angle) the pattern takes."""
+    measured, _ = _ring_speed(method, 80.0, seconds=30.0)
+    slow, _ = _ring_speed(method, 3.0, seconds=30.0, ring_seed=5)
+    slow[5000:6000] = 0.0
+    speed = np.column_stack([measured, slow])
+    sos = sig.butter(2, 5.0, fs=FS, output='sos')
+    reference = sig.sosfilt(sos, speed, axis=0,
+                               zi=sig.sosfilt_zi(sos)[:, :, None] * speed[0])[0]
+    learn = np.ones(speed.shape, dtype=bool)
+    learn[8000:9000, 1] = False
+    compiled, numpy_form = (cls(2, TEETH, FS, 10.0, 0.5, 250, learned_s=5.0)
+                            for cls in (ToothErrorCorrector, NumpyToothCorrector))
+    rng = np.random.default_rng(7)
+    start, seen = 0, 0
+    while start < speed.shape[0]:
+        stop = start + int(rng.integers(1, 400))
+        if start <= 20000 < stop:
+            compiled.reset(np.array([1]))
+            numpy_form.reset(np.array([1]))
+        args = (speed[start:stop], reference[start:stop], learn[start:stop])
+        out, learned = compiled.process(*args)
+        expected, expected_learned = numpy_form.process(*args)
+        np.testing.assert_allclose(out, expected, rtol=1e-13, atol=0.0)
+        np.testing.assert_array_equal(learned, expected_learned)
+        seen += int(np.count_nonzero(out != args[0]))
+        start = stop
+    for name in ('_phase', '_edge_phase', '_offset', '_sum', '_weight', '_angle_sum',
+                 '_band_sum', '_band_weight', '_pattern', '_band_pattern'):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(numpy_form, name),
+                                   rtol=1e-11, atol=1e-13, err_msg=name)
+    for name in ('_edge_row', '_tooth', '_learned', '_window'):
+        np.testing.assert_array_equal(getattr(compiled, name), getattr(numpy_form, name))
+    assert seen > speed.size // 2      # the pattern was learned and applied

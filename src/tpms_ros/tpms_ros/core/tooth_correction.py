@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import math
 
+from numba import njit, types
 import numpy as np
-import scipy.signal as sig
 
 # A held tooth period changes at most once per edge (<= 1 change per tooth); a window average
 # also changes when an edge leaves the window, 1 + (1 - edges per sample) changes per tooth.
@@ -231,6 +231,10 @@ class ToothErrorCorrector:
         self._band_weight = np.zeros((n_wheels, RATE_BANDS, bins))
         # The pattern each band applies (the window model's); the pooled one until fitted.
         self._band_pattern = np.zeros((n_wheels, RATE_BANDS, bins))
+        # Each segment's learning before it is added to the sums (see _segment_kernel).
+        self._scratch = tuple(np.zeros(array.size) for array in (
+            self._sum, self._weight, self._angle_sum, self._angle_weight, self._band_sum,
+            self._band_weight))
         # The window model (see Window model): the fitted window's index in WINDOW_SAMPLES
         # (the ECU's, so a reset keeps it), how many refreshes it has held, and the ring's
         # spectrum p_h where fitted.
@@ -312,68 +316,20 @@ class ToothErrorCorrector:
 
     def _segment(self, speed: np.ndarray, reference: np.ndarray,
                  learn: np.ndarray) -> np.ndarray:
-        n, n_wheels = speed.shape
-        edge_rate = speed * self._cycle                 # edges per sample
-        angle_mode = self._form.angle_mode
-        phase = self._phase + np.cumsum(edge_rate, axis=0)
-        previous = np.concatenate((self._previous[None], speed[:-1]))
-        change = speed != previous
-        rows = np.arange(n)[:, None]
-        last = np.maximum.accumulate(np.where(change, rows, self._edge_row[None]), axis=0)
-        before = np.concatenate((self._edge_row[None], last[:-1]))
-        hold = rows - before
-        slow = change & (before != NO_EDGE) & (hold >= SLOW_HOLD)
-        # over a slow tooth the new value replaces the one held on the hold's earlier samples:
-        # the tooth phase is the integral plus those catch-ups
-        catch_up = np.where(slow, (hold - 1) * (speed - previous) * self._cycle, 0.0)
-        edge_phase = phase + (self._edge_phase - self._phase) + np.cumsum(catch_up, axis=0)
-        unit = np.where(change, np.exp(2j * np.pi * edge_phase), 0.0)
-        decay = self._phase_decay
-        phasor, _ = sig.lfilter([1.0], [1.0, -decay], unit, axis=0,
-                                zi=decay * self._phasor[None])
-        wrapped = np.angle(phasor) / (2.0 * np.pi)
-        step = np.diff(np.concatenate((self._offset[None], wrapped)), axis=0)
-        offset = self._offset + np.cumsum(step - np.round(step), axis=0)
-        counted = np.round(edge_phase - offset).astype(np.int64)
-        tooth = np.where(last >= 0, np.take_along_axis(counted, np.maximum(last, 0), axis=0),
-                         self._tooth[None])
-        index = tooth % self.teeth
-        bins = BINS_PER_TOOTH * self.teeth
-        angle_index = np.floor(phase * BINS_PER_TOOTH).astype(np.int64) % bins
-        band = np.minimum((edge_rate / RATE_BAND).astype(np.int64), RATE_BANDS - 1)
-        wheel_offset = np.arange(n_wheels)[None]
-        band_slot = angle_index + bins * (band + RATE_BANDS * wheel_offset)
-        log_error = np.where(
-            angle_mode[None],
-            self._band_pattern.ravel()[band_slot],
-            np.take_along_axis(self._pattern, index.T, axis=1).T)
-        corrected = speed * np.exp(-log_error)
-
-        # Learn: per-sample exponential forgetting, scattered into the teeth by bincount.
-        usable = learn & (speed > 0.0) & (reference > 0.0)
-        self._learned_count += usable.sum(axis=0)
-        ratio = np.log(np.where(usable, speed, 1.0) / np.where(usable, reference, 1.0))
-        weight = (self._learn_decay ** (n - 1 - rows)) * usable
-        fade = self._learn_decay ** n
-        weighted = (weight * ratio).ravel()
-        for slot, total, weights in (
-                ((index + self.teeth * wheel_offset).ravel(), self._sum, self._weight),
-                ((angle_index + bins * wheel_offset).ravel(), self._angle_sum,
-                 self._angle_weight),
-                (band_slot.ravel(), self._band_sum, self._band_weight)):
-            _forget_and_add(total, fade, slot, weighted)
-            _forget_and_add(weights, fade, slot, weight.ravel())
-        self._form.add(change, edge_rate, usable)
-
-        # Carry the state; shift phase and offset together by whole rings (keeps them small).
-        ring = np.floor(offset[-1] / self.teeth) * self.teeth
-        self._phase = phase[-1] - ring
-        self._edge_phase = edge_phase[-1] - ring
-        self._edge_row = np.where(last[-1] == NO_EDGE, NO_EDGE, last[-1] - n)
-        self._offset = offset[-1] - ring
-        self._phasor = phasor[-1]
-        self._tooth = tooth[-1] - ring.astype(np.int64)
-        self._previous = speed[-1].copy()
+        corrected = np.empty_like(speed)
+        change = np.empty(speed.shape, dtype=bool)
+        usable = np.empty(speed.shape, dtype=bool)
+        _segment_kernel(
+            np.ascontiguousarray(speed), np.ascontiguousarray(reference),
+            np.ascontiguousarray(learn), self._form.angle_mode, self._cycle, self._phase_decay,
+            self._learn_decay, self._pattern, self._band_pattern.reshape(-1),
+            self._phase, self._edge_phase, self._edge_row, self._offset, self._phasor,
+            self._tooth, self._previous, self._learned_count,
+            (self._sum.reshape(-1), self._weight.reshape(-1), self._angle_sum.reshape(-1),
+             self._angle_weight.reshape(-1), self._band_sum.reshape(-1),
+             self._band_weight.reshape(-1)),
+            self._scratch, corrected, change, usable)
+        self._form.add(change, speed * self._cycle, usable)
         return corrected
 
     @staticmethod
@@ -487,11 +443,127 @@ class ToothErrorCorrector:
         self._form.judge()
 
 
-def _forget_and_add(total: np.ndarray, fade: float, slot: np.ndarray,
-                    values: np.ndarray) -> None:
-    """``total = fade * total + values scattered into the flat slots``, in place: a new array
-    per chunk for the rate-band sums (4 x 100 x 192 per wheel set) cost ten times the
-    arithmetic (fresh pages), a third of a millisecond on every call."""
-    total *= fade
-    flat = total.reshape(-1)
-    flat += np.bincount(slot, values, total.size)
+
+_F1, _F2, _B1, _B2, _I1 = (types.float64[:], types.float64[:, :], types.boolean[:],
+                           types.boolean[:, :], types.int64[:])
+_SUMS = types.UniTuple(types.float64[:], 6)
+
+
+@njit(types.void(_F2, _F2, _B2, _B1, types.float64, types.float64, types.float64, _F2, _F1,
+                 _F1, _F1, _I1, _F1, types.complex128[:], _I1, _F1, _F1, _SUMS, _SUMS, _F2,
+                 _B2, _B2),
+      cache=True, error_model='numpy')
+def _segment_kernel(speed: np.ndarray, reference: np.ndarray, learn: np.ndarray,
+                    angle_mode: np.ndarray, cycle: float, phase_decay: float,
+                    learn_decay: float, pattern: np.ndarray, band_pattern: np.ndarray,
+                    phase: np.ndarray, edge_phase: np.ndarray, edge_row: np.ndarray,
+                    offset: np.ndarray, phasor: np.ndarray, tooth: np.ndarray,
+                    previous: np.ndarray, learned_count: np.ndarray,
+                    sums: tuple[np.ndarray, ...], scratch: tuple[np.ndarray, ...],
+                    corrected: np.ndarray, change: np.ndarray, usable: np.ndarray) -> None:
+    """One segment of :meth:`ToothErrorCorrector._segment`, compiled (numba): the tooth count
+    and angle per sample, the correction, and the learning sums (faded by the segment, the
+    samples scattered into their tooth, angle bin and rate band); the per-wheel state (phase,
+    edge phase and row, offset, phasor, tooth, previous speed, learned count) and the sums
+    (tooth sum and weight, angle, band: flat) updated in place.
+
+    Why compiled: as numpy it was some sixty array calls per segment (cumulative sums and
+    maxima, the phasor's recursion, gathers and six scatters), about 0.3 ms whatever the
+    segment's length, a third of the stiffness observer's cost per chunk. The operations are
+    the numpy form's, in its order; exp, log and atan2 are the C library's where numpy has
+    vector versions of its own, so the two agree to a few units of the last place
+    (test/tpms_ros/core/test_tooth_correction.py holds this to the numpy form).
+
+    Args:
+        speed, reference, learn: (n, wheels) as :meth:`ToothErrorCorrector.process`.
+        scratch: per sum, a zeroed array of its size (left zeroed).
+        corrected: (n, wheels) output, the corrected speeds; ``change``: whether each sample
+            changed from the one before; ``usable``: whether it was learned from.
+    """
+    n, n_wheels = speed.shape
+    teeth = pattern.shape[1]
+    bins = BINS_PER_TOOTH * teeth
+    fade = learn_decay ** np.float64(n)
+    two_pi = 2.0 * math.pi
+    counted = np.empty(n, dtype=np.int64)
+    touched = np.empty((3, n, n_wheels), dtype=np.int64)   # each sample's three slots
+    for w in range(n_wheels):
+        phase_0, wrapped_before, offset_0 = phase[w], offset[w], offset[w]
+        shift = edge_phase[w] - phase_0
+        advance = catch_up = unwrap = 0.0      # numpy's cumulative sums, added after
+        last = edge_row[w]
+        held = previous[w]
+        z_re, z_im = phase_decay * phasor[w].real, phase_decay * phasor[w].imag
+        y_re, y_im = phasor[w].real, phasor[w].imag
+        tooth_now, x_phase, x, off = tooth[w], phase_0, 0.0, offset_0
+        for i in range(n):
+            value = speed[i, w]
+            rate = value * cycle
+            advance += rate
+            x_phase = phase_0 + advance
+            moved = value != held
+            before = last
+            if moved:
+                last = max(last, i)
+                hold = i - before
+                if before != NO_EDGE and hold >= SLOW_HOLD:
+                    catch_up += (hold - 1) * (value - held) * cycle
+                else:
+                    catch_up += 0.0
+            else:
+                catch_up += 0.0
+            x = x_phase + shift + catch_up
+            # the phasor: y = z + unit, z = decay * y (scipy's lfilter of 1 / (1 - decay z^-1))
+            if moved:
+                angle = two_pi * x
+                y_re, y_im = z_re + math.cos(angle), z_im + math.sin(angle)
+            else:
+                y_re, y_im = z_re + 0.0, z_im + 0.0
+            z_re, z_im = phase_decay * y_re, phase_decay * y_im
+            wrapped = math.atan2(y_im, y_re) / two_pi
+            step = wrapped - wrapped_before
+            wrapped_before = wrapped
+            unwrap += step - np.rint(step)
+            off = offset_0 + unwrap
+            counted[i] = np.int64(np.rint(x - off))
+            if last >= 0:
+                tooth_now = counted[last]
+            index = tooth_now % teeth
+            angle_index = np.int64(math.floor(x_phase * BINS_PER_TOOTH)) % bins
+            band = min(int(rate / RATE_BAND), RATE_BANDS - 1)
+            band_slot = angle_index + bins * (band + RATE_BANDS * w)
+            log_error = band_pattern[band_slot] if angle_mode[w] else pattern[w, index]
+            corrected[i, w] = value * math.exp(-log_error)
+            change[i, w] = moved
+            # learning: per-sample exponential forgetting
+            ok = learn[i, w] and value > 0.0 and reference[i, w] > 0.0
+            usable[i, w] = ok
+            ratio = math.log(value / reference[i, w]) if ok else 0.0
+            weight = learn_decay ** np.float64(n - 1 - i) if ok else 0.0
+            touched[0, i, w] = index + teeth * w
+            touched[1, i, w] = angle_index + bins * w
+            touched[2, i, w] = band_slot
+            for k in range(3):
+                scratch[2 * k][touched[k, i, w]] += weight * ratio
+                scratch[2 * k + 1][touched[k, i, w]] += weight
+            learned_count[w] += 1.0 if ok else 0.0
+            held = value
+        # carry the state; shift phase and offset together by whole rings (keeps them small)
+        ring = math.floor(off / teeth) * teeth
+        phase[w] = x_phase - ring
+        edge_phase[w] = x - ring
+        edge_row[w] = NO_EDGE if last == NO_EDGE else last - n
+        offset[w] = off - ring
+        phasor[w] = complex(y_re, y_im)
+        tooth[w] = tooth_now - np.int64(ring)
+        previous[w] = held
+    for k in range(6):
+        total, added = sums[k], scratch[k]
+        for j in range(total.shape[0]):
+            total[j] *= fade
+        # bincount's order: each slot's samples summed from 0 in sample order, then added
+        for w in range(n_wheels):
+            for i in range(n):
+                slot = touched[k // 2, i, w]
+                total[slot] += added[slot]
+                added[slot] = 0.0
