@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from filterpy.kalman import KalmanFilter
 import numpy as np
 import pytest
-from scipy import signal
+from scipy import optimize, signal
 
 from tpms_ros.core.wheel_radius_analysis import (
     PAIR_SENSITIVITY,
@@ -218,6 +218,59 @@ def test_localise_low_tires_patterns() -> None:
     np.testing.assert_allclose(loc.sigma[:2], 1.0 / np.hypot(w_long, w_lat), rtol=1e-6)
     with pytest.raises(ValueError, match='pair_std'):
         localise_low_tires(np.zeros(4), np.zeros(4), p)
+
+
+def scipy_low_tire_drops(change: np.ndarray, std: np.ndarray, params: WheelRadiusParams
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """The drops and sigmas of ``localise_low_tires`` as scipy and numpy computed them before
+    the compiled kernel (the reference it is held to)."""
+    weight = 1.0 / np.maximum(std, params.radius_noise_floor)
+    design = -PAIR_SENSITIVITY * weight[:, None]
+    target = change * weight
+    ridge = 1e-6 * float(np.max(weight))
+
+    def fit(columns: np.ndarray) -> np.ndarray:
+        drop = np.zeros(4)
+        a_aug = np.vstack([design[:, columns], ridge * np.eye(int(columns.sum()))])
+        b_aug = np.concatenate([target, np.zeros(int(columns.sum()))])
+        drop[columns] = optimize.nnls(a_aug, b_aug)[0]
+        return drop
+
+    def drop_sigma(active: np.ndarray) -> np.ndarray:
+        variance = 1.0 / np.maximum(np.sum(design * design, axis=0), 1e-300)
+        if active.any():
+            columns = design[:, active]
+            variance[active] = np.diag(np.linalg.pinv(columns.T @ columns))
+        return np.maximum(np.sqrt(np.maximum(variance, 0.0)), params.radius_noise_floor)
+
+    drop = fit(np.ones(4, dtype=bool))
+    sigma = drop_sigma(drop > 0.0)
+    while True:
+        active = drop > 0.0
+        weak = active & (drop < params.z_keep * sigma)
+        if not weak.any() or weak.sum() == active.sum():
+            return drop, sigma
+        weakest = np.flatnonzero(weak)[np.argmin((drop / sigma)[weak])]
+        active[weakest] = False
+        drop = fit(active)
+        sigma = drop_sigma(drop > 0.0)
+
+
+def test_the_compiled_localisation_is_scipys() -> None:
+    """On 2000 seeded draws (0-3 low tires of any size, pair noise from far below to far above
+    the losses, stds spread over two decades) the compiled fits give scipy's drops and sigmas
+    to rounding and so the same tires."""
+    rng = np.random.default_rng(20261204)
+    params = WheelRadiusParams()
+    for _ in range(2000):
+        drop = np.where(rng.random(4) < 0.3, rng.uniform(0.0, 4e-3, 4), 0.0)
+        std = 10.0 ** rng.uniform(-4.5, -2.5, 4)
+        change = -PAIR_SENSITIVITY @ drop + rng.normal(0.0, 1.0, 4) * std * rng.uniform(0, 3)
+        expected = scipy_low_tire_drops(change, std, params)
+        loc = localise_low_tires(change, std, params)
+        np.testing.assert_allclose(loc.radius_drop, expected[0], rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(loc.sigma, expected[1], rtol=1e-9)
+        np.testing.assert_array_equal(loc.radius_drop > 0.0, expected[0] > 0.0)
 
 
 def test_a_drop_within_noise_does_not_hide_a_loss_beside_it() -> None:

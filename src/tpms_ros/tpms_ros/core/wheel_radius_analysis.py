@@ -76,7 +76,7 @@ from typing import Any
 
 from numba import njit, types
 import numpy as np
-from scipy import optimize, signal
+from scipy import signal
 
 from tpms_ros.core.nominal_calibration import CalibratedCore, check_calibration_window
 from tpms_ros.core.tires import N_TIRES, TpmsIndication
@@ -551,41 +551,18 @@ def localise_low_tires(offset_change: np.ndarray, pair_std: np.ndarray,
     target = change * weight
     ridge = 1e-6 * float(np.max(weight))
 
-    def fit(columns: np.ndarray) -> np.ndarray:
-        drop = np.zeros(N_TIRES)
-        a_aug = np.vstack([design[:, columns], ridge * np.eye(int(columns.sum()))])
-        b_aug = np.concatenate([target, np.zeros(int(columns.sum()))])
-        drop[columns] = optimize.nnls(a_aug, b_aug)[0]
-        return drop
-
     # Per-tire std of the drop as it was estimated: least squares on the tires found low
     # (the others held at zero). The std from all four columns would be that of a tire's
     # drop relative to the mean of the four (the common mode removed), about half the std
     # of e.g. the rear axle against the front one: a rear-axle drift of 2.5 pair sigmas read
     # as 6 sigmas on the road simulator's nominal driving. A tire not found low gets the std
     # a drop of that tire alone would have.
-    def drop_sigma(active: np.ndarray) -> np.ndarray:
-        variance = 1.0 / np.maximum(np.sum(design * design, axis=0), 1e-300)
-        if active.any():
-            columns = design[:, active]
-            variance[active] = np.diag(np.linalg.pinv(columns.T @ columns))
-        return np.maximum(np.sqrt(np.maximum(variance, 0.0)), params.radius_noise_floor)
-
-    drop = fit(np.ones(N_TIRES, dtype=bool))
-    sigma = drop_sigma(drop > 0.0)
     # A drop within ``z_keep`` sigmas of zero is noise, not a low tire: left in the fit it
     # would make its axle's (or side's) common level look unknown and inflate the sigma of
     # a real loss beside it (measured: a 0.1-sigma drop on RL turned RR's 25 % loss from 7
     # sigmas into 3). Such tires are taken out and the rest refitted, weakest first.
-    while True:
-        active = drop > 0.0
-        weak = active & (drop < params.z_keep * sigma)
-        if not weak.any() or weak.sum() == active.sum():
-            break
-        weakest = np.flatnonzero(weak)[np.argmin((drop / sigma)[weak])]
-        active[weakest] = False
-        drop = fit(active)
-        sigma = drop_sigma(drop > 0.0)
+    drop, sigma = _low_tire_drops(design, target, ridge, params.z_keep,
+                                  params.radius_noise_floor)
     residual = float(np.linalg.norm(design @ drop - target))
     z = drop / sigma
     return LowTireLocalisation(
@@ -1227,3 +1204,108 @@ def _wheel_acceleration_filter(omega: np.ndarray, wheel_ok: np.ndarray, dt: np.n
             omega_dot[i, w] = (x - previous) / dt[i]
             previous = x
         last_good[w], last_smooth[w] = held, previous
+
+
+@njit(cache=True, error_model='numpy')
+def _ridge_nnls(design: np.ndarray, target: np.ndarray, ridge: float,
+                columns: np.ndarray) -> np.ndarray:
+    """The non-negative least squares of ``design[:, columns] @ x = target`` with a ridge
+    (rows ``ridge * I`` against zeros); zero outside ``columns``."""
+    index = np.flatnonzero(columns)
+    k, rows = index.size, design.shape[0]
+    a = np.zeros((rows + k, k))
+    b = np.zeros(rows + k)
+    for j in range(k):
+        a[:rows, j] = design[:, index[j]]
+        a[rows + j, j] = ridge
+    b[:rows] = target
+    drop = np.zeros(design.shape[1])
+    drop[index] = _lawson_hanson(a, b)
+    return drop
+
+
+@njit(cache=True, error_model='numpy')
+def _lawson_hanson(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||a x - b|| over x >= 0 (Lawson and Hanson's active set method, as scipy's
+    ``optimize.nnls``; at most 3 n rounds)."""
+    m, n = a.shape
+    column_sum = 0.0
+    for j in range(n):
+        column_sum = max(column_sum, np.sum(np.abs(a[:, j])))
+    tol = 10.0 * np.finfo(np.float64).eps * column_sum * max(m, n)
+    x = np.zeros(n)
+    passive = np.zeros(n, dtype=np.bool_)
+    gradient = a.T @ (b - a @ x)
+    for _ in range(3 * n):
+        entering, best = -1, tol
+        for j in range(n):
+            if not passive[j] and gradient[j] > best:
+                entering, best = j, gradient[j]
+        if entering < 0:
+            break
+        passive[entering] = True
+        while True:
+            index = np.flatnonzero(passive)
+            trial = np.zeros(n)
+            trial[index] = np.linalg.lstsq(np.ascontiguousarray(a[:, index]), b)[0]
+            if np.all(trial[index] > 0.0):
+                x = trial
+                break
+            step = math.inf
+            for k in index:
+                if trial[k] <= 0.0:
+                    step = min(step, x[k] / (x[k] - trial[k]))
+            x = x + step * (trial - x)
+            for k in index:
+                if x[k] <= tol:
+                    passive[k] = False
+                    x[k] = 0.0
+        gradient = a.T @ (b - a @ x)
+    return x
+
+
+@njit(cache=True, error_model='numpy')
+def _drop_sigma(design: np.ndarray, active: np.ndarray, noise_floor: float) -> np.ndarray:
+    """Each tire's drop std: from the least squares on the ``active`` tires where active,
+    of a drop of that tire alone elsewhere; at least ``noise_floor``."""
+    variance = np.empty(design.shape[1])
+    for j in range(design.shape[1]):
+        variance[j] = 1.0 / max(np.sum(design[:, j] * design[:, j]), 1e-300)
+    index = np.flatnonzero(active)
+    if index.size:
+        columns = np.ascontiguousarray(design[:, index])
+        inverse = np.linalg.pinv(columns.T @ columns)
+        for k in range(index.size):
+            variance[index[k]] = inverse[k, k]
+    return np.maximum(np.sqrt(np.maximum(variance, 0.0)), noise_floor)
+
+
+@njit(types.UniTuple(types.float64[:], 2)(types.float64[:, :], types.float64[:], types.float64,
+                                          types.float64, types.float64),
+      cache=True, error_model='numpy')
+def _low_tire_drops(design: np.ndarray, target: np.ndarray, ridge: float, z_keep: float,
+                    noise_floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The drops and their sigmas of :func:`localise_low_tires`, compiled (numba): the
+    non-negative ridge fit on all four tires, then the weak drops taken out one by one.
+
+    Why compiled: as numpy and scipy (``optimize.nnls`` on the stacked ridge system,
+    ``linalg.pinv`` for the sigmas, two or three rounds) it was some 0.5 ms of call overhead
+    on 4 x 4 matrices at every wheel-radius indication, most of the indication's cost and of
+    its latency. The same fits (Lawson-Hanson, the pseudo-inverse by the SVD): the results
+    agree with scipy's to rounding (test/tpms_ros/core/test_wheel_radius_analysis.py).
+    """
+    n = design.shape[1]
+    drop = _ridge_nnls(design, target, ridge, np.ones(n, dtype=np.bool_))
+    sigma = _drop_sigma(design, drop > 0.0, noise_floor)
+    while True:
+        active = drop > 0.0
+        weak = active & (drop < z_keep * sigma)
+        if not weak.any() or weak.sum() == active.sum():
+            return drop, sigma
+        weakest, lowest = -1, math.inf
+        for i in range(n):
+            if weak[i] and drop[i] / sigma[i] < lowest:
+                weakest, lowest = i, drop[i] / sigma[i]
+        active[weakest] = False
+        drop = _ridge_nnls(design, target, ridge, active)
+        sigma = _drop_sigma(design, drop > 0.0, noise_floor)
