@@ -511,15 +511,23 @@ def _read_only(array: np.ndarray) -> np.ndarray:
     return array
 
 
+@njit(types.float64[:](types.float64[:, :]), cache=True, error_model='numpy')
 def _row_median(values: np.ndarray) -> np.ndarray:
-    """Median of each row ignoring NaN (NaN for an all-NaN row), vectorised for few columns."""
-    ordered = np.sort(values, axis=1)  # NaN sorts last
-    count = np.count_nonzero(np.isfinite(values), axis=1)
-    lo = np.clip((count - 1) // 2, 0, None)[:, None]
-    hi = np.clip(count // 2, 0, values.shape[1] - 1)[:, None]
-    mid = 0.5 * (np.take_along_axis(ordered, lo, axis=1)
-                 + np.take_along_axis(ordered, hi, axis=1))[:, 0]
-    return np.where(count > 0, mid, np.nan)
+    """Median of each row ignoring NaN (NaN for an all-NaN row), compiled (numba; as numpy's
+    sort and gathers it was some ten calls, 70 us a chunk of 20 samples)."""
+    out = np.empty(values.shape[0])
+    for i in range(values.shape[0]):
+        ordered = np.sort(values[i])  # NaN sorts last
+        count = 0
+        for value in ordered:
+            count += 1 if np.isfinite(value) else 0
+        if count == 0:
+            out[i] = np.nan
+            continue
+        lo = max((count - 1) // 2, 0)
+        hi = min(count // 2, values.shape[1] - 1)
+        out[i] = 0.5 * (ordered[lo] + ordered[hi])
+    return out
 
 
 # The codes the sensor kernel sets, as plain ints (compile-time constants to numba); a tooth-rate

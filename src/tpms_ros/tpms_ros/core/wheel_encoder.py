@@ -18,8 +18,8 @@ import math
 
 from numba import njit, types
 import numpy as np
-import scipy.signal as sig
 
+from tpms_ros.core.filter_kernels import lfilter_columns, normalised
 from tpms_ros.core.tooth_correction import ANGLE_MODE_ON, MIN_FORM_TEETH
 
 _F1 = types.float64[:]
@@ -292,6 +292,7 @@ class TimerLattice:
         self._pitch = 2.0 * math.pi / teeth
         self._form_decay = math.exp(-1.0 / (form_s * sample_rate_hz))
         self._form = np.zeros((1, 2))     # watch's decaying sums of changes and teeth passed
+        self._form_filter = normalised(np.array([1.0]), np.array([1.0, -self._form_decay]))
         self.window_seen = False
         """The readings turned out to be window averages after the timer was read."""
         self._teeth_per_sample = 1.0 / (self._pitch * sample_rate_hz)   # per rad/s
@@ -368,8 +369,8 @@ class TimerLattice:
         if not self.timer_s or self.window_seen or speed.shape[0] == 0:
             return None
         counts = np.column_stack(self._changes_and_teeth(speed, valid))
-        form, self._form = sig.lfilter([1.0], [1.0, -self._form_decay], counts, axis=0,
-                                       zi=self._form_decay * self._form)
+        form = np.empty_like(counts)
+        lfilter_columns(*self._form_filter, counts, self._form_decay * self._form, form)
         self._form = form[-1:]
         seen = (form[:, 1] >= MIN_FORM_TEETH) & (form[:, 0] > ANGLE_MODE_ON * form[:, 1])
         if not seen.any():
