@@ -511,23 +511,107 @@ def _read_only(array: np.ndarray) -> np.ndarray:
     return array
 
 
-@njit(types.float64[:](types.float64[:, :]), cache=True, error_model='numpy')
-def _row_median(values: np.ndarray) -> np.ndarray:
-    """Median of each row ignoring NaN (NaN for an all-NaN row), compiled (numba; as numpy's
-    sort and gathers it was some ten calls, 70 us a chunk of 20 samples)."""
-    out = np.empty(values.shape[0])
-    for i in range(values.shape[0]):
-        ordered = np.sort(values[i])  # NaN sorts last
-        count = 0
-        for value in ordered:
-            count += 1 if np.isfinite(value) else 0
-        if count == 0:
-            out[i] = np.nan
-            continue
-        lo = max((count - 1) // 2, 0)
-        hi = min(count // 2, values.shape[1] - 1)
-        out[i] = 0.5 * (ordered[lo] + ordered[hi])
-    return out
+# Rows of _gate_chunk's tallies after the reason codes' counts.
+_TORQUE_INVALID, _STEERING_INVALID = len(REASONS), len(REASONS) + 1
+_EMPTY_1D, _EMPTY_2D = np.zeros(0), np.zeros((0, 0))
+# The gates' codes as plain ints (compile-time constants to numba).
+_SPEED_BAND, _ACCELERATION, _WHEEL_TORQUE, _CORNERING, _WHEEL_SLIP, _TOOTH_LEARNING = (
+    _CODE['speed_band'], _CODE['acceleration'], _CODE['wheel_torque'], _CODE['cornering'],
+    _CODE['wheel_slip'], _CODE['tooth_learning'])
+_AXLE_PARTNER = _CODE['axle_partner']
+
+
+@njit(types.float64(types.float64[:], types.boolean[:]), cache=True, error_model='numpy')
+def _good_median(values: np.ndarray, good: np.ndarray) -> float:
+    """The median of the good ``values`` (NaN if none): the mean of the middle two of an
+    even count."""
+    picked = np.sort(np.where(good, values, np.nan))  # NaN sorts last
+    count = 0
+    for value in picked:
+        count += 1 if np.isfinite(value) else 0
+    if count == 0:
+        return np.nan
+    return 0.5 * (picked[(count - 1) // 2] + picked[count // 2])
+
+
+@njit(types.void(types.float64[:, :], types.float64[:], types.boolean[:, :],
+                 types.int64[:, :], types.float64[:, :], types.float64[:],
+                 types.boolean[:, :], types.float64[:], types.int64[:, :], types.int64[:, :]),
+      cache=True, error_model='numpy')
+def _gate_chunk(lowpass: np.ndarray, previous: np.ndarray, good: np.ndarray, code: np.ndarray,
+                torque: np.ndarray, steering: np.ndarray, learned: np.ndarray,
+                limits: np.ndarray, axles: np.ndarray, tallies: np.ndarray) -> None:
+    """The validity gates of :meth:`TireStiffnessObserver._process`, compiled (numba): per
+    sample, the first gate that applies to a wheel whose code is still OK sets it (speed band,
+    acceleration, wheel torque, cornering, wheel slip against the median of the good wheels,
+    tooth learning), then a driven axle's wheel whose partner is masked is masked too.
+
+    Why compiled: as numpy it was some forty array calls per chunk, a third of the cost of
+    the small chunk that answers an output. Only the same comparisons and arithmetic (tan is
+    the C library's, numpy's own vector version before: it is only compared with a limit).
+
+    Args:
+        lowpass: (n, 4) low-passed speeds; ``previous``: (4,) the one before the chunk.
+        good: (n, 4) valid sensor samples; ``code``: (n, 4) reason codes, updated in place.
+        torque: (n, 4) wheel torques, or (0, 0) without; ``steering``: (n,) or (0,) without.
+        learned: (n, 4) samples whose tooth pattern is learned.
+        limits: sample rate, rolling radius, speed band low and high (km/h), max acceleration,
+            max wheel torque, max lateral acceleration, wheelbase, max slip.
+        axles: (k, 2) the driven axles' wheels.
+        tallies: (len(REASONS) + 2, 4), incremented: the codes' counts per wheel, then the
+            invalid torques per wheel and the invalid steering angles (on every wheel).
+    """
+    fs, radius, band_low, band_high, max_accel, max_torque, max_lateral, wheelbase, max_slip = (
+        limits[0], limits[1], limits[2], limits[3], limits[4], limits[5], limits[6], limits[7],
+        limits[8])
+    n, n_wheels = lowpass.shape
+    with_torque, with_steering = torque.shape[0] > 0, steering.shape[0] > 0
+    masked = np.empty(n_wheels, dtype=np.bool_)
+    for i in range(n):
+        ref = _good_median(lowpass[i], good[i])
+        cornering = False
+        if with_steering:
+            angle = steering[i]
+            if not np.isfinite(angle):
+                for w in range(n_wheels):
+                    tallies[_STEERING_INVALID, w] += 1
+                angle = 0.0
+            speed_mps = ref * radius
+            lateral = speed_mps ** 2 * abs(math.tan(angle)) / wheelbase
+            cornering = not math.isnan(lateral) and lateral > max_lateral
+        for w in range(n_wheels):
+            low = lowpass[i, w]
+            before = previous[w] if i == 0 else lowpass[i - 1, w]
+            speed_kmh = low * radius * 3.6
+            torque_hit = False
+            if with_torque:
+                if np.isfinite(torque[i, w]):
+                    torque_hit = abs(torque[i, w]) > max_torque
+                else:
+                    tallies[_TORQUE_INVALID, w] += 1
+            slip = abs(low / ref - 1.0)
+            if code[i, w] != OK:
+                continue
+            if speed_kmh < band_low or speed_kmh > band_high:
+                code[i, w] = _SPEED_BAND
+            elif abs((low - before) * fs * radius) > max_accel:
+                code[i, w] = _ACCELERATION
+            elif torque_hit:
+                code[i, w] = _WHEEL_TORQUE
+            elif cornering:
+                code[i, w] = _CORNERING
+            elif np.isfinite(slip) and slip > max_slip:
+                code[i, w] = _WHEEL_SLIP
+            elif not learned[i, w]:
+                code[i, w] = _TOOTH_LEARNING
+        for w in range(n_wheels):
+            masked[w] = code[i, w] != OK
+        for k in range(axles.shape[0]):
+            left, right = axles[k, 0], axles[k, 1]
+            if masked[left] != masked[right]:
+                code[i, right if masked[left] else left] = _AXLE_PARTNER
+        for w in range(n_wheels):
+            tallies[code[i, w], w] += 1
 
 
 # The codes the sensor kernel sets, as plain ints (compile-time constants to numba); a tooth-rate
@@ -789,6 +873,11 @@ class TireStiffnessObserver:
         self._channels = 4 + (len(_NOISE_PRODUCTS) if self._noise_timer_s > 0.0 else 0)
         self._model_k = np.array([t.k for t in self.tires])
         self._axles = [AXLES[name] for name in p.driven_axles]
+        self._axle_pairs = np.array(self._axles, dtype=np.int64).reshape(-1, 2)
+        self._gate_limits = np.array([
+            p.sample_rate_hz, p.rolling_radius_m, p.speed_band_kmh[0], p.speed_band_kmh[1],
+            p.max_accel_mps2, p.max_wheel_torque_nm, p.max_lateral_accel_mps2, p.wheelbase_m,
+            p.max_slip], dtype=float)
         self._partner = np.arange(N_WHEELS)
         for left, right in self._axles:
             self._partner[[left, right]] = right, left
@@ -1318,7 +1407,6 @@ class TireStiffnessObserver:
                  wheel_torque: np.ndarray | None, steering_angle: np.ndarray | None) -> None:
         p = self.params
         n = omega.shape[0]
-        fs = p.sample_rate_hz
 
         # --- per-sample sensor validity, resets, hold of bad samples, settling ---------------
         # Held values for bad samples keep the filters finite; they are masked and the wheel
@@ -1346,55 +1434,25 @@ class TireStiffnessObserver:
                 outputs[s:e, :, 4:] = self._noise_products(lowpass[s:e])
             else:
                 outputs[s:e, :, 4:] = 0.0
-        # Previous low-passed speed from before any reset, so the chunking cannot matter
-        # (the derivative at a reset row is masked by the settling anyway).
-        prev_low = np.concatenate((self._prev_lowpass[None], lowpass[:-1]))
-        self._prev_lowpass = lowpass[-1].copy()
 
         # --- validity gates (the data are fine, the method is not valid here) ---------------
-        accel = (lowpass - prev_low) * fs * p.rolling_radius_m
-        speed_kmh = lowpass * p.rolling_radius_m * 3.6
-        ref = _row_median(np.where(good, lowpass, np.nan))[:, None]
-        with np.errstate(invalid='ignore', divide='ignore'):
-            slip = np.abs(lowpass / ref - 1.0)
-        gates = [
-            (_CODE['speed_band'],
-             (speed_kmh < p.speed_band_kmh[0]) | (speed_kmh > p.speed_band_kmh[1])),
-            (_CODE['acceleration'], np.abs(accel) > p.max_accel_mps2),
-        ]
-        if wheel_torque is not None:
-            torque_ok = np.isfinite(wheel_torque)
-            self._counters['torque_invalid'] += (~torque_ok).sum(axis=0)
-            gates.append((_CODE['wheel_torque'],
-                          torque_ok & (np.abs(np.where(torque_ok, wheel_torque, 0.0))
-                                       > p.max_wheel_torque_nm)))
-        if steering_angle is not None:
-            steering_ok = np.isfinite(steering_angle)
-            self._counters['steering_invalid'] += int(np.count_nonzero(~steering_ok))
-            speed_mps = ref[:, 0] * p.rolling_radius_m
-            with np.errstate(invalid='ignore'):
-                lateral = speed_mps ** 2 * np.abs(np.tan(np.where(steering_ok, steering_angle,
-                                                                  0.0))) / p.wheelbase_m
-            gates.append((_CODE['cornering'],
-                          np.broadcast_to((np.nan_to_num(lateral) > p.max_lateral_accel_mps2)
-                                          [:, None], code.shape)))
-        gates.append((_CODE['wheel_slip'], np.isfinite(slip) & (slip > p.max_slip)))
-        # Last, so that a wheel whose tooth pattern is being learned tells the other reasons
-        # its data would not count (the speed band, say) where they apply too.
-        gates.append((_CODE['tooth_learning'], ~learned))
-        for gate_code, hit in gates:  # the first gate that applies to a sample sets its code
-            code = np.where((code == OK) & hit, gate_code, code)
-
-        # Driven axles need both wheels: a wheel whose partner is masked is masked too.
-        wheel_mask = code == OK
-        for left, right in self._axles:
-            both = wheel_mask[:, left] & wheel_mask[:, right]
-            for w in (left, right):
-                code[:, w] = np.where(wheel_mask[:, w] & ~both, _CODE['axle_partner'],
-                                      code[:, w])
+        # Driven axles need both wheels: a wheel whose partner is masked is masked too. The
+        # acceleration differences from the low-passed speed before the chunk, from before any
+        # reset, so the chunking cannot matter (the derivative at a reset row is masked by the
+        # settling anyway).
+        tallies = np.zeros((len(REASONS) + 2, N_WHEELS), dtype=np.int64)
+        _gate_chunk(lowpass, self._prev_lowpass, good, code,
+                    _EMPTY_2D if wheel_torque is None else wheel_torque,
+                    _EMPTY_1D if steering_angle is None else steering_angle, learned,
+                    self._gate_limits, self._axle_pairs, tallies)
+        self._prev_lowpass = lowpass[-1].copy()
         for name in ('axle_partner', 'wheel_slip', 'wheel_torque', 'cornering', 'acceleration',
                      'speed_band', 'tooth_learning'):
-            self._counters[name] += (code == _CODE[name]).sum(axis=0)
+            self._counters[name] += tallies[_CODE[name]]
+        if wheel_torque is not None:
+            self._counters['torque_invalid'] += tallies[_TORQUE_INVALID]
+        if steering_angle is not None:
+            self._counters['steering_invalid'] += tallies[_STEERING_INVALID]
 
         if self._timer_lattice is not None:
             self._read_timer(omega, code)
