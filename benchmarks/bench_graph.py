@@ -17,7 +17,8 @@ Prints (figures, not timed tests; docs/targets.md targets in brackets):
    vs composed: real-time factor and the CPU of each process.
 3. End-to-end latency at real rate: from a wheel-speed sample to the first ``/tpms/warning``
    stamped with it, p50/p99 [p99 < 5 ms], the player (the vehicle's sensors) in a process of
-   its own and the estimators composed in one process or one process each.
+   its own and the estimators composed in one process or one process each, every node on
+   system time and no ``/clock``, as on the vehicle.
    The sample's publish time is its bag time plus the player's schedule offset (the smallest
    receive-minus-stamp delay of any wheel-speed sample).
 4. The CPU the estimators need per second of data at real rate, as on the vehicle: the
@@ -596,11 +597,16 @@ def latency(seconds: float, layout: str, work: Path) -> None:
     ``LATENCY_WARM_UP_S`` of the first sample are left out (start-up, not steady state).
     """
     road = next(d for d in domains() if d.name == 'road')
+    # On the vehicle nothing publishes /clock and the nodes run on system time: so here too,
+    # as in real_rate_cpu (the replay's 200 Hz /clock to every node competed with the samples
+    # for the estimators' executor).
     replay: dict[str, Any] = {
-        'topics': ['/vehicle/wheel_speeds', '/vehicle/imu', '/vehicle/driver_inputs']}
+        'topics': ['/vehicle/wheel_speeds', '/vehicle/imu', '/vehicle/driver_inputs'],
+        'publish_clock': False}
     if layout == 'no_estimators':
         replay['wait_timeout'] = 1.0     # no estimator subscribes, no sync topic will appear
     spec = _real_rate_graph(road, road.scenarios[0], work / f'latency_{layout}', replay)
+    spec = dataclasses.replace(spec, use_sim_time=False)
     context = rclpy.Context()
     rclpy.init(context=context)
     player, estimators = _player_apart(spec, road.player)
