@@ -523,12 +523,20 @@ _AXLE_PARTNER = _CODE['axle_partner']
 
 @njit(types.float64(types.float64[:], types.boolean[:]), cache=True, error_model='numpy')
 def _good_median(values: np.ndarray, good: np.ndarray) -> float:
-    """The median of the good ``values`` (NaN if none): the mean of the middle two of an
-    even count."""
-    picked = np.sort(np.where(good, values, np.nan))  # NaN sorts last
+    """The median of the good, finite ``values`` (NaN if none): the mean of the middle two
+    of an even count (an insertion sort: a handful of values, and numba's sort took seconds
+    to compile)."""
+    picked = np.empty(values.shape[0])
     count = 0
-    for value in picked:
-        count += 1 if np.isfinite(value) else 0
+    for w in range(values.shape[0]):
+        value = values[w]
+        if good[w] and np.isfinite(value):
+            slot = count
+            while slot > 0 and picked[slot - 1] > value:
+                picked[slot] = picked[slot - 1]
+                slot -= 1
+            picked[slot] = value
+            count += 1
     if count == 0:
         return np.nan
     return 0.5 * (picked[(count - 1) // 2] + picked[count // 2])

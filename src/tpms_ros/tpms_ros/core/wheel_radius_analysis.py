@@ -84,6 +84,7 @@ from vehicle_monitor_common.parameters import param
 from vehicle_monitor_common.validation import require_positive
 
 CALIBRATION_VERSION = 3
+_EPS = float(np.finfo(np.float64).eps)
 PAIR_NAMES = ('delta_13', 'delta_24', 'delta_34', 'delta_12')
 GRAVITY = 9.80665
 # d(pair offset) / d(relative radius change eps_i of tire i), to first order:
@@ -1207,21 +1208,85 @@ def _wheel_acceleration_filter(omega: np.ndarray, wheel_ok: np.ndarray, dt: np.n
 
 
 @njit(cache=True, error_model='numpy')
+def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||a x - b|| for ``a`` of full column rank: Householder QR and back substitution,
+    as loops (numba's ``np.linalg.lstsq`` took 5 s to compile at first import)."""
+    m, n = a.shape
+    r, y, v = a.copy(), b.copy(), np.empty(m)
+    for j in range(n):
+        norm = 0.0
+        for i in range(j, m):
+            norm += r[i, j] * r[i, j]
+        norm = math.sqrt(norm)
+        alpha = -norm if r[j, j] > 0.0 else norm
+        length = 0.0
+        for i in range(j, m):
+            v[i] = r[i, j] - (alpha if i == j else 0.0)
+            length += v[i] * v[i]
+        if length == 0.0:
+            continue
+        for k in range(j, n):
+            dot = 0.0
+            for i in range(j, m):
+                dot += v[i] * r[i, k]
+            for i in range(j, m):
+                r[i, k] -= 2.0 * dot / length * v[i]
+        dot = 0.0
+        for i in range(j, m):
+            dot += v[i] * y[i]
+        for i in range(j, m):
+            y[i] -= 2.0 * dot / length * v[i]
+    x = np.zeros(n)
+    for i in range(n - 1, -1, -1):
+        total = y[i]
+        for k in range(i + 1, n):
+            total -= r[i, k] * x[k]
+        x[i] = total / r[i, i]
+    return x
+
+
+@njit(cache=True, error_model='numpy')
 def _ridge_nnls(design: np.ndarray, target: np.ndarray, ridge: float,
                 columns: np.ndarray) -> np.ndarray:
     """The non-negative least squares of ``design[:, columns] @ x = target`` with a ridge
     (rows ``ridge * I`` against zeros); zero outside ``columns``."""
-    index = np.flatnonzero(columns)
-    k, rows = index.size, design.shape[0]
+    rows, n = design.shape
+    k = 0
+    for j in range(n):
+        k += 1 if columns[j] else 0
     a = np.zeros((rows + k, k))
     b = np.zeros(rows + k)
-    for j in range(k):
-        a[:rows, j] = design[:, index[j]]
-        a[rows + j, j] = ridge
-    b[:rows] = target
-    drop = np.zeros(design.shape[1])
-    drop[index] = _lawson_hanson(a, b)
+    index = np.empty(k, dtype=np.int64)
+    c = 0
+    for j in range(n):
+        if columns[j]:
+            index[c] = j
+            for i in range(rows):
+                a[i, c] = design[i, j]
+            a[rows + c, c] = ridge
+            c += 1
+    for i in range(rows):
+        b[i] = target[i]
+    solution = _lawson_hanson(a, b)
+    drop = np.zeros(n)
+    for c in range(k):
+        drop[index[c]] = solution[c]
     return drop
+
+
+@njit(cache=True, error_model='numpy')
+def _gradient(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """a^T (b - a x)."""
+    m, n = a.shape
+    residual = b.copy()
+    for i in range(m):
+        for j in range(n):
+            residual[i] -= a[i, j] * x[j]
+    gradient = np.zeros(n)
+    for j in range(n):
+        for i in range(m):
+            gradient[j] += a[i, j] * residual[i]
+    return gradient
 
 
 @njit(cache=True, error_model='numpy')
@@ -1231,11 +1296,14 @@ def _lawson_hanson(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     m, n = a.shape
     column_sum = 0.0
     for j in range(n):
-        column_sum = max(column_sum, np.sum(np.abs(a[:, j])))
-    tol = 10.0 * np.finfo(np.float64).eps * column_sum * max(m, n)
+        total = 0.0
+        for i in range(m):
+            total += abs(a[i, j])
+        column_sum = max(column_sum, total)
+    tol = 10.0 * _EPS * column_sum * max(m, n)
     x = np.zeros(n)
     passive = np.zeros(n, dtype=np.bool_)
-    gradient = a.T @ (b - a @ x)
+    gradient = _gradient(a, b, x)
     for _ in range(3 * n):
         entering, best = -1, tol
         for j in range(n):
@@ -1245,22 +1313,38 @@ def _lawson_hanson(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             break
         passive[entering] = True
         while True:
-            index = np.flatnonzero(passive)
+            k = 0
+            for j in range(n):
+                k += 1 if passive[j] else 0
+            index = np.empty(k, dtype=np.int64)
+            sub = np.empty((m, k))
+            c = 0
+            for j in range(n):
+                if passive[j]:
+                    index[c] = j
+                    for i in range(m):
+                        sub[i, c] = a[i, j]
+                    c += 1
+            solution = _least_squares(sub, b)
             trial = np.zeros(n)
-            trial[index] = np.linalg.lstsq(np.ascontiguousarray(a[:, index]), b)[0]
-            if np.all(trial[index] > 0.0):
+            positive = True
+            for c in range(k):
+                trial[index[c]] = solution[c]
+                positive = positive and solution[c] > 0.0
+            if positive:
                 x = trial
                 break
             step = math.inf
-            for k in index:
-                if trial[k] <= 0.0:
-                    step = min(step, x[k] / (x[k] - trial[k]))
-            x = x + step * (trial - x)
-            for k in index:
-                if x[k] <= tol:
-                    passive[k] = False
-                    x[k] = 0.0
-        gradient = a.T @ (b - a @ x)
+            for c in range(k):
+                if trial[index[c]] <= 0.0:
+                    step = min(step, x[index[c]] / (x[index[c]] - trial[index[c]]))
+            for j in range(n):
+                x[j] += step * (trial[j] - x[j])
+            for c in range(k):
+                if x[index[c]] <= tol:
+                    passive[index[c]] = False
+                    x[index[c]] = 0.0
+        gradient = _gradient(a, b, x)
     return x
 
 
@@ -1268,16 +1352,37 @@ def _lawson_hanson(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _drop_sigma(design: np.ndarray, active: np.ndarray, noise_floor: float) -> np.ndarray:
     """Each tire's drop std: from the least squares on the ``active`` tires where active,
     of a drop of that tire alone elsewhere; at least ``noise_floor``."""
-    variance = np.empty(design.shape[1])
-    for j in range(design.shape[1]):
-        variance[j] = 1.0 / max(np.sum(design[:, j] * design[:, j]), 1e-300)
-    index = np.flatnonzero(active)
-    if index.size:
-        columns = np.ascontiguousarray(design[:, index])
-        inverse = np.linalg.pinv(columns.T @ columns)
-        for k in range(index.size):
-            variance[index[k]] = inverse[k, k]
-    return np.maximum(np.sqrt(np.maximum(variance, 0.0)), noise_floor)
+    rows, n = design.shape
+    variance = np.empty(n)
+    for j in range(n):
+        total = 0.0
+        for i in range(rows):
+            total += design[i, j] * design[i, j]
+        variance[j] = 1.0 / max(total, 1e-300)
+    k = 0
+    for j in range(n):
+        k += 1 if active[j] else 0
+    if k:
+        index = np.empty(k, dtype=np.int64)
+        c = 0
+        for j in range(n):
+            if active[j]:
+                index[c] = j
+                c += 1
+        gram = np.empty((k, k))
+        for p in range(k):
+            for q in range(k):
+                total = 0.0
+                for i in range(rows):
+                    total += design[i, index[p]] * design[i, index[q]]
+                gram[p, q] = total
+        inverse = np.linalg.pinv(gram)
+        for c in range(k):
+            variance[index[c]] = inverse[c, c]
+    sigma = np.empty(n)
+    for j in range(n):
+        sigma[j] = max(math.sqrt(max(variance[j], 0.0)), noise_floor)
+    return sigma
 
 
 @njit(types.UniTuple(types.float64[:], 2)(types.float64[:, :], types.float64[:], types.float64,
