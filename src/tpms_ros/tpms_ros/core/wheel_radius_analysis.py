@@ -1208,6 +1208,25 @@ def _wheel_acceleration_filter(omega: np.ndarray, wheel_ok: np.ndarray, dt: np.n
 
 
 @njit(cache=True, error_model='numpy')
+def _columns(matrix: np.ndarray, selected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the indices of the ``selected`` columns, a copy of those columns)."""
+    rows, n = matrix.shape
+    count = 0
+    for j in range(n):
+        count += 1 if selected[j] else 0
+    index = np.empty(count, dtype=np.int64)
+    chosen = np.empty((rows, count))
+    c = 0
+    for j in range(n):
+        if selected[j]:
+            index[c] = j
+            for i in range(rows):
+                chosen[i, c] = matrix[i, j]
+            c += 1
+    return index, chosen
+
+
+@njit(cache=True, error_model='numpy')
 def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """argmin ||a x - b|| for ``a`` of full column rank: Householder QR and back substitution,
     as loops (numba's ``np.linalg.lstsq`` took 5 s to compile at first import)."""
@@ -1251,20 +1270,14 @@ def _ridge_nnls(design: np.ndarray, target: np.ndarray, ridge: float,
     """The non-negative least squares of ``design[:, columns] @ x = target`` with a ridge
     (rows ``ridge * I`` against zeros); zero outside ``columns``."""
     rows, n = design.shape
-    k = 0
-    for j in range(n):
-        k += 1 if columns[j] else 0
+    index, chosen = _columns(design, columns)
+    k = index.size
     a = np.zeros((rows + k, k))
     b = np.zeros(rows + k)
-    index = np.empty(k, dtype=np.int64)
-    c = 0
-    for j in range(n):
-        if columns[j]:
-            index[c] = j
-            for i in range(rows):
-                a[i, c] = design[i, j]
-            a[rows + c, c] = ridge
-            c += 1
+    for c in range(k):
+        for i in range(rows):
+            a[i, c] = chosen[i, c]
+        a[rows + c, c] = ridge
     for i in range(rows):
         b[i] = target[i]
     solution = _lawson_hanson(a, b)
@@ -1313,18 +1326,8 @@ def _lawson_hanson(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             break
         passive[entering] = True
         while True:
-            k = 0
-            for j in range(n):
-                k += 1 if passive[j] else 0
-            index = np.empty(k, dtype=np.int64)
-            sub = np.empty((m, k))
-            c = 0
-            for j in range(n):
-                if passive[j]:
-                    index[c] = j
-                    for i in range(m):
-                        sub[i, c] = a[i, j]
-                    c += 1
+            index, sub = _columns(a, passive)
+            k = index.size
             solution = _least_squares(sub, b)
             trial = np.zeros(n)
             positive = True
@@ -1359,22 +1362,15 @@ def _drop_sigma(design: np.ndarray, active: np.ndarray, noise_floor: float) -> n
         for i in range(rows):
             total += design[i, j] * design[i, j]
         variance[j] = 1.0 / max(total, 1e-300)
-    k = 0
-    for j in range(n):
-        k += 1 if active[j] else 0
+    index, chosen = _columns(design, active)
+    k = index.size
     if k:
-        index = np.empty(k, dtype=np.int64)
-        c = 0
-        for j in range(n):
-            if active[j]:
-                index[c] = j
-                c += 1
         gram = np.empty((k, k))
         for p in range(k):
             for q in range(k):
                 total = 0.0
                 for i in range(rows):
-                    total += design[i, index[p]] * design[i, index[q]]
+                    total += chosen[i, p] * chosen[i, q]
                 gram[p, q] = total
         inverse = np.linalg.pinv(gram)
         for c in range(k):
