@@ -552,7 +552,9 @@ def _gate_chunk(lowpass: np.ndarray, previous: np.ndarray, good: np.ndarray, cod
     """The validity gates of :meth:`TireStiffnessObserver._process`, compiled (numba): per
     sample, the first gate that applies to a wheel whose code is still OK sets it (speed band,
     acceleration, wheel torque, cornering, wheel slip against the median of the good wheels,
-    tooth learning), then a driven axle's wheel whose partner is masked is masked too.
+    tooth learning: last, so that a wheel whose tooth pattern is being learned tells the other
+    reasons its data would not count where they apply too), then a driven axle's wheel whose
+    partner is masked is masked too.
 
     Why compiled: as numpy it was some forty array calls per chunk, a third of the cost of
     the small chunk that answers an output. Only the same comparisons and arithmetic (tan is

@@ -443,7 +443,6 @@ class ToothErrorCorrector:
         self._form.judge()
 
 
-
 _F1, _F2, _B1, _B2, _I1 = (types.float64[:], types.float64[:, :], types.boolean[:],
                            types.boolean[:, :], types.int64[:])
 _SUMS = types.UniTuple(types.float64[:], 6)
@@ -505,13 +504,10 @@ def _segment_kernel(speed: np.ndarray, reference: np.ndarray, learn: np.ndarray,
             before = last
             if moved:
                 last = max(last, i)
-                hold = i - before
-                if before != NO_EDGE and hold >= SLOW_HOLD:
-                    catch_up += (hold - 1) * (value - held) * cycle
-                else:
-                    catch_up += 0.0
-            else:
-                catch_up += 0.0
+                # over a slow tooth the new value replaces the one held on the hold's earlier
+                # samples: the tooth phase is the integral plus those catch-ups
+                if before != NO_EDGE and i - before >= SLOW_HOLD:
+                    catch_up += (i - before - 1) * (value - held) * cycle
             x = x_phase + shift + catch_up
             # the phasor: y = z + unit, z = decay * y (scipy's lfilter of 1 / (1 - decay z^-1))
             if moved:

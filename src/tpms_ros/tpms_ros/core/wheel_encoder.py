@@ -162,17 +162,14 @@ class QuantisationNoise:
         error = np.zeros(speed.shape)
         for w in range(speed.shape[1]):
             new = np.empty(_max_edges(speed[:, w], self._dt, self._pitch))
-            count, self._angle[w] = _edge_times(np.ascontiguousarray(speed[:, w]),
-                                                self._angle[w], self._samples, self._dt,
-                                                self._pitch, new)
+            count, self._angle[w] = _edge_times(speed[:, w], self._angle[w], self._samples,
+                                                self._dt, self._pitch, new)
             new = new[:count]
             exact = np.concatenate((self._exact[w], new))
             stamped = np.concatenate((self._stamped[w],
                                       new - self._rng[w].uniform(0.0, self._timer, new.size)))
-            column = np.zeros(n)
             keep = _speed_error(exact, stamped, self._samples, self._dt, self._window,
-                                self._pitch, column)
-            error[:, w] = column
+                                self._pitch, error[:, w])
             # Keep the edges a later reading can reach back to.
             self._exact[w], self._stamped[w] = exact[keep:], stamped[keep:]
         self._samples += n
@@ -196,9 +193,10 @@ def _edge_times(speed: np.ndarray, angle: float, samples: int, dt: float, pitch:
     its sample (sample ``i`` of the chunk ends at ``(samples + i + 1) * dt``).
 
     Why compiled: as numpy (a cumulative angle, the teeth crossed per sample repeated into
-    edges) it was some fifteen array calls per wheel and chunk, with the error below a fifth
-    of the stiffness observer's cost per chunk. The operations are numpy's, in its order
-    (test/tpms_ros/core/test_wheel_encoder.py holds the two to the bit).
+    edges) it was some fifteen array calls per wheel and chunk; with the speed error below,
+    a fifth of the stiffness observer's cost per chunk. The operations are numpy's, in its order
+    (the same to the bit on this project's machines; test/tpms_ros/core/test_wheel_encoder.py
+    holds the two to rounding).
 
     Returns:
         (edges written to ``edges``, the angle past the last tooth at the chunk's end).
