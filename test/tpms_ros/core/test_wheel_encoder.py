@@ -98,9 +98,10 @@ class NumpyQuantisationNoise(QuantisationNoise):
 
 
 @pytest.mark.parametrize('method', ['tooth_period', 'window_average'])
-def test_quantisation_noise_is_its_numpy_form_to_the_bit(method):
+def test_quantisation_noise_is_its_numpy_form(method):
     """The compiled edges and errors are the numpy form's, over any chunking, a standstill,
-    speeds that turn the ring backwards and a reset."""
+    speeds that turn the ring backwards and a reset: to the bit on this project's machines,
+    held to rounding (a compiler that fuses multiply-adds may differ in the last bit)."""
     _, rim = _vibrating_wheel(6.0, seed=5)
     speed = np.column_stack([rim[1:], rim[1:] + 30.0, 0.02 * rim[1:], rim[1:] - 55.5])
     speed[2000:2300, 0] = 0.0
@@ -115,7 +116,8 @@ def test_quantisation_noise_is_its_numpy_form_to_the_bit(method):
             reference.reset(np.array([1]))
         chunk = speed[start:start + step]
         errors.append(compiled.process(chunk))
-        np.testing.assert_array_equal(errors[-1], reference.process(chunk))
+        np.testing.assert_allclose(errors[-1], reference.process(chunk), rtol=1e-12,
+                                   atol=1e-9)
         start += step
     assert np.all(np.count_nonzero(np.concatenate(errors), axis=0) > 1000)
 

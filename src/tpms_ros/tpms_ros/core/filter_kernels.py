@@ -9,7 +9,8 @@ Here each filter is one call that only loops.
 Every operation is scipy's, in scipy's order and without fast-math (``sosfilt``: transposed
 direct form II per section; ``lfilter``: transposed direct form II with the coefficients
 divided by ``a[0]`` first), so the results are scipy's to the bit on this project's machines
-(test/tpms_ros/core/test_filter_kernels.py holds them to it).
+(test/tpms_ros/core/test_filter_kernels.py holds them to rounding: a compiler that fuses
+multiply-adds in one of them may differ in the last bit).
 """
 
 from __future__ import annotations
