@@ -59,7 +59,12 @@ from eval_rail_family import (  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
-from rail_monitor_ros.core.suspension_imm import N_OUTPUTS, SuspensionImm  # noqa: E402
+from rail_monitor_ros.core.riccati import solve_discrete_riccati  # noqa: E402
+from rail_monitor_ros.core.suspension_imm import (  # noqa: E402
+    N_OUTPUTS,
+    ModeModel,
+    SuspensionImm,
+)
 from rail_monitor_ros.offline.imm_runs import ImmRunResult, run_suspension_imm  # noqa: E402
 from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     DEVELOPMENT_SEEDS,
@@ -219,7 +224,7 @@ def limit_case(car: FamilyCar, speed: float, kind: str, key: int, draws: int, wi
     step = (1.1, 1.0) if kind == 'spring' else (1.0, 0.9)
     case = LimitCase(car.seed, speed, kind, ratio, model_delays, simulator_delay,
                      imm_model_delays=imm_model_delays,
-                     information=information_rate(imm, step, (1.0, 1.0), known))
+                     information=hypothesis_information(imm, step, (1.0, 1.0), known))
     if with_imm:
         run, _ = run_imm(car, speed, result)
         case.imm_delay = _imm_delay(run, result.spring_ratio[:, 0], result.damper_ratio[:, 0],
@@ -235,35 +240,45 @@ def _imm_delay(run: ImmRunResult, spring: np.ndarray, damper: np.ndarray, onset:
     return float(hit[0] * dt) if hit.size else math.inf
 
 
-def information_rate(imm: SuspensionImm, truth: tuple[float, float],
-                     model: tuple[float, float], known: int) -> float:
-    """Expected log-likelihood ratio per second of hypothesis ``truth`` over ``model`` when
-    the data come from ``truth`` (the Kullback-Leibler rate between the two stationary output
-    processes, both with the IMM's models and steady-state filters), nats/s.
+def information_rate(true_model: ModeModel, filter_model: ModeModel, h_true: np.ndarray,
+                     h_model: np.ndarray, r: np.ndarray, sample_rate_hz: float) -> float:
+    """Expected log-likelihood ratio per second of the true model over a filter model on the
+    true model's data (the Kullback-Leibler rate between the two stationary output processes,
+    each scored by its steady-state Kalman filter), nats/s.
 
-    The innovations e of the ``model`` filter on ``truth`` data have the covariance
-    Sigma = G Pi G^T + R, Pi the stationary covariance of the true state and the filter's
-    prediction (one Lyapunov equation), G = [H_truth, -H_model]; the rate is
-    0.5 (log det S_model - log det S_truth + tr(S_model^-1 Sigma) - p) per sample.
+    The innovations e of the filter on the true data have the covariance Sigma = G Pi G^T + R,
+    Pi the stationary covariance of the true state and the filter's prediction (one Lyapunov
+    equation), G = [H_true, -H_model]; the rate is 0.5 (log det S_model - log det S_true +
+    tr(S_model^-1 Sigma) - p) per sample.
     """
-    r = imm._r[known]
-    true_model, filter_model = imm._discretize(*truth), imm._discretize(*model)
-    true_gain = true_model.steady_state(known, r)
-    gain = filter_model.steady_state(known, r)
-    h_true, h_model = true_model.h[known], filter_model.h[known]
-    k = gain.prior_ht @ np.linalg.inv(gain.innovation)
+    def symmetric(a: np.ndarray) -> np.ndarray:
+        return 0.5 * (a + a.T)
+
+    true_prior = symmetric(solve_discrete_riccati(true_model.f.T, h_true.T, true_model.q, r))
+    prior = symmetric(solve_discrete_riccati(filter_model.f.T, h_model.T, filter_model.q, r))
+    true_s = symmetric(h_true @ true_prior @ h_true.T + r)
+    s = symmetric(h_model @ prior @ h_model.T + r)
+    k = prior @ h_model.T @ np.linalg.inv(s)
     n = true_model.f.shape[0]
     f = filter_model.f
     joint = np.block([[true_model.f, np.zeros((n, n))],
                       [f @ k @ h_true, f @ (np.eye(n) - k @ h_model)]])
     noise = scipy.linalg.block_diag(true_model.q, f @ k @ r @ k.T @ f.T)
-    stationary = scipy.linalg.solve_discrete_lyapunov(joint, noise)
+    stationary = symmetric(scipy.linalg.solve_discrete_lyapunov(joint, noise))
     g = np.hstack([h_true, -h_model])
     sigma = g @ stationary @ g.T + r
-    per_sample = 0.5 * (np.linalg.slogdet(gain.innovation)[1]
-                        - np.linalg.slogdet(true_gain.innovation)[1]
-                        + np.trace(np.linalg.solve(gain.innovation, sigma)) - r.shape[0])
-    return float(per_sample * imm.params.sample_rate_hz)
+    per_sample = 0.5 * (np.linalg.slogdet(s)[1] - np.linalg.slogdet(true_s)[1]
+                        + np.trace(np.linalg.solve(s, sigma)) - r.shape[0])
+    return float(per_sample * sample_rate_hz)
+
+
+def hypothesis_information(imm: SuspensionImm, truth: tuple[float, float],
+                           model: tuple[float, float], known: int) -> float:
+    """:func:`information_rate` of the IMM's hypothesis ``truth`` over ``model`` with its
+    sensors and ``known`` known track inputs, nats/s."""
+    true_model, filter_model = imm._discretize(*truth), imm._discretize(*model)
+    return information_rate(true_model, filter_model, true_model.h[known],
+                            filter_model.h[known], imm._r[known], imm.params.sample_rate_hz)
 
 
 def information_table(cars: Sequence[FamilyCar], speeds: Sequence[float]) -> list[str]:
@@ -282,8 +297,8 @@ def information_table(cars: Sequence[FamilyCar], speeds: Sequence[float]) -> lis
             for override in ({}, {'known_track_std_m': EXACT_TRACK_STD_M}):
                 imm = SuspensionImm(imm_params(car, speed, override))
                 known = imm._known_sizes[-1]
-                rates += [information_rate(imm, (1.1, 1.0), (1.0, 1.0), known),
-                          information_rate(imm, (1.0, 0.9), (1.0, 1.0), known)]
+                rates += [hypothesis_information(imm, (1.1, 1.0), (1.0, 1.0), known),
+                          hypothesis_information(imm, (1.0, 0.9), (1.0, 1.0), known)]
             cells.append('{:.0f}, {:.0f} / {:.0f}, {:.0f}'.format(*rates))
         lines.append(f'| {car.seed} ({1e3 * car.map_error_rms:.2f} mm) | '
                      + ' | '.join(cells) + ' |')
