@@ -41,8 +41,8 @@ def test_the_information_rate_is_the_log_likelihood_ratio_gained_on_model_draws(
     nothing."""
     known = imm._known_sizes[-1]
     nominal, spring = (1.0, 1.0), (1.1, 1.0)
-    rate = limit.information_rate(imm, nominal, spring, known)
-    assert abs(limit.information_rate(imm, nominal, nominal, known)) < 1e-4 * rate
+    rate = limit.hypothesis_information(imm, nominal, spring, known)
+    assert abs(limit.hypothesis_information(imm, nominal, nominal, known)) < 1e-4 * rate
     bank = limit.FilterBank(imm, [nominal, spring], known)
     gained = []
     for seed in range(6):
