@@ -309,16 +309,20 @@ def _fmt(value: float) -> str:
     return 'never' if math.isinf(value) else f'{value:.3f}'
 
 
-def summary(cases: Sequence[LimitCase], bands: Sequence[tuple[float, float]]) -> list[str]:
-    """Per kind and speed band: the share of cases in time for each source, and the delays."""
-    lines = ['| kind | speed band | cases | ideal test on model draws: in time; case medians, '
-             'median / worst | IMM on model draws: in time | ideal test on the simulator: in '
-             'time, median / worst | IMM on the simulator: in time, median / worst |',
-             '| --- | --- | --- | --- | --- | --- | --- |']
+def summary(cases: Sequence[LimitCase], grouping: str,
+            bands: Sequence[tuple[float, float]]) -> list[str]:
+    """Per kind and band of ``grouping`` ('speed', m/s, or 'information' of a 10 % change,
+    nats/s): the share of cases in time for each source, and the delays."""
+    unit = 'm/s' if grouping == 'speed' else 'nats/s'
+    lines = [f'| kind | {grouping} band | cases | ideal test on model draws: in time; case '
+             'medians, median / worst | IMM on model draws: in time | ideal test on the '
+             'simulator: in time, median / worst | IMM on the simulator: in time, median / '
+             'worst |', '| --- | --- | --- | --- | --- | --- | --- |']
     for kind in ('spring', 'damper'):
         target = TARGET_S[kind]
         for low, high in bands:
-            band = [c for c in cases if c.kind == kind and low <= c.speed < high]
+            band = [c for c in cases
+                    if c.kind == kind and low <= getattr(c, grouping) < high]
             if not band:
                 continue
             medians = [float(np.median(c.model_delays)) for c in band]
@@ -331,32 +335,12 @@ def summary(cases: Sequence[LimitCase], bands: Sequence[tuple[float, float]]) ->
             imm_model_text = (f'{sum(d <= target for d in imm_model)}/{len(imm_model)}'
                               if imm_model else '-')
             lines.append(
-                f'| {kind} (<= {target:g} s) | {low:g}-{high:g} m/s | {len(band)} | '
+                f'| {kind} (<= {target:g} s) | {low:g}-{high:g} {unit} | {len(band)} | '
                 f'{sum(d <= target for d in draws)}/{len(draws)}; '
                 f'{_fmt(float(np.median(medians)))} / {_fmt(max(medians))} s | '
                 f'{imm_model_text} | '
                 f'{sum(d <= target for d in sim)}/{len(sim)}, {_fmt(float(np.median(sim)))} / '
                 f'{_fmt(max(sim))} s | {imm_text} |')
-    return lines
-
-
-def information_summary(cases: Sequence[LimitCase],
-                        bands: Sequence[tuple[float, float]]) -> list[str]:
-    """Per kind and band of the information rate of a 10 % change: the share in time of the
-    ideal test's model draws and of the IMM on the simulator."""
-    lines = ['| kind | information of a 10 % change | cases | ideal test on model draws: in '
-             'time | IMM on the simulator: in time |', '| --- | --- | --- | --- | --- |']
-    for kind in ('spring', 'damper'):
-        target = TARGET_S[kind]
-        for low, high in bands:
-            band = [c for c in cases if c.kind == kind and low <= c.information < high]
-            if not band:
-                continue
-            draws = [d for c in band for d in c.model_delays]
-            imm = [c.imm_delay for c in band if not math.isnan(c.imm_delay)]
-            lines.append(f'| {kind} | {low:g}-{high:g} nats/s | {len(band)} | '
-                         f'{sum(d <= target for d in draws)}/{len(draws)} | '
-                         + (f'{sum(d <= target for d in imm)}/{len(imm)} |' if imm else '- |'))
     return lines
 
 
@@ -412,9 +396,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                       f'[{time.perf_counter() - started:.0f} s]', flush=True)
     bands = ((20.0, 30.0), (30.0, 35.0), (35.0, 40.0), (40.0, 50.0), (50.0, 60.01),
              (60.01, 80.0))
-    print('\n'.join(summary(cases, bands)))
-    print('\n'.join(information_summary(cases, ((0.0, 60.0), (60.0, 150.0), (150.0, 500.0),
-                                                 (500.0, math.inf)))))
+    print('\n'.join(summary(cases, 'speed', bands)))
+    print('\n'.join(summary(cases, 'information', ((0.0, 60.0), (60.0, 150.0),
+                                                    (150.0, 500.0), (500.0, math.inf)))))
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as handle:
             json.dump([asdict(c) for c in cases], handle, indent=1)
