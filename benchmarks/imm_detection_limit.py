@@ -59,7 +59,6 @@ from eval_rail_family import (  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
-from rail_monitor_ros.core.riccati import solve_discrete_riccati  # noqa: E402
 from rail_monitor_ros.core.suspension_imm import (  # noqa: E402
     N_OUTPUTS,
     ModeModel,
@@ -240,45 +239,64 @@ def _imm_delay(run: ImmRunResult, spring: np.ndarray, damper: np.ndarray, onset:
     return float(hit[0] * dt) if hit.size else math.inf
 
 
-def information_rate(true_model: ModeModel, filter_model: ModeModel, h_true: np.ndarray,
-                     h_model: np.ndarray, r: np.ndarray, sample_rate_hz: float) -> float:
-    """Expected log-likelihood ratio per second of the true model over a filter model on the
-    true model's data (the Kullback-Leibler rate between the two stationary output processes,
-    each scored by its steady-state Kalman filter), nats/s.
+class OutputSpectrum:
+    """Spectral density of a discrete model's outputs, y = H x + v, x' = F x + w, from the
+    Schur form F = Z T Z^H (a triangular solve per frequency)."""
 
-    The innovations e of the filter on the true data have the covariance Sigma = G Pi G^T + R,
-    Pi the stationary covariance of the true state and the filter's prediction (one Lyapunov
-    equation), G = [H_true, -H_model]; the rate is 0.5 (log det S_model - log det S_true +
-    tr(S_model^-1 Sigma) - p) per sample.
-    """
-    def symmetric(a: np.ndarray) -> np.ndarray:
-        return 0.5 * (a + a.T)
+    def __init__(self, model: ModeModel, h: np.ndarray, r: np.ndarray) -> None:
+        self._t, z = scipy.linalg.schur(model.f, output='complex')
+        self._hz = h @ z
+        self._qz = z.conj().T @ model.q @ z
+        self._r = r
+        self.poles = np.diag(self._t)
 
-    true_prior = symmetric(solve_discrete_riccati(true_model.f.T, h_true.T, true_model.q, r))
-    prior = symmetric(solve_discrete_riccati(filter_model.f.T, h_model.T, filter_model.q, r))
-    true_s = symmetric(h_true @ true_prior @ h_true.T + r)
-    s = symmetric(h_model @ prior @ h_model.T + r)
-    k = prior @ h_model.T @ np.linalg.inv(s)
-    n = true_model.f.shape[0]
-    f = filter_model.f
-    joint = np.block([[true_model.f, np.zeros((n, n))],
-                      [f @ k @ h_true, f @ (np.eye(n) - k @ h_model)]])
-    noise = scipy.linalg.block_diag(true_model.q, f @ k @ r @ k.T @ f.T)
-    stationary = symmetric(scipy.linalg.solve_discrete_lyapunov(joint, noise))
-    g = np.hstack([h_true, -h_model])
-    sigma = g @ stationary @ g.T + r
-    per_sample = 0.5 * (np.linalg.slogdet(s)[1] - np.linalg.slogdet(true_s)[1]
-                        + np.trace(np.linalg.solve(s, sigma)) - r.shape[0])
-    return float(per_sample * sample_rate_hz)
+    def at(self, omegas: np.ndarray) -> np.ndarray:
+        """(N, p, p) S at each frequency, rad/sample."""
+        eye = np.eye(self._t.shape[0])
+        out = np.empty((omegas.size, *self._r.shape), dtype=complex)
+        for index, omega in enumerate(omegas):
+            # G = H Z (e^(i omega) - T)^-1: (e^(i omega) - T)^T G^T = (H Z)^T, lower triangular
+            g = scipy.linalg.solve_triangular((np.exp(1j * omega) * eye - self._t).T,
+                                              self._hz.T, lower=True).T
+            out[index] = g @ self._qz @ g.conj().T + self._r
+        return out
+
+
+def frequency_grid(poles: np.ndarray) -> np.ndarray:
+    """Frequencies in (0, pi], rad/sample: uniform, log-spaced towards zero (the track's slow
+    states), and 241 points across +-30 half-widths of every pole within 0.2 of the unit
+    circle (the lightly damped modes)."""
+    parts = [np.linspace(1e-4, math.pi, 4000), np.geomspace(1e-7, 1e-1, 1500)]
+    for pole in poles:
+        half_width = max(1.0 - abs(pole), 1e-7)
+        if half_width < 0.2:
+            parts.append(np.clip(abs(np.angle(pole)) + half_width * np.linspace(-30, 30, 241),
+                                 1e-7, math.pi))
+    return np.unique(np.concatenate(parts))
+
+
+def information_rate(truth: OutputSpectrum, model: OutputSpectrum, sample_rate_hz: float,
+                     ) -> float:
+    """Expected log-likelihood ratio per second of the true model over another on the true
+    model's data: the Kullback-Leibler rate between the two stationary output processes,
+    (1 / 2 pi) int_0^pi [tr(S_m^-1 S_t) - p - ln det(S_m^-1 S_t)] d omega per sample, nats/s
+    (what the two steady-state Kalman filters' log-likelihoods differ by on average)."""
+    omegas = frequency_grid(np.concatenate([truth.poles, model.poles]))
+    ratio = np.linalg.solve(model.at(omegas), truth.at(omegas))
+    eigenvalues = np.linalg.eigvals(ratio)
+    integrand = np.real(np.sum(eigenvalues - 1.0 - np.log(eigenvalues), axis=1))
+    return float(np.trapezoid(integrand, omegas)) / (2.0 * math.pi) * sample_rate_hz
 
 
 def hypothesis_information(imm: SuspensionImm, truth: tuple[float, float],
                            model: tuple[float, float], known: int) -> float:
     """:func:`information_rate` of the IMM's hypothesis ``truth`` over ``model`` with its
     sensors and ``known`` known track inputs, nats/s."""
-    true_model, filter_model = imm._discretize(*truth), imm._discretize(*model)
-    return information_rate(true_model, filter_model, true_model.h[known],
-                            filter_model.h[known], imm._r[known], imm.params.sample_rate_hz)
+    r = imm._r[known]
+    true_model, other = imm._discretize(*truth), imm._discretize(*model)
+    return information_rate(OutputSpectrum(true_model, true_model.h[known], r),
+                            OutputSpectrum(other, other.h[known], r),
+                            imm.params.sample_rate_hz)
 
 
 def information_table(cars: Sequence[FamilyCar], speeds: Sequence[float]) -> list[str]:

@@ -36,7 +36,7 @@ def imm():
 
 def test_the_information_rate_is_the_log_likelihood_ratio_gained_on_model_draws(imm) -> None:
     """On six records of 60 s drawn from the nominal model, the nominal filter gains over the
-    spring-110 % filter what the Lyapunov computation says (each record's mean wanders by about
+    spring-110 % filter what the spectral computation says (each record's mean wanders by about
     15 % with the car's slow modes, their average within 10 %); a model against itself gains
     nothing."""
     known = imm._known_sizes[-1]
