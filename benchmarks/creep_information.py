@@ -143,6 +143,25 @@ def _spectrum(car: FamilyCar, speed: float, pattern: str, creep_factor: float,
     return OutputSpectrum(model, *_measurement(imm, model, car, pattern))
 
 
+def whittle_information(spectrum: np.ndarray, derivatives: Sequence[np.ndarray],
+                        omegas: np.ndarray) -> np.ndarray:
+    """Whittle's Fisher information matrix per sample of a stationary Gaussian process:
+    J_ij = (1 / 2 pi) int_0^pi tr(S^-1 dS_i S^-1 dS_j) d omega.
+
+    Args:
+        spectrum: (N, p, p) S at the frequencies ``omegas`` (rad/sample, increasing in (0, pi]).
+        derivatives: (N, p, p) each dS/d theta_i at the same frequencies.
+    """
+    scaled = [np.linalg.solve(spectrum, d) for d in derivatives]
+    size = len(scaled)
+    out = np.empty((size, size))
+    for i in range(size):
+        for j in range(i, size):
+            integrand = np.real(np.einsum('nab,nba->n', scaled[i], scaled[j]))
+            out[i, j] = out[j, i] = float(np.trapezoid(integrand, omegas)) / (2.0 * math.pi)
+    return out
+
+
 def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
                 roughness_unknown: bool = False) -> float:
     """Fisher information about ln c per second at this creep factor, 1/s; with
@@ -150,22 +169,15 @@ def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
     unknown (J_cc - J_ca^2 / J_aa; the track's spectrum shape still known)."""
     centre = _spectrum(car, speed, pattern, creep_factor, 1.0)
     omegas = frequency_grid(centre.poles)
-    s = centre.at(omegas)
     steps = [(DELTA, 0.0), (0.0, DELTA)] if roughness_unknown else [(DELTA, 0.0)]
     derivatives = []
     for dc, da in steps:
         plus, minus = (_spectrum(car, speed, pattern, creep_factor * math.exp(sign * dc),
                                  math.exp(sign * da)).at(omegas) for sign in (1.0, -1.0))
-        derivatives.append(np.linalg.solve(s, (plus - minus) / (2.0 * DELTA)))
-    rate_hz = imm_params(car, speed).sample_rate_hz
-
-    def element(i: int, j: int) -> float:
-        integrand = np.real(np.einsum('nab,nba->n', derivatives[i], derivatives[j]))
-        return float(np.trapezoid(integrand, omegas)) / (2.0 * math.pi) * rate_hz
-
-    if not roughness_unknown:
-        return element(0, 0)
-    return element(0, 0) - element(0, 1) ** 2 / element(1, 1)
+        derivatives.append((plus - minus) / (2.0 * DELTA))
+    j = whittle_information(centre.at(omegas), derivatives, omegas)
+    j *= imm_params(car, speed).sample_rate_hz
+    return float(j[0, 0] - (j[0, 1] ** 2 / j[1, 1] if roughness_unknown else 0.0))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
