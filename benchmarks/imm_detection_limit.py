@@ -28,6 +28,11 @@ comparison. Development cars by default (``--seeds held-out`` to measure the hel
 nothing is tuned here). Speeds: the evaluation's (``--speeds K`` per car) or a sweep
 (``--sweep 30,35,40,50,60``, each below 0.9 x the car's critical speed).
 
+**Your vehicle.** ``--information 30,40,50 --params-file my_car.yaml [--node /ns/name]`` prints
+the information rates for the suspension monitor as that params file configures it (its
+``vehicle.*``, track spectrum, sensor noise and map accuracy): how fast faults can be told
+apart on that car at those speeds, before any recording exists.
+
 Run: ``source tools/env.sh && python benchmarks/imm_detection_limit.py [--seeds ...]
 [--cars N] [--speeds K | --sweep V,V,...] [--kinds spring,damper] [--draws N] [--imm]
 [--json PATH]``.
@@ -41,7 +46,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
-from dataclasses import asdict, dataclass, field  # noqa: E402
+from dataclasses import asdict, dataclass, field, replace  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
@@ -59,10 +64,12 @@ from eval_rail_family import (  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
+from rail_monitor_ros.core.rail_model import full_car_state_space  # noqa: E402
 from rail_monitor_ros.core.suspension_imm import (  # noqa: E402
     N_OUTPUTS,
     ModeModel,
     SuspensionImm,
+    SuspensionImmParams,
 )
 from rail_monitor_ros.offline.imm_runs import ImmRunResult, run_suspension_imm  # noqa: E402
 from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
@@ -78,6 +85,8 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     suspension_fault_scenario,
 )
 from rail_monitor_ros.simulation.rail_simulator import simulate  # noqa: E402
+from vehicle_monitor_common.graph_spec import node_parameter_values  # noqa: E402
+from vehicle_monitor_common.parameters import build  # noqa: E402
 
 SEED_SETS = {'development': DEVELOPMENT_SEEDS, 'held-out': HELD_OUT_SEEDS}
 TARGET_S = {'spring': SPRING_TARGET_S, 'damper': DAMPER_TARGET_S}
@@ -299,28 +308,48 @@ def hypothesis_information(imm: SuspensionImm, truth: tuple[float, float],
                             imm.params.sample_rate_hz)
 
 
+def information_cell(params: SuspensionImmParams, speed: float) -> str:
+    """'spring, damper / spring, damper': the information rates (nats/s) of a 10 % spring rise
+    and a 10 % damper loss against normal at this speed, with the map's stated accuracy
+    (``known_track_std_m``) and with an exact track."""
+    vehicle = params.vehicle.with_speed(speed)
+    rates = []
+    for std in (params.known_track_std_m, EXACT_TRACK_STD_M):
+        imm = SuspensionImm(replace(params, known_track_std_m=std), vehicle)
+        known = imm._known_sizes[-1]
+        rates += [hypothesis_information(imm, (1.1, 1.0), (1.0, 1.0), known),
+                  hypothesis_information(imm, (1.0, 0.9), (1.0, 1.0), known)]
+    return '{:.0f}, {:.0f} / {:.0f}, {:.0f}'.format(*rates)
+
+
 def information_table(cars: Sequence[FamilyCar], speeds: Sequence[float]) -> list[str]:
-    """Per car and speed: the information rate of a 10 % spring rise and of a 10 % damper loss
-    against normal, with the car's track map as the IMM takes it and with an exact track."""
+    """Per car and speed: :func:`information_cell` ('-' above 0.9 of its critical speed)."""
     lines = ['| car (map error) | ' + ' | '.join(f'{v:g} m/s' for v in speeds) + ' |',
              '| --- |' + ' --- |' * len(speeds)]
     for car in cars:
         span = car.speed_range(SPEED_RANGE[0], SPEED_RANGE[1])
-        cells = []
-        for speed in speeds:
-            if span is None or not span[0] <= speed <= span[1]:
-                cells.append('-')
-                continue
-            rates = []
-            for override in ({}, {'known_track_std_m': EXACT_TRACK_STD_M}):
-                imm = SuspensionImm(imm_params(car, speed, override))
-                known = imm._known_sizes[-1]
-                rates += [hypothesis_information(imm, (1.1, 1.0), (1.0, 1.0), known),
-                          hypothesis_information(imm, (1.0, 0.9), (1.0, 1.0), known)]
-            cells.append('{:.0f}, {:.0f} / {:.0f}, {:.0f}'.format(*rates))
+        cells = [information_cell(imm_params(car, speed), speed)
+                 if span is not None and span[0] <= speed <= span[1] else '-'
+                 for speed in speeds]
         lines.append(f'| {car.seed} ({1e3 * car.map_error_rms:.2f} mm) | '
                      + ' | '.join(cells) + ' |')
     return lines
+
+
+def vehicle_information_table(params_file: str, node: str, speeds: Sequence[float],
+                              ) -> list[str]:
+    """:func:`information_cell` per speed for the suspension monitor as a params file
+    configures it (the node's ``vehicle.*``, track spectrum, sensor noise and
+    ``known_track_std_m``); 'unstable' where the full car hunts at that speed."""
+    params = build(SuspensionImmParams, node_parameter_values(node, (params_file,), {}))
+    cells = []
+    for speed in speeds:
+        car = full_car_state_space(params.vehicle.with_speed(speed), 1.0, (1.0, 1.0),
+                                   (1.0, 1.0))
+        stable = bool(np.max(np.linalg.eigvals(car.a).real) < 0.0)
+        cells.append(information_cell(params, speed) if stable else 'unstable')
+    return ['| ' + ' | '.join(f'{v:g} m/s' for v in speeds) + ' |',
+            '|' + ' --- |' * len(speeds), '| ' + ' | '.join(cells) + ' |']
 
 
 def _fmt(value: float) -> str:
@@ -378,14 +407,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='also run the IMM on the first N model draws of each case')
     parser.add_argument('--information', default='',
                         help='comma-separated speeds: print the information table instead')
+    parser.add_argument('--params-file', default='',
+                        help="with --information: a suspension_monitor params file (your "
+                             "vehicle) instead of the family's cars")
+    parser.add_argument('--node', default='/suspension_monitor',
+                        help='the node whose parameters the params file gives')
     parser.add_argument('--json', default='')
     args = parser.parse_args(argv)
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]
     if args.information:
-        print('\n'.join(information_table(
-            cars, [float(v) for v in args.information.split(',')])))
+        table_speeds = [float(v) for v in args.information.split(',')]
+        print('\n'.join(vehicle_information_table(args.params_file, args.node, table_speeds)
+                        if args.params_file else information_table(cars, table_speeds)))
         return 0
     kinds = [k for k in args.kinds.split(',') if k]
     cases: list[LimitCase] = []

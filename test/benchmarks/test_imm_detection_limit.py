@@ -50,3 +50,17 @@ def test_the_information_rate_is_the_log_likelihood_ratio_gained_on_model_draws(
         log_lik = bank.log_likelihoods(record, 0, 0)[1000:]    # each on its own, settled
         gained.append(float(np.mean(log_lik[:, 0] - log_lik[:, 1])))
     assert np.mean(gained) * imm.params.sample_rate_hz == pytest.approx(rate, rel=0.1)
+
+
+def test_the_information_of_a_vehicle_from_its_params_file() -> None:
+    """The shipped suspension_monitor.yaml: at 30 m/s four rates, each larger with an exact
+    track than with the map's stated accuracy; at 150 m/s the car hunts."""
+    params_file = (Path(__file__).resolve().parents[2] / 'src' / 'rail_monitor_ros' / 'config'
+                   / 'suspension_monitor.yaml')
+    header, _, row = limit.vehicle_information_table(str(params_file), '/suspension_monitor',
+                                                     [30.0, 150.0])
+    assert header == '| 30 m/s | 150 m/s |'
+    at_30, at_150 = (cell.strip() for cell in row.strip('|').split('|'))
+    with_map, exact = (tuple(float(v) for v in side.split(',')) for side in at_30.split('/'))
+    assert all(0.0 < m < e for m, e in zip(with_map, exact, strict=True))
+    assert at_150 == 'unstable'
