@@ -86,7 +86,7 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
 )
 from rail_monitor_ros.simulation.rail_simulator import simulate  # noqa: E402
 from vehicle_monitor_common.graph_spec import node_parameter_values  # noqa: E402
-from vehicle_monitor_common.parameters import build  # noqa: E402
+from vehicle_monitor_common.parameters import ConfigurationError, build  # noqa: E402
 
 SEED_SETS = {'development': DEVELOPMENT_SEEDS, 'held-out': HELD_OUT_SEEDS}
 TARGET_S = {'spring': SPRING_TARGET_S, 'damper': DAMPER_TARGET_S}
@@ -340,8 +340,16 @@ def vehicle_information_table(params_file: str, node: str, speeds: Sequence[floa
                               ) -> list[str]:
     """:func:`information_cell` per speed for the suspension monitor as a params file
     configures it (the node's ``vehicle.*``, track spectrum, sensor noise and
-    ``known_track_std_m``); 'unstable' where the full car hunts at that speed."""
-    params = build(SuspensionImmParams, node_parameter_values(node, (params_file,), {}))
+    ``known_track_std_m``); 'unstable' where the full car hunts at that speed.
+
+    Raises:
+        ConfigurationError: in one line, for a file that cannot be read or a refused value.
+    """
+    values = node_parameter_values(node, (params_file,), {})
+    try:
+        params = build(SuspensionImmParams, values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigurationError(f'{params_file}: {node}: invalid parameters: {exc}') from None
     cells = []
     for speed in speeds:
         car = full_car_state_space(params.vehicle.with_speed(speed), 1.0, (1.0, 1.0),
@@ -419,8 +427,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         cars = cars[:args.cars]
     if args.information:
         table_speeds = [float(v) for v in args.information.split(',')]
-        print('\n'.join(vehicle_information_table(args.params_file, args.node, table_speeds)
-                        if args.params_file else information_table(cars, table_speeds)))
+        try:
+            print('\n'.join(vehicle_information_table(args.params_file, args.node,
+                                                      table_speeds)
+                            if args.params_file else information_table(cars, table_speeds)))
+        except ConfigurationError as exc:
+            parser.exit(2, f'imm_detection_limit: {exc}\n')
         return 0
     kinds = [k for k in args.kinds.split(',') if k]
     cases: list[LimitCase] = []

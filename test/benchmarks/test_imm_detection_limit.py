@@ -64,3 +64,17 @@ def test_the_information_of_a_vehicle_from_its_params_file() -> None:
     with_map, exact = (tuple(float(v) for v in side.split(',')) for side in at_30.split('/'))
     assert all(0.0 < m < e for m, e in zip(with_map, exact, strict=True))
     assert at_150 == 'unstable'
+
+
+def test_a_params_file_that_cannot_be_used_is_one_line(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """A missing file and a refused value: exit status 2 and one line naming the problem."""
+    refused = tmp_path / 'car.yaml'
+    refused.write_text('/**:\n  ros__parameters:\n    vehicle:\n      speed: -5.0\n')
+    for path, says in ((tmp_path / 'missing.yaml', 'cannot read params file'),
+                       (refused, 'speed must be > 0')):
+        with pytest.raises(SystemExit) as exited:
+            limit.main(['--information', '30', '--params-file', str(path)])
+        assert exited.value.code == 2
+        error = capsys.readouterr().err
+        assert says in error and error.count('\n') == 1
