@@ -36,9 +36,15 @@ on most such cases.
   makes it: the error is a second track-shaped process (the spectrum scaled to that rms in
   that band, ``track_shaping.map_error_roughness``) added to the alignment the map gives.
 
+**The estimator's own view** (``--estimator``): the same bound under the creep EKF's model as
+the evaluation configures it (the end model, its track and map-error states, the other bogie's
+forces as Gauss-Markov states, its process and measurement noise; ``--ekf-set NAME=VALUE``
+changes a setting): how much of the information its stated model errors leave it.
+
 Run: ``source tools/env.sh && python benchmarks/creep_information.py [--seeds held-out|
-development] [--cars N] [--speeds K] [--patterns D/none,D/exact,C/exact]``. Speeds as the
-evaluation draws them for the creep cases (``--speeds`` per car in 20-70 m/s).
+development] [--cars N] [--speeds K] [--patterns D/none,D/exact,C/exact] [--estimator
+[--ekf-set NAME=VALUE ...]]``. Speeds as the evaluation draws them for the creep cases
+(``--speeds`` per car in 20-70 m/s).
 """
 
 from __future__ import annotations
@@ -52,11 +58,12 @@ from collections.abc import Sequence  # noqa: E402
 from dataclasses import replace  # noqa: E402
 import math  # noqa: E402
 
-from eval_rail_family import MAP_ERROR, imm_params  # noqa: E402
+from eval_rail_family import MAP_ERROR, creep_params, imm_params  # noqa: E402
 from imm_detection_limit import SEED_SETS, OutputSpectrum, frequency_grid  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
+from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams  # noqa: E402
 from rail_monitor_ros.core.suspension_imm import ModeModel, SuspensionImm  # noqa: E402
 from rail_monitor_ros.core.track_shaping import (  # noqa: E402
     map_error_roughness,
@@ -71,6 +78,7 @@ from rail_monitor_ros.simulation.rail_family import (  # noqa: E402
     sample_speeds,
 )
 from rail_monitor_ros.simulation.rail_scenario import TrackConfig  # noqa: E402
+from vehicle_monitor_common.parameters import ConfigurationError, parse_assignments  # noqa: E402
 
 PATTERNS = ('D/none', 'D/none+roughness', 'D/exact', 'C/exact', 'C/map0.3')
 #: Relative step of the central differences of the spectrum in ln c and ln(roughness).
@@ -180,13 +188,43 @@ def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
     return float(j[0, 0] - (j[0, 1] ** 2 / j[1, 1] if roughness_unknown else 0.0))
 
 
+def _ekf_spectrum(ekf: CreepEkf, creep_factor: float, known: int) -> OutputSpectrum:
+    """The creep EKF's own model of its measurements at a fixed creep factor (its state
+    without ln c: the end model, track and map-error states, other-bogie forces, offsets)."""
+    n = ekf.i_theta
+    model = ModeModel(ekf._discretize(creep_factor).fg[:n, :n], ekf._q_x[:n, :n], {})
+    return OutputSpectrum(model, ekf._h[known][:, :n], np.diag(ekf._r[known]))
+
+
+def estimator_fisher_rate(params: CreepEkfParams, creep_factor: float, known: int) -> float:
+    """Fisher information about ln c per second that the creep EKF's own model (its process
+    and measurement noise as set) says its channels carry, 1/s; ``known``: track columns
+    (0, or 4: alignment and rate under the front bogie's wheelsets)."""
+    ekf = CreepEkf(params)
+    centre = _ekf_spectrum(ekf, creep_factor, known)
+    omegas = frequency_grid(centre.poles)
+    plus, minus = (_ekf_spectrum(ekf, creep_factor * math.exp(sign * DELTA), known).at(omegas)
+                   for sign in (1.0, -1.0))
+    j = whittle_information(centre.at(omegas), [(plus - minus) / (2.0 * DELTA)], omegas)
+    return float(j[0, 0]) * params.sample_rate_hz
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', choices=sorted(SEED_SETS), default='held-out')
     parser.add_argument('--cars', type=int, default=0, help='first N cars (0: all)')
     parser.add_argument('--speeds', type=int, default=2)
     parser.add_argument('--patterns', default=','.join(PATTERNS))
+    parser.add_argument('--estimator', action='store_true',
+                        help="the bound under the creep EKF's own model as the evaluation "
+                             "configures it (patterns D/none, D/exact, C/exact, C/map0.3)")
+    parser.add_argument('--ekf-set', action='append', default=[], metavar='NAME=VALUE',
+                        help='with --estimator: a creep EKF parameter for every case')
     args = parser.parse_args(argv)
+    try:
+        ekf_overrides = parse_assignments(args.ekf_set, CreepEkfParams())
+    except ConfigurationError as exc:
+        parser.exit(2, f'creep_information: {exc}\n')
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]
@@ -203,7 +241,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             for pattern in patterns:
                 seconds = TARGETS[pattern][1]
                 name, _, nuisance = pattern.partition('+')
-                rates = [fisher_rate(car, speed, c, name, bool(nuisance)) for c in factors]
+                if args.estimator:
+                    config = name.replace('C/', 'C-spec/')
+                    params = replace(creep_params(car, speed, config, 'spectrum'),
+                                     **ekf_overrides)
+                    known = 0 if name.endswith('none') else 4
+                    rates = [estimator_fisher_rate(params, c, known) for c in factors]
+                else:
+                    rates = [fisher_rate(car, speed, c, name, bool(nuisance)) for c in factors]
                 halfwidths = [1.96 / math.sqrt(j * seconds) if j > 0.0 else math.inf
                               for j in rates]
                 bound[pattern].append((speed, max(halfwidths)))

@@ -181,13 +181,12 @@ def creep_inputs(result: RailSimulationResult, pattern: str, spec_fields: bool,
     return lateral_states_measurement(states, pattern, 'front')
 
 
-def run_creep_case(car: FamilyCar, speed: float, config: str,
-                   sims: dict[float, RailSimulationResult], track_model: str,
-                   offset_states: bool = True) -> CreepCase:
+def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
+                 offset_states: bool = True) -> CreepEkfParams:
+    """The creep estimator's parameters for a case: the car's, the pattern's and, with the
+    ``spectrum`` track model, the line's spectrum and the map's stated accuracy."""
     fields_kind, track_kind = config.split('/')
-    pattern = fields_kind[0]
-    result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
-    values = {**vehicle_values(car, speed), 'pattern': pattern}
+    values = {**vehicle_values(car, speed), 'pattern': fields_kind[0]}
     if not offset_states:
         values['sensor_offsets'] = False
     if track_model == 'spectrum':
@@ -198,7 +197,16 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
                    'track_long_wavenumber_rad_per_m': spectrum.omega_r,
                    'track_map_error_m': MAP_ERROR if track_kind == 'map0.3' else 1e-5,
                    'track_map_max_wavelength_m': TrackConfig.max_wavelength}
-    params = build(CreepEkfParams, values)
+    return build(CreepEkfParams, values)
+
+
+def run_creep_case(car: FamilyCar, speed: float, config: str,
+                   sims: dict[float, RailSimulationResult], track_model: str,
+                   offset_states: bool = True) -> CreepCase:
+    fields_kind, track_kind = config.split('/')
+    pattern = fields_kind[0]
+    result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
+    params = creep_params(car, speed, config, track_model, offset_states)
     z = creep_inputs(result, pattern, fields_kind == 'C-spec')
     track = None
     if track_kind != 'none':
