@@ -30,6 +30,9 @@ on most such cases.
   noise), as the creep estimator takes it.
 - ``D/none+roughness``: as ``D/none`` with the track's roughness level a second unknown (the
   bound on c once the information shared with it is taken out).
+- ``D/none+independent`` (on request): as ``D/none`` with each wheelset's alignment an
+  independent process of the spectrum's shape, as a track model without the wheelbase's
+  delays (the creep EKF's) takes it.
 - ``C/exact``: the contract's pattern C fields (front bogie lateral displacement and velocity,
   body lateral displacement and velocity) with the exact track.
 - ``C/map0.3``: the same with a track map of 0.3 mm rms error over 1-120 m, as the simulator
@@ -81,6 +84,8 @@ from rail_monitor_ros.simulation.rail_scenario import TrackConfig  # noqa: E402
 from vehicle_monitor_common.parameters import ConfigurationError, parse_assignments  # noqa: E402
 
 PATTERNS = ('D/none', 'D/none+roughness', 'D/exact', 'C/exact', 'C/map0.3')
+#: Not in the default set: the estimator's track model without the wheelbase's delays.
+INDEPENDENT = 'D/none+independent'
 #: Relative step of the central differences of the spectrum in ln c and ln(roughness).
 DELTA = 0.01
 EXACT_TRACK_STD_M = 1e-5
@@ -91,7 +96,7 @@ KNOWN_WHEELSETS = 2
 C_FIELDS = (('y_b1', 'displacement_noise'), ('dy_b1', 'velocity_noise'),
             ('y_v', 'displacement_noise'), ('dy_v', 'velocity_noise'))
 #: The targets: pattern -> (band, seconds after the step).
-TARGETS = {'D/none': (0.10, 2.0), 'D/none+roughness': (0.10, 2.0),
+TARGETS = {'D/none': (0.10, 2.0), 'D/none+roughness': (0.10, 2.0), INDEPENDENT: (0.10, 2.0),
            'D/exact': (0.10, 2.0), 'C/exact': (0.05, 1.0), 'C/map0.3': (0.05, 1.0)}
 
 
@@ -141,13 +146,41 @@ def _measurement(imm: SuspensionImm, model: ModeModel, car: FamilyCar, pattern: 
     return np.vstack([rows, track_rows]), scipy.linalg.block_diag(np.diag(noise), r_track)
 
 
+def _independent_tracks_model(imm: SuspensionImm, creep_factor: float) -> ModeModel:
+    """As :func:`_model_at` without a track input, but each wheelset's alignment its own
+    process of the spectrum's shape (independent noises) instead of the first one's delayed
+    copies: what a track model without the wheelbase's delays (the creep EKF's) assumes."""
+    imm.creep_factor = creep_factor
+    car = imm._model(1.0, 1.0)
+    p = imm.params
+    one = track_shaping_model(p.track_roughness_m_rad, p.track_corner_wavenumber_rad_per_m,
+                              p.track_long_wavenumber_rad_per_m, imm.vehicle.speed, [0.0],
+                              p.delay_min_wavelength_m)
+    wheelsets = car.b.shape[1]
+    a_track = scipy.linalg.block_diag(*[one.a] * wheelsets)
+    c_track = scipy.linalg.block_diag(*[one.c] * wheelsets)
+    n, m = car.a.shape[0], a_track.shape[0]
+    a = np.zeros((n + m, n + m))
+    a[:n, :n], a[:n, n:], a[n:, n:] = car.a, car.b @ c_track, a_track
+    spectral = np.zeros((n + m, n + m))
+    for wheelset in range(wheelsets):
+        g = np.zeros(n + m)
+        g[n + 2 * wheelset:n + 2 * wheelset + 2] = one.g
+        spectral += one.noise_density * np.outer(g, g)
+    f, q = van_loan_discretization(a, spectral, p.dt)
+    return ModeModel(f, q, {0: np.hstack([car.c, car.d @ c_track])})
+
+
 def _spectrum(car: FamilyCar, speed: float, pattern: str, creep_factor: float,
-              roughness_scale: float) -> OutputSpectrum:
+              roughness_scale: float, independent_tracks: bool = False) -> OutputSpectrum:
     std = EXACT_TRACK_STD_M if pattern.endswith(('exact', 'map0.3')) else car.map_error_rms
     params = imm_params(car, speed, {'known_track_std_m': std})
     imm = SuspensionImm(replace(params, track_roughness_m_rad=(
         params.track_roughness_m_rad * roughness_scale)))
-    model = _model_at(imm, creep_factor, MAP_ERROR if pattern.endswith('map0.3') else 0.0)
+    if independent_tracks:
+        model = _independent_tracks_model(imm, creep_factor)
+    else:
+        model = _model_at(imm, creep_factor, MAP_ERROR if pattern.endswith('map0.3') else 0.0)
     return OutputSpectrum(model, *_measurement(imm, model, car, pattern))
 
 
@@ -171,17 +204,23 @@ def whittle_information(spectrum: np.ndarray, derivatives: Sequence[np.ndarray],
 
 
 def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
-                roughness_unknown: bool = False) -> float:
-    """Fisher information about ln c per second at this creep factor, 1/s; with
-    ``roughness_unknown`` what is left of it when the track's roughness level is a second
-    unknown (J_cc - J_ca^2 / J_aa; the track's spectrum shape still known)."""
-    centre = _spectrum(car, speed, pattern, creep_factor, 1.0)
+                variant: str = '') -> float:
+    """Fisher information about ln c per second at this creep factor, 1/s. ``variant``
+    'roughness': what is left of it when the track's roughness level is a second unknown
+    (J_cc - J_ca^2 / J_aa; the track's spectrum shape still known); 'independent': the
+    wheelsets' alignments independent (no track input only)."""
+    roughness_unknown = variant == 'roughness'
+    independent = variant == 'independent'
+    if independent and not pattern.endswith('none'):
+        raise ValueError('independent wheelset tracks are for patterns without a track input')
+    centre = _spectrum(car, speed, pattern, creep_factor, 1.0, independent)
     omegas = frequency_grid(centre.poles)
     steps = [(DELTA, 0.0), (0.0, DELTA)] if roughness_unknown else [(DELTA, 0.0)]
     derivatives = []
     for dc, da in steps:
         plus, minus = (_spectrum(car, speed, pattern, creep_factor * math.exp(sign * dc),
-                                 math.exp(sign * da)).at(omegas) for sign in (1.0, -1.0))
+                                 math.exp(sign * da), independent).at(omegas)
+                       for sign in (1.0, -1.0))
         derivatives.append((plus - minus) / (2.0 * DELTA))
     j = whittle_information(centre.at(omegas), derivatives, omegas)
     j *= imm_params(car, speed).sample_rate_hz
@@ -240,7 +279,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             cells = []
             for pattern in patterns:
                 seconds = TARGETS[pattern][1]
-                name, _, nuisance = pattern.partition('+')
+                name, _, variant = pattern.partition('+')
                 if args.estimator:
                     config = name.replace('C/', 'C-spec/')
                     params = replace(creep_params(car, speed, config, 'spectrum'),
@@ -248,7 +287,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     known = 0 if name.endswith('none') else 4
                     rates = [estimator_fisher_rate(params, c, known) for c in factors]
                 else:
-                    rates = [fisher_rate(car, speed, c, name, bool(nuisance)) for c in factors]
+                    rates = [fisher_rate(car, speed, c, name, variant) for c in factors]
                 halfwidths = [1.96 / math.sqrt(j * seconds) if j > 0.0 else math.inf
                               for j in rates]
                 bound[pattern].append((speed, max(halfwidths)))
