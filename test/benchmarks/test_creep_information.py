@@ -4,6 +4,7 @@ Whittle's Fisher information where it is known in closed form."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 import importlib
 import math
 from pathlib import Path
@@ -14,11 +15,18 @@ import pytest
 import scipy.linalg
 
 from rail_monitor_ros.core.suspension_imm import ModeModel
+from rail_monitor_ros.simulation.rail_family import (
+    HELD_OUT_SEEDS,
+    SPEED_RANGE,
+    family,
+    sample_speeds,
+)
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / 'benchmarks'
 sys.path.insert(0, str(BENCHMARKS))    # the scripts import each other beside them
 creep = importlib.import_module('creep_information')
 limit = importlib.import_module('imm_detection_limit')
+evaluation = importlib.import_module('eval_rail_family')
 
 
 def test_the_output_spectrum_integrates_to_the_outputs_covariance() -> None:
@@ -53,3 +61,37 @@ def test_whittle_gives_the_ar1_coefficients_information(a: float) -> None:
     derivative = (spectrum(a + step).at(omegas) - spectrum(a - step).at(omegas)) / (2 * step)
     information = creep.whittle_information(centre.at(omegas), [derivative], omegas)
     assert information[0, 0] == pytest.approx(1.0 / (1.0 - a * a), rel=1e-3)
+
+
+@pytest.fixture(scope='module')
+def held_out_case():
+    car = family(HELD_OUT_SEEDS)[1]
+    return car, sample_speeds(car, 2, *SPEED_RANGE)[0]
+
+
+def test_the_wheelbase_delay_carries_information_without_a_track(held_out_case) -> None:
+    """Pattern D without a track: independent wheelset alignments carry less about c than the
+    same alignment reaching the wheelsets a wheelbase apart (held-out car 190002 at 23.5 m/s:
+    about 30 times less)."""
+    car, speed = held_out_case
+    delayed = creep.fisher_rate(car, speed, 0.75, 'D/none')
+    independent = creep.fisher_rate(car, speed, 0.75, 'D/none', 'independent')
+    assert 0.0 < independent < delayed / 10.0
+    with pytest.raises(ValueError):
+        creep.fisher_rate(car, speed, 0.75, 'C/exact', 'independent')
+
+
+def test_the_ekfs_information_falls_as_its_model_errors_grow(held_out_case) -> None:
+    """The creep EKF's own model, pattern C with the exact track: ten times its model-error
+    noise leaves less information than as shipped, a tenth more."""
+    car, speed = held_out_case
+    shipped = evaluation.creep_params(car, speed, 'C-spec/exact', 'spectrum')
+    names = ('lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
+             'body_accel_process_std_mps2', 'other_bogie_force_std_n',
+             'other_bogie_moment_std_nm')
+
+    def scaled(factor: float) -> float:
+        params = replace(shipped, **{n: getattr(shipped, n) * factor for n in names})
+        return creep.estimator_fisher_rate(params, 0.75, 4)
+
+    assert 0.0 < scaled(10.0) < scaled(1.0) < scaled(0.1)
