@@ -171,12 +171,17 @@ def _independent_tracks_model(imm: SuspensionImm, creep_factor: float) -> ModeMo
     return ModeModel(f, q, {0: np.hstack([car.c, car.d @ c_track])})
 
 
-def _spectrum(car: FamilyCar, speed: float, pattern: str, creep_factor: float,
-              roughness_scale: float, independent_tracks: bool = False) -> OutputSpectrum:
+def _imm(car: FamilyCar, speed: float, pattern: str, roughness_scale: float) -> SuspensionImm:
+    """The suspension IMM whose full-car model the pattern's spectra come from (the map's
+    stated accuracy, the track's roughness scaled)."""
     std = EXACT_TRACK_STD_M if pattern.endswith(('exact', 'map0.3')) else car.map_error_rms
     params = imm_params(car, speed, {'known_track_std_m': std})
-    imm = SuspensionImm(replace(params, track_roughness_m_rad=(
+    return SuspensionImm(replace(params, track_roughness_m_rad=(
         params.track_roughness_m_rad * roughness_scale)))
+
+
+def _spectrum(imm: SuspensionImm, car: FamilyCar, pattern: str, creep_factor: float,
+              independent_tracks: bool = False) -> OutputSpectrum:
     if independent_tracks:
         model = _independent_tracks_model(imm, creep_factor)
     else:
@@ -213,17 +218,21 @@ def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
     independent = variant == 'independent'
     if independent and not pattern.endswith('none'):
         raise ValueError('independent wheelset tracks are for patterns without a track input')
-    centre = _spectrum(car, speed, pattern, creep_factor, 1.0, independent)
+    # One IMM per roughness scale: building it discretises its whole bank
+    imms = {scale: _imm(car, speed, pattern, scale)
+            for scale in ((1.0, math.exp(DELTA), math.exp(-DELTA)) if roughness_unknown
+                          else (1.0,))}
+    centre = _spectrum(imms[1.0], car, pattern, creep_factor, independent)
     omegas = frequency_grid(centre.poles)
     steps = [(DELTA, 0.0), (0.0, DELTA)] if roughness_unknown else [(DELTA, 0.0)]
     derivatives = []
     for dc, da in steps:
-        plus, minus = (_spectrum(car, speed, pattern, creep_factor * math.exp(sign * dc),
-                                 math.exp(sign * da), independent).at(omegas)
+        plus, minus = (_spectrum(imms[math.exp(sign * da)], car, pattern,
+                                 creep_factor * math.exp(sign * dc), independent).at(omegas)
                        for sign in (1.0, -1.0))
         derivatives.append((plus - minus) / (2.0 * DELTA))
     j = whittle_information(centre.at(omegas), derivatives, omegas)
-    j *= imm_params(car, speed).sample_rate_hz
+    j *= imms[1.0].params.sample_rate_hz
     return float(j[0, 0] - (j[0, 1] ** 2 / j[1, 1] if roughness_unknown else 0.0))
 
 

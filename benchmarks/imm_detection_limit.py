@@ -185,12 +185,6 @@ class LimitCase:
     information: float = math.nan      # a 10 % change of the component against normal, nats/s
 
 
-def hypotheses(imm: SuspensionImm) -> list[tuple[float, float]]:
-    """The IMM's distinct (spring, damper) hypotheses."""
-    return sorted({(round(float(m.spring_ratio), 2), round(float(m.damper_ratio), 2))
-                   for m in imm.modes})
-
-
 def limit_case(car: FamilyCar, speed: float, kind: str, key: int, draws: int, with_imm: bool,
                imm_draws: int) -> LimitCase:
     """One fault case of the evaluation: the ideal test on ``draws`` model records and on the
@@ -198,7 +192,7 @@ def limit_case(car: FamilyCar, speed: float, kind: str, key: int, draws: int, wi
     ratio = fault_ratio(car, kind, key)
     imm = SuspensionImm(imm_params(car, speed))
     dt = imm.params.dt
-    grid = hypotheses(imm)
+    grid = imm.hypotheses      # the distinct (spring, damper) pairs of the bank
     truth = (ratio, 1.0) if kind == 'spring' else (1.0, ratio)
     spring = np.array([g[0] for g in grid])
     damper = np.array([g[1] for g in grid])
@@ -226,7 +220,7 @@ def limit_case(car: FamilyCar, speed: float, kind: str, key: int, draws: int, wi
         if draw < imm_draws:
             # the IMM on the same draw (the full car's known inputs are the track itself)
             run = run_suspension_imm(record[:, :N_OUTPUTS], record[:, N_OUTPUTS:],
-                                     imm_params(car, speed))
+                                     imm.params)
             imm_model_delays.append(_imm_delay(run, np.full(len(record), truth[0]),
                                                np.full(len(record), truth[1]), n_lead, dt))
     step = (1.1, 1.0) if kind == 'spring' else (1.0, 0.9)
