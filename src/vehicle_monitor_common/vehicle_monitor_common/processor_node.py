@@ -33,7 +33,7 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import JumpThreshold, TimeJump
+from rclpy.clock import JumpHandle, JumpThreshold, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -93,6 +93,7 @@ class ProcessorNode(Node):
         declared = self.processor_spec
         super().__init__(node_name or (declared.name if declared else ''), **kwargs)
         self._shared_inputs = shared_inputs
+        self._jump_handles: list[JumpHandle] = []
         self.typed_parameters: list[TypedParameters[Any]] = []
         if declared is None:
             return
@@ -165,10 +166,7 @@ class ProcessorNode(Node):
         self._arrivals = dict.fromkeys(processor.inputs, 0)
         self.time_jumps = 0
         self._last_time_jump_s = 0.0
-        self._jump_handle = self.get_clock().create_jump_callback(
-            JumpThreshold(min_forward=Duration(seconds=silence_timeout_s),
-                          min_backward=Duration(nanoseconds=-1)),
-            post_callback=self._on_time_jump)
+        self.watch_time_jumps(silence_timeout_s, self._on_time_jump)
         self._message_classes = {topic: message_class(msgtype)
                                  for topic, msgtype in processor.outputs.items()}
         self._publishers_by_topic = {
@@ -189,9 +187,28 @@ class ProcessorNode(Node):
         self._update_diagnostics()
         self._log_calibration_events()
 
+    def watch_time_jumps(self, min_forward_s: float,
+                         callback: Callable[[TimeJump], None]) -> None:
+        """Call ``callback`` after every jump of the node's clock backwards or more than
+        ``min_forward_s`` forwards (and when ROS time is switched on or off).
+
+        The node keeps the handle until it is destroyed: rclpy's clock holds only a borrowed
+        pointer to it, so a handle dropped while registered is freed memory that the next
+        jump calls into. The voter node once overwrote the attribute that held this class's
+        handle with its own; the orphan was a likely cause of a crash seen in
+        ``TimeSource.clock_callback`` on a ``/clock`` replay.
+        """
+        self._jump_handles.append(self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=Duration(seconds=min_forward_s),
+                          min_backward=Duration(nanoseconds=-1)),
+            post_callback=callback))
+
     def destroy_node(self) -> None:
         if self._shared_inputs is not None:
             self._shared_inputs.release(self)
+        for handle in self._jump_handles:
+            handle.unregister()
+        self._jump_handles.clear()
         super().destroy_node()
 
     def _input_callback(self, topic: str) -> Callable[[Any], None]:

@@ -10,16 +10,20 @@ in the cores' tests.
 from __future__ import annotations
 
 from collections.abc import Callable
+import gc
 from pathlib import Path
 from typing import Any
+import weakref
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
+from rclpy.clock import Clock as RclpyClock
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from scipy import signal
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
@@ -826,6 +830,45 @@ def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., 
     (result,) = node.set_parameters([Parameter('vibration.support', value=1.5)])
     assert not result.successful
     assert node.processor.voter.params.method_support['vibration'] == 0.3
+
+
+def test_voter_keeps_both_clock_jump_watches(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The voter watches jumps of its clock twice, for the silence watch every node has and to
+    re-anchor its extrapolated data time; both handles stay referenced while registered
+    (rclpy's clock holds only a borrowed pointer: the voter once overwrote the first, freed
+    while registered) and both act on a /clock going back. Destroyed, the node unregisters
+    them."""
+    made: list[weakref.ref[Any]] = []
+    create = RclpyClock.create_jump_callback
+
+    def recorded(clock: RclpyClock, *args: Any, **kwargs: Any) -> Any:
+        handle = create(clock, *args, **kwargs)
+        made.append(weakref.ref(handle))
+        return handle
+
+    monkeypatch.setattr(RclpyClock, 'create_jump_callback', recorded)
+    node = make_node(TpmsVoterNode, parameter_overrides=[Parameter('use_sim_time', value=True)])
+    gc.collect()
+    handles = [ref() for ref in made]
+    assert len(handles) == 2 and all(h is not None for h in handles)
+    re_anchored: list[int] = []
+    monkeypatch.setattr(node.processor, 'clock_jumped', re_anchored.append)
+    probe = make_node('clock_probe')
+    clock_pub = probe.create_publisher(Clock, '/clock', 10)
+
+    def publish_clock(sec: int) -> None:
+        msg = Clock()
+        msg.clock.sec = sec
+        clock_pub.publish(msg)
+
+    assert spin_until(lambda: (publish_clock(100), node.get_clock().now().nanoseconds
+                               == 100 * 10**9)[1], 5.0)
+    assert spin_until(lambda: (publish_clock(40), node.time_jumps >= 1
+                               and 40 * 10**9 in re_anchored)[1], 5.0)
+    node.destroy_node()
+    assert all(h._clock is None for h in handles)   # unregistered
 
 
 def test_voter_agreement_warns_single_weak_does_not_and_clears(

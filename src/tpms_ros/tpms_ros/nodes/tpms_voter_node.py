@@ -21,8 +21,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from rclpy.clock import JumpThreshold, TimeJump
-from rclpy.duration import Duration
+from rclpy.clock import TimeJump
 
 from tpms_ros.processing import tpms_voter
 from tpms_ros.processing.tpms_voter import TpmsVoterNodeParams, TpmsVoterProcessor
@@ -38,10 +37,7 @@ class TpmsVoterNode(ProcessorNode, spec=tpms_voter.SPEC):
         super().__init__(node_name, **kwargs)
         n = self.parameters_of(TpmsVoterNodeParams)
         self.create_timer(1.0 / n.publish_rate_hz, self._on_timer)
-        self._jump_handle = self.get_clock().create_jump_callback(
-            JumpThreshold(min_forward=Duration(seconds=n.jump_horizon_s),
-                          min_backward=Duration(nanoseconds=-1)),
-            post_callback=self._on_clock_jump)
+        self.watch_time_jumps(n.jump_horizon_s, self._on_clock_jump)
 
     def create_processor(self, values: Mapping[str, Any]) -> TpmsVoterProcessor:
         """The processor with the node clock, which the offline engine's has not: live, the
