@@ -103,6 +103,21 @@ def spin_until(executor: Any) -> Callable[..., bool]:
 
 
 @pytest.fixture
+def publish_clock(make_node: Callable[..., Any]) -> Callable[[int], None]:
+    """``publish_clock(sec)``: publish that time on ``/clock`` (from a probe node of its own)."""
+    from rosgraph_msgs.msg import Clock
+
+    publisher = make_node('clock_probe').create_publisher(Clock, '/clock', 10)
+
+    def publish(sec: int) -> None:
+        message = Clock()
+        message.clock.sec = sec
+        publisher.publish(message)
+
+    return publish
+
+
+@pytest.fixture
 def executable() -> Callable[[str, str], str]:
     """``executable(package, name)``: path of an installed executable, where ros2 run looks."""
     from ament_index_python.packages import get_package_prefix

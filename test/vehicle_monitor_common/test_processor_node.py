@@ -87,21 +87,11 @@ def test_adapter_publishes_outputs_and_reports_silence(
 
 
 def test_backward_ros_time_jump_restarts_the_silence_watch(
-        make_node: Callable[..., Any], spin_until: Callable[..., bool]) -> None:
+        make_node: Callable[..., Any], spin_until: Callable[..., bool],
+        publish_clock: Callable[[int], None]) -> None:
     """With use_sim_time, /clock going back (a replay restarted) is counted and reported, and
     the inputs are not reported silent for it."""
-    from rclpy.parameter import Parameter
-    from rosgraph_msgs.msg import Clock
-
     node = make_node(EchoNode, parameter_overrides=[Parameter('use_sim_time', value=True)])
-    probe = make_node('clock_probe')
-    clock_pub = probe.create_publisher(Clock, '/clock', 10)
-
-    def publish_clock(sec: int) -> None:
-        msg = Clock()
-        msg.clock.sec = sec
-        clock_pub.publish(msg)
-
     assert spin_until(lambda: (publish_clock(100), node.get_clock().now().nanoseconds
                                == 100 * 10**9)[1], 5.0)
     node.deliver('imu', _imu(0.1))

@@ -23,7 +23,6 @@ from rclpy.clock import Clock as RclpyClock
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rosgraph_msgs.msg import Clock
 from scipy import signal
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
@@ -834,7 +833,7 @@ def test_voter_starts_with_defaults_and_shipped_config(make_node: Callable[..., 
 
 def test_voter_keeps_both_clock_jump_watches(
         make_node: Callable[..., Any], spin_until: Callable[..., bool],
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        publish_clock: Callable[[int], None], monkeypatch: pytest.MonkeyPatch) -> None:
     """The voter watches jumps of its clock twice, for the silence watch every node has and to
     re-anchor its extrapolated data time; both handles stay referenced while registered
     (rclpy's clock holds only a borrowed pointer: the voter once overwrote the first, freed
@@ -855,14 +854,6 @@ def test_voter_keeps_both_clock_jump_watches(
     assert len(handles) == 2 and all(h is not None for h in handles)
     re_anchored: list[int] = []
     monkeypatch.setattr(node.processor, 'clock_jumped', re_anchored.append)
-    probe = make_node('clock_probe')
-    clock_pub = probe.create_publisher(Clock, '/clock', 10)
-
-    def publish_clock(sec: int) -> None:
-        msg = Clock()
-        msg.clock.sec = sec
-        clock_pub.publish(msg)
-
     assert spin_until(lambda: (publish_clock(100), node.get_clock().now().nanoseconds
                                == 100 * 10**9)[1], 5.0)
     assert spin_until(lambda: (publish_clock(40), node.time_jumps >= 1
