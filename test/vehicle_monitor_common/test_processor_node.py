@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import ast
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from importlib.metadata import entry_points
+import inspect
+import textwrap
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -190,3 +194,32 @@ def test_node_declared_by_spec(make_node: Callable[..., Any]) -> None:
     refused = node.set_parameters([Parameter('gain', value=7.0)])[0]
     assert not refused.successful and refused.reason == 'gain above limit'
     assert node.processor.params.gain == 3.0
+
+
+def _assigned_attributes(cls: type) -> set[str]:
+    """The ``self.<name>`` a class's own methods assign."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    return {target.attr for node in ast.walk(tree)
+            if isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign))
+            for target in ast.walk(node.targets[0] if isinstance(node, ast.Assign)
+                                   else node.target)
+            if isinstance(target, ast.Attribute) and isinstance(target.value, ast.Name)
+            and target.value.id == 'self'}
+
+
+def test_no_node_overwrites_what_the_adapter_holds() -> None:
+    """No installed node class assigns an attribute that ProcessorNode (or a base between)
+    assigns: the voter once replaced the adapter's clock jump handle, which rclpy's clock
+    still pointed to, with its own (a use-after-free at the next /clock jump)."""
+    checked = []
+    for entry in entry_points(group='vehicle_monitor.nodes'):
+        cls = entry.load()
+        if not (isinstance(cls, type) and issubclass(cls, ProcessorNode)):
+            continue
+        chain = cls.__mro__[:cls.__mro__.index(ProcessorNode) + 1]   # the node .. the adapter
+        for i, klass in enumerate(chain[:-1]):
+            above = set().union(*(_assigned_attributes(base) for base in chain[i + 1:]))
+            clash = _assigned_attributes(klass) & above
+            assert not clash, (klass.__name__, clash)
+        checked.append(entry.name)
+    assert 'tpms_voter' in checked and len(checked) >= 6
