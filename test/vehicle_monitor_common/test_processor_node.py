@@ -199,10 +199,10 @@ def test_node_declared_by_spec(make_node: Callable[..., Any]) -> None:
 def _assigned_attributes(cls: type) -> set[str]:
     """The ``self.<name>`` a class's own methods assign."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-    return {target.attr for node in ast.walk(tree)
-            if isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign))
-            for target in ast.walk(node.targets[0] if isinstance(node, ast.Assign)
-                                   else node.target)
+    targets = [t for node in ast.walk(tree) for t in (
+        node.targets if isinstance(node, ast.Assign)
+        else [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else [])]
+    return {target.attr for assigned in targets for target in ast.walk(assigned)
             if isinstance(target, ast.Attribute) and isinstance(target.value, ast.Name)
             and target.value.id == 'self'}
 
@@ -217,9 +217,9 @@ def test_no_node_overwrites_what_the_adapter_holds() -> None:
         if not (isinstance(cls, type) and issubclass(cls, ProcessorNode)):
             continue
         chain = cls.__mro__[:cls.__mro__.index(ProcessorNode) + 1]   # the node .. the adapter
+        assigned = [_assigned_attributes(klass) for klass in chain]
         for i, klass in enumerate(chain[:-1]):
-            above = set().union(*(_assigned_attributes(base) for base in chain[i + 1:]))
-            clash = _assigned_attributes(klass) & above
+            clash = assigned[i] & set().union(*assigned[i + 1:])
             assert not clash, (klass.__name__, clash)
         checked.append(entry.name)
     assert 'tpms_voter' in checked and len(checked) >= 6
