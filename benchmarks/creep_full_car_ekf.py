@@ -1,0 +1,189 @@
+"""Prototype, not the shipped estimator: the creep factor from the full car, the track under the
+rear bogie taken as the published front track a wheelbase later.
+
+docs/methods/rail_family_evaluation.md, "Pattern C with the exact track: the full car and the
+rear track from the front's history (2026-12-05)". The shipped creep EKF models one end of the
+car (the other bogie's forces as Gauss-Markov states) and the alignment at the monitored
+bogie's two wheelsets; the suspension IMM's full car takes the rear wheelsets' alignment through
+Pade delays of the track's shaping filter. Here the 14-DOF full car
+(:func:`rail_model.full_car_state_space`) is driven by the alignment under all four wheelsets
+as a known input (first-order hold): the front two as published, the rear two the front
+wheelset's published alignment ``(offset_w - offset_1) / speed`` seconds earlier (a history
+the node has). The state is augmented with one constant offset per measured channel and
+theta = ln c (random walk, ``--walk`` per sqrt(s)); F(c) and G(c) are exact discretisations on
+a grid of ln c (steps of 0.05), linear in between, their slopes the Jacobian in theta. Pattern
+C's contract fields (front bogie and body lateral displacement and velocity) are the
+measurement, judged as ``eval_rail_family`` judges the creep rows (within +/-5 % within 1 s of
+each step of ``rail_creep_steps``' c = 1 -> 0.5 -> 0.75).
+
+Run (tools/env.sh, from benchmarks/)::
+
+    python creep_full_car_ekf.py --seeds development --cars 12        # ~2 min
+    python creep_full_car_ekf.py --seeds held-out --cars 12
+    python creep_full_car_ekf.py --fit                                # the model against the run
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import math
+
+from eval_rail_family import SEED_SETS, imm_params, settle_time
+import numpy as np
+import scipy.linalg
+
+from rail_monitor_ros.core.rail_model import full_car_state_space
+from rail_monitor_ros.core.riccati import solve_discrete_riccati
+from rail_monitor_ros.core.suspension_imm import SuspensionImm
+from rail_monitor_ros.simulation.rail_family import (
+    CREEP_STEPS,
+    case_seed,
+    creep_steps_scenario,
+    family,
+    sample_speeds,
+)
+from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, simulate
+
+C_STATES = ('y_b1', 'dy_b1', 'y_v', 'dy_v')
+LN_C_STEP = 0.05
+LN_C_GRID = np.arange(math.log(0.2), math.log(2.0) + 1e-9, LN_C_STEP)
+# Prior std of the channel offsets: the family's offset half-widths (displacement, velocity).
+OFFSET_STD = np.array([2e-4, 1e-3, 2e-4, 1e-3])
+
+
+def discretize_foh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(F, [G0, G1]) of x+ = F x + G0 u_k + G1 u_{k+1}: u linear over the sample."""
+    n, m = b.shape
+    big = np.zeros((n + 2 * m, n + 2 * m))
+    big[:n, :n], big[:n, n:n + m] = a, b
+    big[n:n + m, n + m:] = np.eye(m) / dt
+    e = scipy.linalg.expm(big * dt)
+    g1 = e[:n, n + m:]
+    return e[:n, :n], np.hstack([e[:n, n:n + m] - g1, g1])
+
+
+def rear_from_front(sim: RailSimulationResult, offsets: np.ndarray, speed: float) -> np.ndarray:
+    """The alignment under each wheelset: the front wheelset's published one, delayed."""
+    front = sim.measured_track_alignment[:, 0]
+    return np.column_stack([np.interp(sim.time - (o - offsets[0]) / speed, sim.time, front,
+                                      left=0.0) for o in offsets])
+
+
+def run_filter(fs: np.ndarray, gs: np.ndarray, h: np.ndarray, r: np.ndarray, q: np.ndarray,
+               z: np.ndarray, u: np.ndarray, walk_var: float) -> np.ndarray:
+    """The augmented EKF; c after each sample's update."""
+    n = fs.shape[1]
+    dim = n + len(OFFSET_STD) + 1
+    x = np.zeros(dim)
+    p = np.zeros((dim, dim))
+    nominal = int(round(-LN_C_GRID[0] / LN_C_STEP))
+    p0 = solve_discrete_riccati(fs[nominal].T, h[:, :n].T, q[nominal], r)
+    p[:n, :n] = 0.5 * (p0 + p0.T)
+    p[n:-1, n:-1] = np.diag(OFFSET_STD ** 2)
+    p[-1, -1] = 0.5 ** 2
+    jac = np.eye(dim)
+    qa = np.zeros((dim, dim))
+    qa[-1, -1] = walk_var
+    eye = np.eye(dim)
+    out = np.empty(len(z))
+    for k in range(len(z)):
+        theta = min(max(x[-1], LN_C_GRID[0]), LN_C_GRID[-1] - 1e-12)
+        j = int((theta - LN_C_GRID[0]) / LN_C_STEP)
+        w = (theta - LN_C_GRID[j]) / LN_C_STEP
+        f = fs[j] + w * (fs[j + 1] - fs[j])
+        g = gs[j] + w * (gs[j + 1] - gs[j])
+        uk = np.concatenate([u[max(k - 1, 0)], u[k]])
+        xs = x[:n].copy()
+        jac[:n, :n] = f
+        jac[:n, -1] = ((fs[j + 1] - fs[j]) @ xs + (gs[j + 1] - gs[j]) @ uk) / LN_C_STEP
+        x[:n] = f @ xs + g @ uk
+        qa[:n, :n] = q[j] + w * (q[j + 1] - q[j])
+        p = jac @ p @ jac.T + qa
+        ph = p @ h.T
+        s = h @ ph + r
+        gain = np.linalg.solve(s, ph.T).T
+        x += gain @ (z[k] - h @ x)
+        ikh = eye - gain @ h
+        p = ikh @ p @ ikh.T + gain @ r @ gain.T
+        p = 0.5 * (p + p.T)
+        x[-1] = min(max(x[-1], LN_C_GRID[0]), LN_C_GRID[-1])
+        out[k] = math.exp(x[-1])
+    return out
+
+
+def model_fit(sim: RailSimulationResult, vehicle, creep_factor: float, samples: int) -> None:
+    """The full car at the run's c, driven by the true track, against the run's true states."""
+    ss = full_car_state_space(vehicle, creep_factor)
+    dt = float(sim.time[1] - sim.time[0])
+    f, g = discretize_foh(ss.a, ss.b, dt)
+    x = sim.state[0].copy()
+    errors = []
+    for k in range(1, samples):
+        x = f @ x + g @ np.concatenate([sim.track_alignment[k - 1], sim.track_alignment[k]])
+        errors.append(x - sim.state[k])
+    rms = np.sqrt(np.mean(np.square(errors), axis=0))
+    for name in C_STATES:
+        i = sim.state_names.index(name)
+        print(f'{name}: state rms {np.sqrt(np.mean(sim.state[:samples, i] ** 2)):.3g}, '
+              f'model error rms {rms[i]:.3g}')
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--seeds', choices=sorted(SEED_SETS), default='development')
+    ap.add_argument('--cars', type=int, default=12)
+    ap.add_argument('--speeds', type=int, default=2)
+    ap.add_argument('--walk', type=float, default=0.03, help='random walk of ln c, 1/sqrt(s)')
+    ap.add_argument('--model-std', type=float, default=1e-4,
+                    help='model error, white acceleration on every coordinate (SI units)')
+    ap.add_argument('--track-std', type=float, default=1e-5, help='track input error, m')
+    ap.add_argument('--rear-measured', action='store_true',
+                    help='the rear wheelsets\' alignment as the run measured it, not delayed')
+    ap.add_argument('--fit', action='store_true', help='only the model fit on the first case')
+    args = ap.parse_args(argv)
+    passed = []
+    for car in family(SEED_SETS[args.seeds])[:args.cars]:
+        for index, speed in enumerate(sample_speeds(car, args.speeds)):
+            sim = simulate(creep_steps_scenario(car, speed, case_seed(car, 100 + index), 0.0))
+            vehicle = SuspensionImm(imm_params(car, speed)).vehicle
+            if args.fit:
+                model_fit(sim, vehicle, 1.0, int(CREEP_STEPS[1][0] * 200))
+                return 0
+            dt = float(sim.time[1] - sim.time[0])
+            models = [discretize_foh(*(lambda ss: (ss.a, ss.b))(
+                full_car_state_space(vehicle, float(math.exp(t)))), dt) for t in LN_C_GRID]
+            fs = np.stack([f for f, _ in models])
+            gs = np.stack([g for _, g in models])
+            n = fs.shape[1]
+            rates = [i for i, name in enumerate(sim.state_names) if name.startswith('d')]
+            q = np.zeros((len(LN_C_GRID), n, n))
+            q[:, rates, rates] = args.model_std ** 2 * dt
+            q += args.track_std ** 2 * np.einsum('kij,klj->kil', gs[:, :, 4:], gs[:, :, 4:])
+            channels = [sim.state_names.index(name) for name in C_STATES]
+            h = np.zeros((len(C_STATES), n + len(OFFSET_STD) + 1))
+            h[np.arange(len(C_STATES)), channels] = 1.0
+            h[np.arange(len(C_STATES)), n + np.arange(len(OFFSET_STD))] = 1.0
+            noise = car.sensors
+            r = np.diag(np.array([noise.displacement_noise, noise.velocity_noise] * 2) ** 2)
+            z = sim.measured_state[:, channels]
+            u = (sim.measured_track_alignment if args.rear_measured
+                 else rear_from_front(sim, np.asarray(vehicle.wheelset_offsets), speed))
+            c = run_filter(fs, gs, h, r, q, z, u, args.walk ** 2 * dt)
+            rel = (c - sim.creep_factor) / sim.creep_factor
+            starts = [int(np.searchsorted(sim.time, t - 1e-9)) for t, _ in CREEP_STEPS[1:]]
+            segments = list(zip(starts, starts[1:] + [rel.size], strict=True))
+            settle = [settle_time(sim.time[a:b], rel[a:b], 0.05) for a, b in segments]
+            steady = [float(np.sqrt(np.mean(rel[a:b][sim.time[a:b] >= sim.time[a] + 1.0] ** 2)))
+                      for a, b in segments]
+            ok = all(s <= 1.0 for s in settle)
+            passed.append(ok)
+            print(f'car {car.seed} {speed:5.1f} m/s settle(5 %) '
+                  f'{", ".join(f"{s:.2f}" for s in settle)} s, rms from 1 s '
+                  f'{", ".join(f"{100 * e:.1f}" for e in steady)} %'
+                  f'{"" if ok else "  FAIL"}', flush=True)
+    print(f'{args.seeds}: within +/-5 % within 1 s of each step on {sum(passed)}/{len(passed)}')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
