@@ -1,8 +1,8 @@
 """Prototype, not the shipped estimator: the creep factor from the full car, the track under the
 rear bogie taken as the published front track a wheelbase later.
 
-docs/methods/rail_family_evaluation.md, "Pattern C with the exact track: the full car and the
-rear track from the front's history (2026-12-05)". The shipped creep EKF models one end of the
+docs/methods/rail_family_evaluation.md, "Pattern C with the exact track: the full car, the
+rear track from the front's history (2026-12-05, prototype)". The shipped creep EKF models one end of the
 car (the other bogie's forces as Gauss-Markov states) and the alignment at the monitored
 bogie's two wheelsets; the suspension IMM's full car takes the rear wheelsets' alignment through
 Pade delays of the track's shaping filter. Here the 14-DOF full car
