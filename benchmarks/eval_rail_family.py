@@ -182,7 +182,8 @@ def creep_inputs(result: RailSimulationResult, pattern: str, spec_fields: bool,
 
 
 def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
-                 offset_states: bool = True) -> CreepEkfParams:
+                 offset_states: bool = True, overrides: Mapping[str, Any] | None = None,
+                 ) -> CreepEkfParams:
     """The creep estimator's parameters for a case: the car's, the pattern's and, with the
     ``spectrum`` track model, the line's spectrum and the map's stated accuracy."""
     fields_kind, track_kind = config.split('/')
@@ -197,16 +198,17 @@ def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
                    'track_long_wavenumber_rad_per_m': spectrum.omega_r,
                    'track_map_error_m': MAP_ERROR if track_kind == 'map0.3' else 1e-5,
                    'track_map_max_wavelength_m': TrackConfig.max_wavelength}
-    return build(CreepEkfParams, values)
+    return build(CreepEkfParams, {**values, **(overrides or {})})
 
 
 def run_creep_case(car: FamilyCar, speed: float, config: str,
                    sims: dict[float, RailSimulationResult], track_model: str,
-                   offset_states: bool = True) -> CreepCase:
+                   offset_states: bool = True, overrides: Mapping[str, Any] | None = None,
+                   ) -> CreepCase:
     fields_kind, track_kind = config.split('/')
     pattern = fields_kind[0]
     result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
-    params = creep_params(car, speed, config, track_model, offset_states)
+    params = creep_params(car, speed, config, track_model, offset_states, overrides)
     z = creep_inputs(result, pattern, fields_kind == 'C-spec')
     track = None
     if track_kind != 'none':
@@ -233,7 +235,8 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
 
 
 def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[str],
-                  track_model: str, offset_states: bool = True) -> list[CreepCase]:
+                  track_model: str, offset_states: bool = True,
+                  overrides: Mapping[str, Any] | None = None) -> list[CreepCase]:
     _say(f'\n== Creep estimator: {len(cars)} cars x {n_speeds} speeds x {len(configs)} configs'
          f' (track model: {track_model})')
     cases: list[CreepCase] = []
@@ -243,7 +246,8 @@ def creep_section(cars: Sequence[FamilyCar], n_speeds: int, configs: Sequence[st
             sims = {error: simulate(creep_steps_scenario(car, speed, seed, error))
                     for error in (0.0, MAP_ERROR)}
             for config in configs:
-                case = run_creep_case(car, speed, config, sims, track_model, offset_states)
+                case = run_creep_case(car, speed, config, sims, track_model, offset_states,
+                                      overrides)
                 cases.append(case)
                 _say(f'car {car.seed} {speed:5.1f} m/s {config:13s} '
                      f'settle5 {_times(case.settle_5)} settle10 {_times(case.settle_10)} '
@@ -603,6 +607,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--imm-set', action='append', default=[], metavar='NAME=VALUE',
                         help='a suspension monitor parameter for every IMM run (repeatable), '
                              'e.g. smoothing_window_s=0.1')
+    parser.add_argument('--creep-set', action='append', default=[], metavar='NAME=VALUE',
+                        help='a creep estimator parameter for every creep run (repeatable), '
+                             'e.g. model=full')
     parser.add_argument('--json', help='write the per-case figures here')
     parser.add_argument('--scoreboard', default=None,
                         help='also write the per-target result file the main job shows '
@@ -630,6 +637,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         imm_overrides = parse_assignments(args.imm_set, SuspensionImmParams())
     except ConfigurationError as exc:
         parser.error(f'--imm-set: {exc}')
+    try:
+        creep_overrides = parse_assignments(args.creep_set, CreepEkfParams())
+    except ConfigurationError as exc:
+        parser.error(f'--creep-set: {exc}')
     seeds = SEED_SETS[args.seeds][args.skip_cars:]
     if args.cars > 0:
         seeds = seeds[:args.cars]
@@ -652,12 +663,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         'settings': {'speeds': args.speeds, 'healthy_s': args.healthy_s,
                      'creep_configs': configs, 'creep_track_model': args.creep_track_model,
                      'offset_states': not args.no_offset_states,
-                     'sensor_offsets': not args.no_offsets, 'imm_set': imm_overrides}}
+                     'sensor_offsets': not args.no_offsets, 'imm_set': imm_overrides,
+                     'creep_set': creep_overrides}}
     start = time.time()
     if not args.skip_creep:
         out['creep'] = [vars(c) for c in creep_section(cars, args.speeds, configs,
                                                      args.creep_track_model,
-                                                     not args.no_offset_states)]
+                                                     not args.no_offset_states,
+                                                     creep_overrides)]
     if not args.skip_imm:
         out['imm'] = [vars(c) for c in imm_section(cars, args.speeds, args.healthy_s,
                                                    imm_overrides)]

@@ -61,17 +61,17 @@ def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.n
     """A plausible augmented state: mm displacements, cm/s rates, mrad yaw (the other bogie's
     forces in units of its motion)."""
     x = np.zeros(ekf.dim_x)
-    n_q = ekf.n_model
-    x[:n_q] = rng.normal(size=n_q) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], 4)[:n_q]
-    x[n_q:n_q + 2] = rng.normal(size=2) * 2e-3
-    x[n_q + 2:n_q + 4] = rng.normal(size=2) * 5e-2
+    n_q, n_u = ekf.n_model, ekf.n_track
+    x[:n_q] = rng.normal(size=n_q) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], n_q // 4 + 1)[:n_q]
+    x[n_q:n_q + n_u] = rng.normal(size=n_u) * 2e-3
+    x[n_q + n_u:n_q + 2 * n_u] = rng.normal(size=n_u) * 5e-2
     # The other bogie's forces (3 mm), the track map's error (0.3 mm, its rate 3 mm/s) and
     # the sensor offsets (0.1 mm).
-    rest = ekf.i_theta - n_q - 4
+    rest = ekf.i_theta - n_q - 2 * n_u
     spread = np.concatenate([np.full(ekf.n_disturbances, 3e-3),
                              np.repeat([3e-4, 3e-3], ekf.n_map_error // 2),
                              np.full(ekf.n_offsets, 1e-4)])
-    x[n_q + 4:ekf.i_theta] = rng.normal(size=rest) * spread
+    x[n_q + 2 * n_u:ekf.i_theta] = rng.normal(size=rest) * spread
     x[ekf.i_theta] = math.log(creep_factor)
     return x
 

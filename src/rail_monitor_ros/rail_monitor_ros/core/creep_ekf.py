@@ -100,7 +100,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -120,8 +120,10 @@ from rail_monitor_ros.core.rail_model import (
     StateSpace,
     car_end_state_space,
     discretize_zoh_sensitivity,
+    full_car_state_space,
     half_car_state_space,
 )
+from rail_monitor_ros.core.track_history import TrackHistory
 from rail_monitor_ros.core.track_shaping import map_error_roughness, van_loan_discretization
 from rail_monitor_ros.core.track_spectra import TRACK_SPECTRA
 from vehicle_monitor_common.input_health import all_finite
@@ -130,7 +132,7 @@ from vehicle_monitor_common.validation import require_positive
 
 N_U = 2            # track alignment at the leading and trailing wheelset
 BOGIES = ('front', 'rear')
-MODELS = ('end', 'half')
+MODELS = ('end', 'half', 'full')
 TRACK_MODELS = ('spectrum', 'slope_walk')
 
 # The observation patterns' channels (docs/methods/creep_estimator.md) over the monitored bogie's
@@ -171,11 +173,11 @@ def measurement_channels(pattern: str, model: str = 'end') -> tuple[str, ...]:
     for name in _PATTERN_CHANNELS[pattern]:
         if name in ('body', 'dbody'):
             rate = 'd' if name == 'dbody' else ''
-            channels += ([f'{rate}y_v', f'{rate}psi_v'] if model == 'end'
+            channels += ([f'{rate}y_v', f'{rate}psi_v'] if model != 'half'
                          else [f'{rate}y_v_above'])
         elif name in ('body_lateral', 'dbody_lateral'):
             rate = 'd' if name == 'dbody_lateral' else ''
-            channels.append(f'{rate}y_v' if model == 'end' else f'{rate}y_v_above')
+            channels.append(f'{rate}y_v' if model != 'half' else f'{rate}y_v_above')
         else:
             channels.append(name)
     return tuple(channels)
@@ -212,9 +214,11 @@ class CreepEkfParams:
                                        '(speed: the nominal speed)')
     pattern: str = param('C', 'observation pattern: A, B, C (rail/lateral_states) or D (bogie '
                          'and body IMUs)', choices=OBSERVATION_PATTERNS, read_only=True)
-    model: str = param('end', "estimation model: 'end' (one end of the full car: bogie, "
+    model: str = param('full', "estimation model: 'end' (one end of the full car: bogie, "
                        "wheelsets, body lateral and yaw, the other bogie's secondary forces as "
-                       "Gauss-Markov states) or 'half' (the paper's 7-DOF half car)",
+                       "Gauss-Markov states), 'full' (the 14-DOF full car, the track under "
+                       "the rear bogie taken as the published front track a wheelbase "
+                       "later) or 'half' (the paper's 7-DOF half car)",
                        choices=MODELS, read_only=True)
     bogie: str = param('front', 'monitored bogie, front (wheelsets 1-2) or rear (3-4); sets '
                        "the body lever arm's sign (the IMUs of D are where they are mounted)",
@@ -240,6 +244,18 @@ class CreepEkfParams:
     body_accel_process_std_mps2: float = param(0.2, 'model error on the body lateral (its yaw: '
                                                'this over lv), m/s^2', low=1e-6, high=100.0,
                                                read_only=True)
+    full_car_process_std: float = param(1e-4, "full model: model error as white acceleration "
+                                        'on every coordinate (lateral m/s^2, yaw rad/s^2); '
+                                        'the full car leaves little out', low=1e-9, high=100.0,
+                                        read_only=True)
+    full_change_threshold: float = param(20.0, 'full model: the CUSUM alarm level (its ln c '
+                                         'corrections carry more of each sample, so they '
+                                         'drift further between changes than the end '
+                                         "model's)", low=1e-3, high=1e6, read_only=True)
+    track_history_s: float = param(5.0, 'full model: how long the published front track is '
+                                   'kept for the rear wheelsets, s (below the car length '
+                                   'over this, the rear track is unknown)', low=0.1,
+                                   high=600.0, read_only=True)
     other_bogie_force_std_n: float = param(1e4, "end model: std of the other bogie's lateral "
                                            'force on the body beyond a still bogie, '
                                            "Ksy y_b2 + Csy y_b2', N", low=1e-3, high=1e7,
@@ -325,7 +341,8 @@ class CreepEkfParams:
                              high=60.0)
     change_drift: float = param(0.1, 'CUSUM drift per sample, in std of the ln c correction',
                                 low=1e-4, high=10.0, read_only=True)
-    change_threshold: float = param(8.0, 'CUSUM alarm level, same units', low=1e-3, high=1e6,
+    change_threshold: float = param(8.0, 'CUSUM alarm level, same units (the full model: '
+                                    'full_change_threshold)', low=1e-3, high=1e6,
                                     read_only=True)
     change_log_std: float = param(0.5, 'on an alarm, added in quadrature to the std of ln c',
                                   low=1e-4, high=10.0, read_only=True)
@@ -350,7 +367,9 @@ class CreepEkfParams:
         positive = ('sample_rate_hz', 'initial_creep_factor', 'initial_log_creep_std',
                     'creep_walk_std_per_sqrt_s', 'min_creep_factor', 'max_creep_factor',
                     'lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
-                    'body_accel_process_std_mps2', 'other_bogie_force_std_n',
+                    'body_accel_process_std_mps2', 'full_car_process_std', 'full_change_threshold',
+                    'track_history_s',
+                    'other_bogie_force_std_n',
                     'other_bogie_moment_std_nm', 'other_bogie_correlation_s',
                     'track_slope_std_rad', 'track_slope_walk_rad_sqrt_m', 'initial_track_std_m',
                     'track_roughness_m_rad', 'track_corner_wavenumber_rad_per_m',
@@ -453,23 +472,55 @@ class Discretization:
     dfg: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Observation:
+    """A sample's measurement model: the vehicle channels stacked with the track rows it
+    has (h, r: diagonal noise as a vector), and the track rows alone (h_track, r_track)."""
+
+    h: np.ndarray
+    r: np.ndarray
+    h_track: np.ndarray
+    r_track: np.ndarray
+
+
 def estimation_model(params: CreepEkfParams, creep_factor: float = 1.0,
                      speed: float | None = None) -> StateSpace:
     """The filter's continuous model (sensor outputs) at a creep factor and speed.
 
-    'end': :func:`car_end_state_space`, inputs [y_r1, y_r2, f_rear, m_rear]; 'half':
-    :func:`half_car_state_space`, inputs [y_r1, y_r2].
+    'end': :func:`car_end_state_space`, inputs [y_r1, y_r2, f_rear, m_rear]; 'full':
+    :func:`full_car_state_space`, inputs [y_r1 .. y_r4], the monitored bogie's sensors;
+    'half': :func:`half_car_state_space`, inputs [y_r1, y_r2].
     """
     vehicle = params.vehicle if speed is None else params.vehicle.with_speed(speed)
     if params.model == 'end':
         return car_end_state_space(vehicle, creep_factor, bogie=params.bogie)
+    if params.model == 'full':
+        full = full_car_state_space(vehicle, creep_factor)
+        rows = slice(3 * BOGIES.index(params.bogie), 3 * BOGIES.index(params.bogie) + 3)
+        return replace(full, c=full.c[rows], d=full.d[rows],
+                       output_names=full.output_names[rows])
     return half_car_state_space(vehicle, creep_factor)
+
+
+def _full_car_state(channel: str, bogie: str) -> str:
+    """The full car's state a pattern channel names: the monitored bogie's ('y_b' -> 'y_b2'
+    for the rear one) and its wheelsets' ('y_w1' -> 'y_w3'); the body's as they are."""
+    j = BOGIES.index(bogie)
+    for prefix in ('dpsi_', 'psi_', 'dy_', 'y_'):
+        if channel.startswith(prefix):
+            part = channel[len(prefix):]
+            if part == 'b':
+                return f'{prefix}b{j + 1}'
+            if part in ('w1', 'w2'):
+                return f'{prefix}w{2 * j + int(part[1])}'
+    return channel
 
 
 class _SpeedModel:
     """The continuous augmented model at one speed: x' = (A0 + c dA) x over x without ln c.
 
-    x = [q, y_r1, y_r2, y_r1', y_r2', d (, e1, e2, e1', e2')]: the track alignment moves with
+    x = [q, y_r1, y_r2, y_r1', y_r2', d (, e1, e2, e1', e2')] (the full car: four wheelsets'
+    y_r, y_r' and e, no d): the track alignment moves with
     its rate (so the discretisation sees the track change within a sample, a first-order hold,
     rather than holding it), the rate is a random walk ('slope_walk') or the alignment is white
     noise through the spectrum's two lags, poles Omega_r v and Omega_c v ('spectrum'), and the
@@ -484,19 +535,21 @@ class _SpeedModel:
         # The creep forces are linear in c: the difference of two evaluations is the exact
         # derivative (c -> 0 is outside the model's valid range, so c = 1 and 1/2).
         half = estimation_model(params, 0.5, speed)
-        n_q, n_d = one.a.shape[0], one.b.shape[1] - N_U
+        #: Wheelsets whose track alignment is in the state (the full car: all four).
+        self.n_track = n_u = 4 if params.model == 'full' else N_U
+        n_q, n_d = one.a.shape[0], one.b.shape[1] - n_u
         spectrum = params.track_model == 'spectrum'
-        self.n_map_error = 2 * N_U if spectrum else 0
+        self.n_map_error = 2 * n_u if spectrum else 0
         channels = measurement_channels(params.pattern, params.model)
         # Constant sensor offsets, one per measured channel (random constants).
         self.n_offsets = len(channels) if params.sensor_offsets else 0
-        self.i_error = n_q + 2 * N_U + n_d
+        self.i_error = n_q + 2 * n_u + n_d
         self.i_offset = self.i_error + self.n_map_error
         n = self.i_offset + self.n_offsets
-        track, rate, dist = (slice(n_q, n_q + N_U), slice(n_q + N_U, n_q + 2 * N_U),
-                             slice(n_q + 2 * N_U, n_q + 2 * N_U + n_d))
-        error, error_rate = (slice(self.i_error, self.i_error + N_U),
-                             slice(self.i_error + N_U, self.i_offset))
+        track, rate, dist = (slice(n_q, n_q + n_u), slice(n_q + n_u, n_q + 2 * n_u),
+                             slice(n_q + 2 * n_u, n_q + 2 * n_u + n_d))
+        error, error_rate = (slice(self.i_error, self.i_error + n_u),
+                             slice(self.i_error + n_u, self.i_offset))
         # Poles of the spectrum's two lags at this speed, 1/s.
         self.track_poles = (params.track_long_wavenumber_rad_per_m * self.speed,
                             params.track_corner_wavenumber_rad_per_m * self.speed)
@@ -512,16 +565,16 @@ class _SpeedModel:
         def augmented(a: np.ndarray, b: np.ndarray, kinematics: bool) -> np.ndarray:
             out = np.zeros((n, n))
             out[:n_q, :n_q] = a
-            out[:n_q, track] = b[:, :N_U]
-            out[:n_q, dist] = b[:, N_U:] * self.disturbance_scale
+            out[:n_q, track] = b[:, :n_u]
+            out[:n_q, dist] = b[:, n_u:] * self.disturbance_scale
             if kinematics:
-                out[track, rate] = np.eye(N_U)
+                out[track, rate] = np.eye(n_u)
                 out[dist, dist] = -np.eye(n_d) / params.other_bogie_correlation_s
                 if spectrum:
                     for value, rate_of in ((track, rate), (error, error_rate)):
-                        out[value, rate_of] = np.eye(N_U)
-                        out[rate_of, value] = -low * corner * np.eye(N_U)
-                        out[rate_of, rate_of] = -(low + corner) * np.eye(N_U)
+                        out[value, rate_of] = np.eye(n_u)
+                        out[rate_of, value] = -low * corner * np.eye(n_u)
+                        out[rate_of, rate_of] = -(low + corner) * np.eye(n_u)
             return out
 
         self.da = augmented(2.0 * (one.a - half.a), 2.0 * (one.b - half.b), False)
@@ -538,12 +591,14 @@ class _SpeedModel:
         self.h[:, self.i_offset:] = np.eye(len(channels))[:, :self.n_offsets]
         if params.pattern == 'D':
             self.h[:, :n_q] = one.c
-            self.h[:, track] = one.d[:, :N_U]
-            self.h[:, dist] = one.d[:, N_U:] * self.disturbance_scale
+            self.h[:, track] = one.d[:, :n_u]
+            self.h[:, dist] = one.d[:, n_u:] * self.disturbance_scale
             return
         # The half car's y_v is the body above the bogie: its 'y_v_above' channel.
         names = [name.replace('y_v', 'y_v_above') if params.model == 'half' else name
                  for name in one.state_names]
+        if params.model == 'full':
+            channels = tuple(_full_car_state(channel, params.bogie) for channel in channels)
         self.h[:, :n_q] = np.eye(n_q)[[names.index(channel) for channel in channels]]
 
 
@@ -582,6 +637,8 @@ class CreepEkf:
         self.state_names = self._model.state_names
         self.n_model = len(self.state_names)
         self.n_disturbances = self._model.n_disturbances
+        #: Wheelsets whose track alignment (and rate) is in the state.
+        self.n_track = self._model.n_track
         self.n_map_error = self._model.n_map_error
         self.n_offsets = self._model.n_offsets
         self.i_theta = self._model.i_offset + self.n_offsets
@@ -600,6 +657,8 @@ class CreepEkf:
         self._last_stamp_ns: int | None = None
         self.predicted_missing = 0
         self.gap_resets = 0
+        # The full model's rear wheelsets run on the front pair's track, kept per sample.
+        self._history = TrackHistory(2 * N_U, math.ceil(p.track_history_s / self._dt) + 2)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -643,15 +702,16 @@ class CreepEkf:
         self.x[self.i_theta] = math.log(c0)
         # States start at rest with the spread of a running vehicle: a few mm, a few cm/s.
         scale = np.tile([5e-3, 5e-2], self.n_model // 2)
+        n_u = self._model.n_track
         if p.track_model == 'spectrum':
             # The stationary spread of the shaped track and map error: sigma^2 and, for the
             # rate, poles product times sigma^2.
             poles = self._model.track_poles[0] * self._model.track_poles[1]
-            track, error = ([np.full(N_U, variance), np.full(N_U, poles * variance)]
+            track, error = ([np.full(n_u, variance), np.full(n_u, poles * variance)]
                             for variance in (self._track_variance(), self._map_error_variance()))
         else:
-            track = [np.full(N_U, p.initial_track_std_m ** 2),
-                     np.full(N_U, self._track_rate_std() ** 2)]
+            track = [np.full(n_u, p.initial_track_std_m ** 2),
+                     np.full(n_u, self._track_rate_std() ** 2)]
             error = []
         offsets = (p.offset_to_noise_ratio ** 2 * self._r_meas)[:self.n_offsets]
         self.P = np.diag(np.concatenate([
@@ -661,6 +721,8 @@ class CreepEkf:
         self._outlier_fraction = 0.0
         self._pinned_run = 0
         self._cusum_up = self._cusum_down = 0.0
+        # The kept track belongs to data before the reset (a gap, a time jump, divergence).
+        self._history.clear()
 
     @property
     def creep_factor(self) -> float:
@@ -695,24 +757,64 @@ class CreepEkf:
     # -- model ---------------------------------------------------------------------------------
 
     def _build_observation(self) -> None:
-        """H over x for the measurements alone and stacked with the track observation, keyed
-        by the size of the track sample: 0 (none), 2 (alignment) or 4 (alignment and rate)."""
+        """H over x for the measurements, and the rows of every track observation: each
+        wheelset's alignment, then each one's rate (plus the map's error under it with the
+        'spectrum' track model). A sample observes some of them (:meth:`_observation`)."""
         p = self.params
-        h = np.zeros((self._n_meas, self.dim_x))
-        h[:, :self.i_theta] = self._model.h
-        h_track = np.zeros((2 * N_U, self.dim_x))
-        h_track[:, self.n_model:self.n_model + 2 * N_U] = np.eye(2 * N_U)
+        n_u = self._model.n_track
+        self._h_meas = np.zeros((self._n_meas, self.dim_x))
+        self._h_meas[:, :self.i_theta] = self._model.h
+        h_track = np.zeros((2 * n_u, self.dim_x))
+        h_track[:, self.n_model:self.n_model + 2 * n_u] = np.eye(2 * n_u)
         if self.n_map_error:
             # The published map is the track plus the map's error.
             error = self._model.i_error
-            h_track[:, error:error + self.n_map_error] = np.eye(2 * N_U)
-        r_track = np.repeat([p.track_noise_m ** 2, p.track_rate_noise_mps ** 2], N_U)
-        self._h = {k: np.vstack([h, h_track[:k]]) for k in (0, N_U, 2 * N_U)}
-        self._h_track = {k: h_track[:k] for k in (N_U, 2 * N_U)}
-        self._r_track = {k: r_track[:k] for k in (N_U, 2 * N_U)}
+            h_track[:, error:error + self.n_map_error] = np.eye(2 * n_u)
+        self._h_track_rows = h_track
         # Diagonal measurement noise, kept as vectors (added on the diagonal of S).
-        self._r = {k: np.concatenate([self._r_meas, r_track[:k]]) for k in (0, N_U, 2 * N_U)}
+        self._r_track_rows = np.repeat([p.track_noise_m ** 2, p.track_rate_noise_mps ** 2], n_u)
+        self._observations: dict[tuple[int, ...], _Observation] = {}
         self._gate2 = p.gate_sigma ** 2
+        self._change_threshold = (p.full_change_threshold if p.model == 'full'
+                                  else p.change_threshold)
+
+    def _observation(self, rows: tuple[int, ...]) -> _Observation:
+        """The measurement model of a sample with these track rows (built once, kept)."""
+        entry = self._observations.get(rows)
+        if entry is None:
+            picked = list(rows)
+            h_track, r_track = self._h_track_rows[picked], self._r_track_rows[picked]
+            entry = _Observation(np.ascontiguousarray(np.vstack([self._h_meas, h_track])),
+                                 np.concatenate([self._r_meas, r_track]), h_track, r_track)
+            self._observations[rows] = entry
+        return entry
+
+    def _track_sample(self, front: np.ndarray | None) -> tuple[tuple[int, ...], np.ndarray] | None:
+        """The track rows a sample observes and their values, from the front pair's sample
+        ([y_r1, y_r2] or with their rates). The full model adds the rear wheelsets': the
+        track the front pair ran on (offset difference) / v earlier, while it is kept."""
+        n_u = self._model.n_track
+        if n_u == N_U:
+            return None if front is None else (tuple(range(front.size)), front)
+        self._history.push(front)
+        if front is None:
+            return None
+        has_rate = front.size == 2 * N_U
+        rows = [0, 1] + ([n_u, n_u + 1] if has_rate else [])
+        values = list(front)
+        offsets = self.params.vehicle.wheelset_offsets
+        samples_per_m = 1.0 / (self._model.speed * self._dt)
+        for rear in range(N_U, n_u):
+            lead = rear - N_U
+            kept = self._history.delayed((offsets[rear] - offsets[lead]) * samples_per_m)
+            if kept is None:
+                continue
+            for row, value in ((rear, kept[lead]), (n_u + rear, kept[N_U + lead])):
+                if math.isfinite(value) and (row < n_u or has_rate):
+                    rows.append(row)
+                    values.append(value)
+        order = np.argsort(rows)
+        return tuple(int(rows[i]) for i in order), np.asarray(values)[order]
 
     def _state_process_noise(self) -> np.ndarray:
         """Constant process noise: white accelerations on the coordinates, inputs, ln c."""
@@ -721,9 +823,12 @@ class CreepEkf:
         q = np.zeros((self.dim_x, self.dim_x))
         # Discrete white-noise acceleration per coordinate (position, rate) pair.
         block = np.array([[dt ** 4 / 4.0, dt ** 3 / 2.0], [dt ** 3 / 2.0, dt ** 2]])
+        n_u = self._model.n_track
         for i in range(0, n_q, 2):
             name = self.state_names[i]
-            if name == 'y_v':
+            if p.model == 'full':
+                sigma = p.full_car_process_std
+            elif name == 'y_v':
                 sigma = p.body_accel_process_std_mps2
             elif name == 'psi_v':
                 sigma = p.body_accel_process_std_mps2 / p.vehicle.bogie_pivot_semi_spacing
@@ -751,12 +856,12 @@ class CreepEkf:
             blocks = [(n_q, unit * self._track_variance()),
                       (self._model.i_error, unit * self._map_error_variance())]
         for start, values in blocks:
-            for i in range(N_U):
-                idx = [start + i, start + N_U + i]
+            for i in range(n_u):
+                idx = [start + i, start + n_u + i]
                 q[np.ix_(idx, idx)] = values
         decay = math.exp(-dt / p.other_bogie_correlation_s)
         gm = self._disturbance_std() ** 2 * (1.0 - decay ** 2)
-        dist = slice(n_q + 2 * N_U, n_q + 2 * N_U + self.n_disturbances)
+        dist = slice(n_q + 2 * n_u, n_q + 2 * n_u + self.n_disturbances)
         q[dist, dist] = np.diag(gm)
         q[i_theta, i_theta] = p.creep_walk_std_per_sqrt_s ** 2 * dt
         return q
@@ -836,6 +941,8 @@ class CreepEkf:
     def predict_through_gap(self, n_samples: int) -> None:
         """Prediction only over ``n_samples`` missing samples (counted)."""
         for _ in range(n_samples):
+            if self._model.n_track > N_U:
+                self._history.push(None)
             self._predict()
         self.predicted_missing += n_samples
 
@@ -846,9 +953,10 @@ class CreepEkf:
         Args:
             measurement: (p,) the pattern's measurement vector, or None when the sample is
                 missing (prediction only).
-            track: measured track at the leading and trailing wheelset: (2,) alignment, m,
-                or (4,) alignment and its rate (m/s), or None (unknown-input mode for this
-                sample). A non-finite or wrongly sized track sample is ignored and counted.
+            track: measured track at the leading and trailing wheelset (the monitored bogie's;
+                the full model: the front bogie's): (2,) alignment, m, or (4,) alignment and
+                its rate (m/s), or None (unknown-input mode for this sample). A non-finite or
+                wrongly sized track sample is ignored and counted.
             speed: forward speed, m/s, or None to keep the current model.
 
         Returns:
@@ -874,12 +982,13 @@ class CreepEkf:
             elif not all_finite(u_meas):
                 self._reject('track_non_finite')
                 u_meas = None
+        sample = self._track_sample(u_meas)
         reset = False
         if z is not None:
-            status, nis = self._update(z, u_meas)
+            status, nis = self._update(z, sample)
             reset = self._check_divergence(status, nis)
-        elif u_meas is not None:
-            self._update_track(u_meas)
+        elif sample is not None:
+            self._update_track(sample)
         estimate = self._estimate(status, nis, reset)
         self._predict()
         return estimate
@@ -888,18 +997,19 @@ class CreepEkf:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
         return reason
 
-    def _update(self, z: np.ndarray, u_meas: np.ndarray | None) -> tuple[str, float]:
-        with_track = 0 if u_meas is None else u_meas.size
-        z_all = z if u_meas is None else np.concatenate((z, u_meas))
+    def _update(self, z: np.ndarray, sample: tuple[tuple[int, ...], np.ndarray] | None,
+                ) -> tuple[str, float]:
+        obs = self._observation(() if sample is None else sample[0])
+        z_all = z if sample is None else np.concatenate((z, sample[1]))
         # Joseph form, the gate on the vehicle channels and the ln c correction with its
         # predicted spread (K S K^T)_theta, compiled (creep_kernel.ekf_update).
-        outcome = ekf_update(self.x, self.P, self._h[with_track], self._r[with_track],
+        outcome = ekf_update(self.x, self.P, obs.h, obs.r,
                              np.ascontiguousarray(z_all, dtype=float), self._n_meas,
                              self._gate2, self.i_theta, self._update_out)
         if outcome == OUTLIER:
             # The vehicle measurement is an outlier; the track sample (if any) is still used.
-            if u_meas is not None:
-                self._update_track(u_meas)
+            if sample is not None:
+                self._update_track(sample)
             return self._reject('outlier'), math.nan
         if outcome == SINGULAR:
             return self._reject('singular_innovation'), math.nan
@@ -921,13 +1031,15 @@ class CreepEkf:
         p = self.params
         self._cusum_up = max(0.0, self._cusum_up + normalised_correction - p.change_drift)
         self._cusum_down = max(0.0, self._cusum_down - normalised_correction - p.change_drift)
-        if max(self._cusum_up, self._cusum_down) > p.change_threshold:
+        if max(self._cusum_up, self._cusum_down) > self._change_threshold:
             self.P[self.i_theta, self.i_theta] += p.change_log_std ** 2
             self._cusum_up = self._cusum_down = 0.0
             self.changes_detected += 1
 
-    def _update_track(self, u_meas: np.ndarray) -> None:
-        h, r = self._h_track[u_meas.size], self._r_track[u_meas.size]
+    def _update_track(self, sample: tuple[tuple[int, ...], np.ndarray]) -> None:
+        rows, u_meas = sample
+        obs = self._observation(rows)
+        h, r = obs.h_track, obs.r_track
         hp = h @ self.P
         s = hp @ h.T + np.diag(r)
         _, solved, info = _cholesky_solve(s, hp)
@@ -1084,14 +1196,14 @@ def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
 def measurement_fields(pattern: str, bogie: str = 'front', model: str = 'end',
                        ) -> tuple[tuple[str, int | None], ...] | None:
     """The RailLateralStates fields (field name, array index or None) that are a pattern A-C's
-    measurement vector, in its order, when it is a selection of fields (``model='end'``);
-    None for the half car, whose body channels combine the body's lateral and yaw.
+    measurement vector, in its order, when it is a selection of fields (models 'end' and
+    'full'); None for the half car, whose body channels combine the body's lateral and yaw.
 
     Raises:
         ValueError: naming the argument that is not a lateral-states pattern, model or bogie.
     """
     j = _lateral_states_bogie(pattern, bogie, model)
-    if model != 'end':
+    if model == 'half':
         return None
     out = _bogie_end_fields(pattern, j)
     if pattern in ('B', 'C'):
@@ -1117,7 +1229,8 @@ def lateral_states_measurement(states: Mapping[str, np.ndarray], pattern: str,
         bogie: the monitored bogie, 'front' (wheelsets 1-2) or 'rear' (wheelsets 3-4).
         body_pivot_offset: lv, body centre to bogie centre, m: the half car's body measurement
             is taken above the bogie, y_v +/- lv psi_v.
-        model: 'end' (body lateral and yaw at its centre) or 'half' (body above the bogie).
+        model: 'end' or 'full' (body lateral and yaw at its centre) or 'half' (body above the
+            bogie).
 
     Returns:
         (N, p) in the order of :func:`measurement_channels`.

@@ -328,7 +328,9 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
 
     def _on_track(self, stamp: int, msg: Any) -> list[Output]:
         self._counts['track_received'] += 1
-        j = self._bogie_index
+        # The monitored bogie's pair; the full model's track is the front pair's (the rear
+        # wheelsets run on it a wheelbase later).
+        j = 0 if self.params.model == 'full' else self._bogie_index
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
         rate = np.asarray(msg.lateral_alignment_rate, dtype=float)
         if alignment.size < 2 * j + 2:
