@@ -1178,6 +1178,14 @@ def _bogie_end_fields(pattern: str, j: int) -> list[tuple[str, int | None]]:
     return out
 
 
+def track_wheelsets(bogie: str, model: str) -> slice:
+    """The wheelsets (front to rear, of TrackIrregularity's arrays) whose published track the
+    filter takes: the monitored bogie's pair; the full model the front pair, whose track the
+    rear wheelsets run on a wheelbase later (:class:`TrackHistory`)."""
+    j = 0 if model == 'full' else BOGIES.index(bogie)
+    return slice(2 * j, 2 * j + 2)
+
+
 def pattern_fields(pattern: str, bogie: str = 'front', model: str = 'end',
                    ) -> tuple[tuple[str, int | None], ...]:
     """The RailLateralStates fields a pattern A-C reads: (field name, array index or None).

@@ -56,11 +56,14 @@ class TrackHistory:
         None when that is older than what is kept. NaN where either neighbour lacks a value."""
         if not delay_samples >= 0.0:
             raise ValueError(f'delay must be >= 0, got {delay_samples}')
-        older = math.floor(delay_samples) + 1
-        if older >= min(self._count, self.capacity):
+        back = math.floor(delay_samples)
+        fraction = delay_samples - back
+        oldest = back + 1 if fraction > 0.0 else back
+        if oldest >= min(self._count, self.capacity):
             return None
         last = self._count - 1
-        fraction = delay_samples - (older - 1)
-        newer_row = self._rows[(last - older + 1) % self.capacity]
-        older_row = self._rows[(last - older) % self.capacity]
+        newer_row = self._rows[(last - back) % self.capacity]
+        if fraction == 0.0:
+            return newer_row.copy()
+        older_row = self._rows[(last - back - 1) % self.capacity]
         return (1.0 - fraction) * newer_row + fraction * older_row

@@ -21,6 +21,7 @@ from rail_monitor_ros.core.creep_ekf import (
     CreepEkfParams,
     CreepRun,
     lateral_states_measurement,
+    track_wheelsets,
 )
 from rail_monitor_ros.core.rail_model import OBSERVATION_PATTERNS, RailVehicleParams
 from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, lateral_states_fields
@@ -35,8 +36,8 @@ def simulation_inputs(result: RailSimulationResult, pattern: str, bogie: str = '
 
     The same conversion the node applies to the topics: patterns A-C from the noisy lateral
     states, D from the IMU signals (front bogie only: the simulator's IMUs are there); the
-    track alignment at the bogie's two wheelsets and, with ``track_rate``, its rate (both
-    fields of TrackIrregularity).
+    track alignment at the two wheelsets the model takes (:func:`track_wheelsets`) and, with
+    ``track_rate``, its rate (both fields of TrackIrregularity).
     """
     if pattern not in OBSERVATION_PATTERNS:
         raise ValueError(f'pattern must be one of {OBSERVATION_PATTERNS}, got {pattern!r}')
@@ -51,9 +52,10 @@ def simulation_inputs(result: RailSimulationResult, pattern: str, bogie: str = '
     else:
         fields = lateral_states_fields(result.measured_state, result.state_names)
         y = lateral_states_measurement(fields, pattern, bogie, body_pivot_offset, model)
-    track = result.measured_track_alignment[:, 2 * j:2 * j + 2]
+    pair = track_wheelsets(bogie, model)
+    track = result.measured_track_alignment[:, pair]
     if track_rate:
-        track = np.column_stack([track, result.measured_track_alignment_rate[:, 2 * j:2 * j + 2]])
+        track = np.column_stack([track, result.measured_track_alignment_rate[:, pair]])
     return y, track, result.speed
 
 

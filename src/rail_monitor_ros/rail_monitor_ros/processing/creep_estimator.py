@@ -57,13 +57,13 @@ from typing import Any
 import numpy as np
 
 from rail_monitor_ros.core.creep_ekf import (
-    BOGIES,
     CreepEkf,
     CreepEkfParams,
     CreepEstimate,
     lateral_states_measurement,
     measurement_fields,
     pattern_fields,
+    track_wheelsets,
 )
 from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
 from vehicle_monitor_common.imu_pairing import ImuPair
@@ -162,7 +162,6 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
         super().__init__(node_params, inputs)
         self.ekf = CreepEkf(params)
-        self._bogie_index = BOGIES.index(params.bogie)
         # Patterns A-C of the end model measure a selection of the lateral states' fields.
         self._selection = (None if params.pattern == 'D' else
                            measurement_fields(params.pattern, params.bogie, params.model))
@@ -328,18 +327,16 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
 
     def _on_track(self, stamp: int, msg: Any) -> list[Output]:
         self._counts['track_received'] += 1
-        # The monitored bogie's pair; the full model's track is the front pair's (the rear
-        # wheelsets run on it a wheelbase later).
-        j = 0 if self.params.model == 'full' else self._bogie_index
+        pair = track_wheelsets(self.params.bogie, self.params.model)
         alignment = np.asarray(msg.lateral_alignment, dtype=float)
         rate = np.asarray(msg.lateral_alignment_rate, dtype=float)
-        if alignment.size < 2 * j + 2:
+        if alignment.size < pair.stop:
             self._counts['track_wrong_size'] += 1
             return []
-        part = alignment[2 * j:2 * j + 2]
+        part = alignment[pair]
         if rate.size == alignment.size:
             # With its rate the filter's track states follow the track within the sample.
-            part = np.concatenate([part, rate[2 * j:2 * j + 2]])
+            part = np.concatenate([part, rate[pair]])
         # A channel repeating bit for bit: a frozen track measurement (a measured track is
         # never exactly constant: its sensors' noise).
         if self._track_frozen is None or self._track_frozen_size != part.size:
