@@ -4,12 +4,14 @@ messages as the offline engine feeds them."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from rail_monitor_ros.processing.suspension_monitor import (
     BODY_IMU,
+    CREEP,
     MODES,
     make_processor,
 )
@@ -54,3 +56,26 @@ def test_body_imu_alone_gives_nothing_and_bad_values_are_refused() -> None:
     assert [o for m in msgs for o in processor.process(BODY_IMU, m)] == []
     with pytest.raises(ConfigurationError, match='/suspension_monitor.*mean_sojourn_time_s'):
         make_processor({'mean_sojourn_time_s': 0.001}, '/suspension_monitor')
+
+
+def test_a_creep_estimate_is_not_followed_while_a_fault_is_suspected() -> None:
+    """The creep estimator models a healthy suspension, so while the monitor suspects a
+    fault it keeps the creep factor it had: on the fault recording, confident estimates
+    (std 0.05) of 1.5 before the spring fault (at 3 s) and of 0.6 after it; the bank follows
+    the first and holds it through the fault."""
+    processor = make_processor({}, '/suspension_monitor')
+    factors = {}
+    for topic, _, _, msg in read_messages(BAG, ['/rail/bogie/imu', '/rail/body/imu',
+                                                '/rail/track_irregularity']):
+        stamp = msg.header.stamp
+        if topic == '/rail/bogie/imu':
+            t = stamp.sec + stamp.nanosec * 1e-9
+            factors.setdefault('start', t)
+            estimate = SimpleNamespace(header=msg.header, std_dev=0.05,
+                                       creep_factor=1.5 if t - factors['start'] < 3.0 else 0.6)
+            processor.process(CREEP, estimate)
+            factors[round(t - factors['start'], 3)] = processor.imm.creep_factor
+        processor.process(topic.lstrip('/'), msg)
+    assert factors[2.9] == pytest.approx(1.5, abs=0.05)
+    assert processor.imm.creep_factor == factors[2.9]
+    assert processor._creep_state.startswith('held while a suspension fault is suspected')

@@ -1,18 +1,25 @@
 """Wheel-rail creep factor by an augmented-state EKF (Chonan & Tsunashima;
 docs/methods/creep_estimator.md). No ROS.
 
-Estimation model (``model='end'``, default): one end of the full car,
+Estimation model (``model='full'``, default): the 14-DOF full car,
+:func:`rail_monitor_ros.core.rail_model.full_car_state_space` (four wheelsets and two bogies,
+lateral + yaw, the body lateral + yaw), the track alignment under all four wheelsets in the
+state. With a published track the front pair's is measured and the rear pair's is the front
+pair's a wheelbase later (:class:`rail_monitor_ros.core.track_history.TrackHistory`): on a
+track every wheelset meets the same alignment. ``model='end'``: one end of the full car,
 :func:`rail_monitor_ros.core.rail_model.car_end_state_space`: the monitored bogie with its two
 wheelsets (lateral + yaw), the bogie (lateral + yaw) and the whole body (lateral + yaw), the
 other bogie replaced by its secondary forces on the body as Gauss-Markov states. The paper's
 7-DOF half car (``model='half'``) is kept for comparison. The creep factor c (f11 and f22 scaled
 together) is appended to the state as a random walk (the paper's eq. 11)::
 
-    x = [q, y_r1, y_r2, y_r1', y_r2', d, theta],   theta = ln c
+    x = [q, y_r, y_r', d, theta],   theta = ln c
     x' = A(c) x  (continuous; q' = A_q q + B_r y_r + B_d d, y_r'' = w, d' = -d / tau + w)
 
-with q the vehicle model's states. Vocabulary as filterpy: x the state, P its covariance, F the
-transition, H the observation, z the measurement, y = z - H x the residual, S its covariance.
+with q the vehicle model's states, y_r the alignment under the model's wheelsets (two; the
+full car four) and d the end model's other-bogie forces (none in the others). Vocabulary as
+filterpy: x the state, P its covariance, F the transition, H the observation, z the
+measurement, y = z - H x the residual, S its covariance.
 
 Why the end model (measured on the seeded ``rail_creep_steps`` run, known input, largest error
 from 1 s after each step): the half car's body is the body mass carried by one bogie with no
@@ -24,6 +31,18 @@ track entering with its rate (below), all four patterns meet the targets (docs/t
 the tests and the issue report).
 
 Choices and why:
+
+* **The full car (default since 2026-12-05)**: the end model's Gauss-Markov stand-in for the
+  other bogie is its largest model error; the full car driven by the track under each
+  wheelset follows the simulated car to 1e-6 m. On the held-out family (pattern C, exact
+  track, within 5 % within 1 s of each step) 22/24 cases against the end model's 10/24; D with
+  the exact track 24/24 against 20/24; without a track or with a 0.3 mm map both 0/24
+  (docs/methods/rail_family_evaluation.md). The rear track from the kept front track, not
+  from the spectrum's Pade delays (the suspension monitor's track model): those do not carry
+  a surveyed track's detail from one wheelset to the next (development family: 23/24 with
+  the history, 21/24 without). Its own CUSUM level (``full_change_threshold`` 20, tuned on the
+  development family: 8 gave 18/24, 12-30 gave 22-23/24) and model error
+  (``full_car_process_std``; 1e-5 to 1e-3 give the same figures).
 
 * **ln c as the state**: c stays positive without a constraint, and a random walk in ln c is a
   relative change, which is how adhesion drops (a 60 % loss is as fast from c = 1 as a 60 % loss
