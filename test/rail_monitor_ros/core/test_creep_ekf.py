@@ -509,3 +509,21 @@ def test_the_full_model_takes_the_front_pair_track() -> None:
     assert track_wheelsets('rear', 'full') == slice(0, 2)
     assert track_wheelsets('rear', 'end') == slice(2, 4)
     assert track_wheelsets('front', 'end') == slice(0, 2)
+
+
+def test_a_suspension_fault_is_no_low_adhesion() -> None:
+    """The full model carries each bogie's suspension error as Gauss-Markov force and moment
+    states, so a failed spring or damper is not read as a creep change: on the fault
+    recording's run (spring 150 % at 3 s, damper 50 % at 6 s, c = 1 throughout) pattern C
+    stays within 0.69-1.09 and D within 0.90-1.04 (measured), and low adhesion is never
+    flagged. With them all but off (std 1 N) C ran 0.36-1.57 and D 0.23-2.0, both flagging
+    low adhesion."""
+    fault = simulate(shipped_scenario('rail_imm_spring_damper_fault'))
+    after = fault.time > 1.0
+    for pattern, (low, high) in (('C', (0.6, 1.2)), ('D', (0.8, 1.1))):
+        run = run_on_simulation(fault, CreepEkfParams(pattern=pattern))
+        assert low < run.creep_factor[after].min() and run.creep_factor[after].max() < high
+        assert not run.low_adhesion.any()
+    bare = run_on_simulation(fault, CreepEkfParams(pattern='C', suspension_error_force_std_n=1.0,
+                                                   suspension_error_moment_std_nm=1.0))
+    assert bare.creep_factor[after].min() < 0.5 and bare.low_adhesion.any()

@@ -271,6 +271,14 @@ class CreepEkfParams:
                                          'corrections carry more of each sample, so they '
                                          'drift further between changes than the end '
                                          "model's)", low=1e-3, high=1e6, read_only=True)
+    suspension_error_force_std_n: float = param(
+        500.0, "full model: std of each bogie's secondary lateral force beyond the modelled "
+        'springs and dampers (first-order Gauss-Markov, other_bogie_correlation_s), N: the '
+        'creep factor must not absorb a suspension that is not as modelled', low=1e-3,
+        high=1e7, read_only=True)
+    suspension_error_moment_std_nm: float = param(
+        500.0, "full model: the same for each bogie's secondary yaw moment, N m", low=1e-3,
+        high=1e7, read_only=True)
     track_history_s: float = param(5.0, 'full model: how long the published front track is '
                                    'kept for the rear wheelsets, s (below the car length '
                                    'over this, the rear track is unknown)', low=0.1,
@@ -283,7 +291,8 @@ class CreepEkfParams:
                                              "moment Cpsi psi_b2', N m", low=1e-3, high=1e7,
                                              read_only=True)
     other_bogie_correlation_s: float = param(0.1, 'end model: correlation time of both '
-                                             '(first-order Gauss-Markov), s', low=1e-4,
+                                             '(first-order Gauss-Markov; the full model: of '
+                                             'the suspension errors), s', low=1e-4,
                                              high=100.0, read_only=True)
     track_slope_std_rad: float = param(1e-3, 'std of the track alignment slope, rad (the initial '
                                        'spread of the track rate states is this times the speed)',
@@ -387,6 +396,7 @@ class CreepEkfParams:
                     'creep_walk_std_per_sqrt_s', 'min_creep_factor', 'max_creep_factor',
                     'lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
                     'body_accel_process_std_mps2', 'full_car_process_std', 'full_change_threshold',
+                    'suspension_error_force_std_n', 'suspension_error_moment_std_nm',
                     'track_history_s',
                     'other_bogie_force_std_n',
                     'other_bogie_moment_std_nm', 'other_bogie_correlation_s',
@@ -514,7 +524,7 @@ def estimation_model(params: CreepEkfParams, creep_factor: float = 1.0,
     if params.model == 'end':
         return car_end_state_space(vehicle, creep_factor, bogie=params.bogie)
     if params.model == 'full':
-        full = full_car_state_space(vehicle, creep_factor)
+        full = full_car_state_space(vehicle, creep_factor, suspension_errors=True)
         rows = slice(3 * BOGIES.index(params.bogie), 3 * BOGIES.index(params.bogie) + 3)
         return replace(full, c=full.c[rows], d=full.d[rows],
                        output_names=full.output_names[rows])
@@ -578,8 +588,10 @@ class _SpeedModel:
         # that causes them (f / Ksy in m, m / Cpsi in rad/s), the scale of the other states:
         # in newtons, P would span 1e-12 to 1e7, beyond double precision.
         vehicle = params.vehicle
-        self.disturbance_scale = np.array([vehicle.secondary_lateral_stiffness,
-                                           vehicle.anti_yaw_damping])[:n_d]
+        # End model: the other bogie's force and moment; full model: each bogie's suspension
+        # error force and moment (pairs).
+        self.disturbance_scale = np.tile([vehicle.secondary_lateral_stiffness,
+                                          vehicle.anti_yaw_damping], 2)[:n_d]
 
         def augmented(a: np.ndarray, b: np.ndarray, kinematics: bool) -> np.ndarray:
             out = np.zeros((n, n))
@@ -685,8 +697,9 @@ class CreepEkf:
     def _disturbance_std(self) -> np.ndarray:
         """Stationary std of the disturbance states (scaled units, see _SpeedModel)."""
         p = self.params
-        return np.array([p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])[
-            :self.n_disturbances] / self._model.disturbance_scale
+        pair = ([p.suspension_error_force_std_n, p.suspension_error_moment_std_nm]
+                if p.model == 'full' else [p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])
+        return np.tile(pair, 2)[:self.n_disturbances] / self._model.disturbance_scale
 
     def _track_variance(self) -> float:
         """Variance of the spectrum track model's alignment, m^2: the spectrum's integral
