@@ -105,11 +105,13 @@ class _Held:
     """A stream sampled and held at the IMU pairs' stamps, decided in data time: the value
     for a pair is the latest not newer than its stamp (plus the tolerance), and a pair is
     settled once the stream has delivered a stamp at or after it, or has fallen silent (its
-    newest stamp a wait horizon behind the newest IMU pair)."""
+    newest stamp a wait horizon behind the newest IMU pair; a stream not heard yet, the wait
+    horizon after the first pair that asked for it)."""
 
     def __init__(self) -> None:
         self.samples: deque[tuple[int, Any]] = deque()
         self.latest: int | None = None      # newest stamp seen (valid or not)
+        self._first_asked: int | None = None  # the first pair's stamp while nothing was seen
 
     def seen(self, stamp_ns: int) -> None:
         self.latest = stamp_ns
@@ -119,9 +121,19 @@ class _Held:
 
     def settled(self, stamp_ns: int, newest_ns: int, tolerance_ns: int, wait_ns: int) -> bool:
         """Whether the value for ``stamp_ns`` is known: the stream delivered that stamp or a
-        later one, or it is silent (``wait_ns`` behind the newest IMU pair ``newest_ns``)."""
-        return (self.latest is None or self.latest >= stamp_ns - tolerance_ns
-                or self.latest < newest_ns - wait_ns)
+        later one, or it is silent (``wait_ns`` behind the newest IMU pair ``newest_ns``).
+
+        A stream not heard yet is waited for as one that fell silent at the first pair: in a
+        live graph another node's first outputs come after the IMU samples they answer (the
+        offline engine delivers them in log order), so treating it as absent at once made the
+        live monitor start without the creep factor the engine had (rail_creep_steps: its
+        first 100 pairs, while the full-car creep model was confident after 70).
+        """
+        if self.latest is None:
+            if self._first_asked is None:
+                self._first_asked = stamp_ns
+            return self._first_asked < newest_ns - wait_ns
+        return self.latest >= stamp_ns - tolerance_ns or self.latest < newest_ns - wait_ns
 
     def at(self, stamp_ns: int, tolerance_ns: int) -> tuple[int, Any] | None:
         """The latest sample not newer than ``stamp_ns + tolerance_ns`` (older ones are
@@ -135,6 +147,7 @@ class _Held:
     def clear(self) -> None:
         self.samples.clear()
         self.latest = None
+        self._first_asked = None
 
 
 class _RepeatCounter:
@@ -192,6 +205,9 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self.time_jumps = 0
         self._track = _Held()
         self._creep = _Held()
+        # The held streams a pair waits for: those this node subscribes.
+        self._awaited = tuple(held for held, used in ((self._track, n.use_track_irregularity),
+                                                      (self._creep, n.use_creep_factor)) if used)
         self._pending: deque[ImuPair] = deque()
         self._track_state = 'not received' if n.use_track_irregularity else 'disabled'
         self._creep_state = 'not received' if n.use_creep_factor else 'disabled'
@@ -306,8 +322,8 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         outputs = []
         while self._pending:
             pair, newest = self._pending[0], self._pending[-1].stamp_ns
-            if not all(held.settled(pair.stamp_ns, newest, tolerance, wait) for held in (
-                    self._track, self._creep)):
+            if not all(held.settled(pair.stamp_ns, newest, tolerance, wait)
+                       for held in self._awaited):
                 break
             self._pending.popleft()
             self._follow_creep(pair.stamp_ns, tolerance)
