@@ -158,3 +158,27 @@ def test_pattern_without_its_fields_is_an_error_until_they_return() -> None:
     assert 'recovering' in levels[7][1]
     assert all(level == OK for level, _ in levels[9:])         # samples 500 on
     assert missing.counts['missing_fields'] == 100
+
+
+@pytest.mark.parametrize('model, pair', [('full', slice(0, 2)), ('end', slice(2, 4))])
+def test_the_rear_bogie_takes_the_track_its_model_needs(model: str, pair: slice) -> None:
+    """Monitoring the rear bogie, the end model takes the rear pair's published track; the
+    full model the front pair's, whose track the rear wheelsets run on a wheelbase later
+    (core.creep_ekf.track_wheelsets)."""
+    processor = make_processor({'bogie': 'rear', 'model': model}, '/creep_estimator')
+    messages = _recording(['/rail/lateral_states', '/rail/track_irregularity'])
+    outputs = [o for topic, msg in messages for o in processor.process(topic, msg)]
+    lateral = [m for t, m in messages if t == LATERAL_STATES]
+    tracks = {_stamp(m): m for t, m in messages if t == TRACK}
+    ekf = CreepEkf(CreepEkfParams(bogie='rear', model=model))
+    expected = []
+    for k, msg in enumerate(lateral):
+        fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
+                  for name in LATERAL_FIELDS}
+        z = lateral_states_measurement(fields, 'C', 'rear', model=model)[0]
+        track = tracks.get(_stamp(msg)) if k > 0 else None
+        u = None if track is None else np.concatenate(
+            [track.lateral_alignment[pair], track.lateral_alignment_rate[pair]])
+        expected.append(ekf.step(z, u).creep_factor)
+    np.testing.assert_allclose([o.fields['creep_factor'] for o in outputs], expected,
+                               rtol=1e-12)
