@@ -34,13 +34,16 @@ def plain_run(params: CreepEkfParams, z: np.ndarray, track: np.ndarray) -> np.nd
     """The plainest per-sample EKF on the same model: exact discretisation every sample,
     S inverted explicitly, P = (I - K H) P. Returns the c estimate per sample."""
     ekf = CreepEkf(params)              # for the model matrices, Q and R only
-    h = ekf._h[track.shape[1]]          # noqa: SLF001 - benchmark reuses the model
-    r = np.diag(ekf._r[track.shape[1]])  # noqa: SLF001
     q = ekf._q_x                        # noqa: SLF001
     x, p = ekf.x.copy(), ekf.P.copy()
     out = np.empty(z.shape[0])
     for k in range(z.shape[0]):
-        z_k = np.concatenate([z[k], track[k]])
+        # The track rows the filter observes (the full model adds the rear pair's from the
+        # front track it keeps), assembled as the filter does.
+        rows, values = ekf._track_sample(track[k])                    # noqa: SLF001
+        observation = ekf._observation(rows)                          # noqa: SLF001
+        h, r = observation.h, np.diag(observation.r)
+        z_k = np.concatenate([z[k], values])
         s = h @ p @ h.T + r
         gain = p @ h.T @ np.linalg.inv(s)
         x = x + gain @ (z_k - h @ x)

@@ -241,7 +241,8 @@ def _ekf_spectrum(ekf: CreepEkf, creep_factor: float, known: int) -> OutputSpect
     without ln c: the end model, track and map-error states, other-bogie forces, offsets)."""
     n = ekf.i_theta
     model = ModeModel(ekf._discretize(creep_factor).fg[:n, :n], ekf._q_x[:n, :n], {})
-    return OutputSpectrum(model, ekf._h[known][:, :n], np.diag(ekf._r[known]))
+    h, r = ekf.measurement_model(known)
+    return OutputSpectrum(model, h[:, :n], np.diag(r))
 
 
 def estimator_fisher_rate(params: CreepEkfParams, creep_factor: float, known: int) -> float:

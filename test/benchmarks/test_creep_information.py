@@ -81,14 +81,19 @@ def test_the_wheelbase_delay_carries_information_without_a_track(held_out_case) 
         creep.fisher_rate(car, speed, 0.75, 'C/exact', 'independent')
 
 
-def test_the_ekfs_information_falls_as_its_model_errors_grow(held_out_case) -> None:
-    """The creep EKF's own model, pattern C with the exact track: ten times its model-error
-    noise leaves less information than as shipped, a tenth more."""
-    car, speed = held_out_case
-    shipped = evaluation.creep_params(car, speed, 'C-spec/exact', 'spectrum')
-    names = ('lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
+@pytest.mark.parametrize('model, names', [
+    ('end', ('lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
              'body_accel_process_std_mps2', 'other_bogie_force_std_n',
-             'other_bogie_moment_std_nm')
+             'other_bogie_moment_std_nm')),
+    ('full', ('full_car_process_std', 'suspension_error_force_std_n',
+              'suspension_error_moment_std_nm'))])
+def test_the_ekfs_information_falls_as_its_model_errors_grow(held_out_case, model: str,
+                                                             names: tuple[str, ...]) -> None:
+    """The creep EKF's own model, pattern C with the exact track: ten times its model-error
+    noise leaves less information than as shipped, a tenth more (each model's own noise)."""
+    car, speed = held_out_case
+    shipped = replace(evaluation.creep_params(car, speed, 'C-spec/exact', 'spectrum'),
+                      model=model)
 
     def scaled(factor: float) -> float:
         params = replace(shipped, **{n: getattr(shipped, n) * factor for n in names})

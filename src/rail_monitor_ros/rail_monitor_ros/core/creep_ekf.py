@@ -826,6 +826,17 @@ class CreepEkf:
             self._observations[rows] = entry
         return entry
 
+    def measurement_model(self, track_size: int) -> tuple[np.ndarray, np.ndarray]:
+        """(H, diagonal of R) of a sample whose track part is the front pair's as published:
+        ``track_size`` 0 (none), 2 (alignment) or 4 (alignment and rate); the full model's
+        rear rows, which it adds once it has kept the front track, are not in it."""
+        if track_size not in (0, N_U, 2 * N_U):
+            raise ValueError(f'track_size must be 0, {N_U} or {2 * N_U}, got {track_size}')
+        n_u = self._model.n_track
+        rows = (0, 1)[:track_size] + ((n_u, n_u + 1) if track_size == 2 * N_U else ())
+        obs = self._observation(rows)
+        return obs.h, obs.r
+
     def _track_sample(self, front: np.ndarray | None) -> tuple[tuple[int, ...], np.ndarray] | None:
         """The track rows a sample observes and their values, from the front pair's sample
         ([y_r1, y_r2] or with their rates). The full model adds the rear wheelsets': the
