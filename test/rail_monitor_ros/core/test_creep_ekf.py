@@ -67,7 +67,7 @@ def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.n
     x[:n_q] = rng.normal(size=n_q) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], n_q // 4 + 1)[:n_q]
     x[n_q:n_q + n_u] = rng.normal(size=n_u) * 2e-3
     x[n_q + n_u:n_q + 2 * n_u] = rng.normal(size=n_u) * 5e-2
-    # The other bogie's forces (3 mm), the track map's error (0.3 mm, its rate 3 mm/s) and
+    # The other bogie's forces (3 mm) or the suspension ratio errors (3e-3), the track map's error (0.3 mm, its rate 3 mm/s) and
     # the sensor offsets (0.1 mm).
     rest = ekf.i_theta - n_q - 2 * n_u
     spread = np.concatenate([np.full(ekf.n_disturbances, 3e-3),
@@ -512,18 +512,17 @@ def test_the_full_model_takes_the_front_pair_track() -> None:
 
 
 def test_a_suspension_fault_is_no_low_adhesion() -> None:
-    """The full model carries each bogie's suspension error as Gauss-Markov force and moment
-    states, so a failed spring or damper is not read as a creep change: on the fault
-    recording's run (spring 150 % at 3 s, damper 50 % at 6 s, c = 1 throughout) pattern C
-    stays within 0.69-1.09 and D within 0.90-1.04 (measured), and low adhesion is never
-    flagged. With them all but off (std 1 N) C ran 0.36-1.57 and D 0.23-2.0, both flagging
-    low adhesion."""
+    """The full model carries each bogie's secondary spring and damper ratio as states, so a
+    failed spring or damper is not read as a creep change: on the fault recording's run (spring
+    150 % at 3 s, damper 50 % at 6 s, c = 1 throughout) pattern C stays within 0.945-1.055 and D
+    within 0.785-1.066 (measured), and low adhesion is never flagged. With the ratios held at 1
+    (std 1e-6) C ran 0.36-1.57 and flagged low adhesion."""
     fault = simulate(shipped_scenario('rail_imm_spring_damper_fault'))
     after = fault.time > 1.0
-    for pattern, (low, high) in (('C', (0.6, 1.2)), ('D', (0.8, 1.1))):
+    for pattern, (low, high) in (('C', (0.9, 1.1)), ('D', (0.7, 1.15))):
         run = run_on_simulation(fault, CreepEkfParams(pattern=pattern))
         assert low < run.creep_factor[after].min() and run.creep_factor[after].max() < high
         assert not run.low_adhesion.any()
-    bare = run_on_simulation(fault, CreepEkfParams(pattern='C', suspension_error_force_std_n=1.0,
-                                                   suspension_error_moment_std_nm=1.0))
+    bare = run_on_simulation(fault, CreepEkfParams(pattern='C', suspension_ratio_std=1e-6,
+                                                   suspension_ratio_walk_std_per_sqrt_s=1e-6))
     assert bare.creep_factor[after].min() < 0.5 and bare.low_adhesion.any()

@@ -59,19 +59,26 @@ def test_update_gates_outliers_and_refuses_a_singular_innovation() -> None:
     np.testing.assert_array_equal(x_kernel, x)
 
 
-def test_predict_is_the_taylor_stepped_transition() -> None:
-    """x <- [F(c) x_q, ln c] with F(c) = F + (c - c_k) dF, P <- sym(J P J^T + Q)."""
+@pytest.mark.parametrize('i_sens', [(), (2, 5)])
+def test_predict_is_the_taylor_stepped_transition(i_sens: tuple[int, ...]) -> None:
+    """x <- [F(c, delta) x_q, ln c] with F(c, delta) = F + (c - c_k) dF + sum_j delta_j S_j
+    (delta_j = x[i_sens[j]]), P <- sym(J P J^T + Q)."""
     rng = np.random.default_rng(4)
     x, p, q = rng.standard_normal(N), _spd(rng, N), _spd(rng, N)
     fg, dfg = rng.standard_normal((N - 1, N - 1)), rng.standard_normal((N - 1, N - 1))
+    sens = rng.standard_normal((len(i_sens), N - 1, N - 1))
     c, c_grid = 0.71, 0.7
-    f = fg + (c - c_grid) * dfg
+    f = fg + (c - c_grid) * dfg + sum((x[i] * s for i, s in zip(i_sens, sens)),
+                                      np.zeros_like(fg))
     jac = np.eye(N)
     jac[:-1, :-1] = f
     jac[:-1, -1] = c * (dfg @ x[:-1])
+    for i, s in zip(i_sens, sens):
+        jac[:-1, i] += s @ x[:-1]
     expected = jac @ p @ jac.T + q
     x_kernel, p_kernel, buffer = x.copy(), p.copy(), np.eye(N)
-    ekf_predict(x_kernel, p_kernel, fg, dfg, c, c_grid, q, N - 1, buffer)
+    ekf_predict(x_kernel, p_kernel, fg, dfg, c, c_grid, sens, np.array(i_sens, dtype=np.int64),
+                q, N - 1, buffer)
     np.testing.assert_allclose(x_kernel, np.append(f @ x[:-1], x[-1]), rtol=1e-12)
     np.testing.assert_allclose(p_kernel, 0.5 * (expected + expected.T), rtol=1e-12)
     np.testing.assert_array_equal(p_kernel, p_kernel.T)

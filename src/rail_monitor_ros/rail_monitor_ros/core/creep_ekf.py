@@ -158,6 +158,8 @@ N_U = 2            # track alignment at the leading and trailing wheelset
 BOGIES = ('front', 'rear')
 MODELS = ('end', 'half', 'full')
 TRACK_MODELS = ('spectrum', 'slope_walk')
+#: The full model's suspension ratio errors, each bogie's secondary lateral spring and damper.
+SUSPENSION_RATIOS = ('spring_b1', 'damper_b1', 'spring_b2', 'damper_b2')
 
 # The observation patterns' channels (docs/methods/creep_estimator.md) over the monitored bogie's
 # wheelsets w1 (leading)
@@ -272,18 +274,17 @@ class CreepEkfParams:
                                         'on every coordinate (lateral m/s^2, yaw rad/s^2); '
                                         'the full car leaves little out', low=1e-9, high=100.0,
                                         read_only=True)
-    full_change_threshold: float = param(20.0, 'full model: the CUSUM alarm level (its ln c '
+    full_change_threshold: float = param(30.0, 'full model: the CUSUM alarm level (its ln c '
                                          'corrections carry more of each sample, so they '
                                          'drift further between changes than the end '
                                          "model's)", low=1e-3, high=1e6, read_only=True)
-    suspension_error_force_std_n: float = param(
-        500.0, "full model: std of each bogie's secondary lateral force beyond the modelled "
-        'springs and dampers (first-order Gauss-Markov, other_bogie_correlation_s), N: the '
-        'creep factor must not absorb a suspension that is not as modelled', low=1e-3,
-        high=1e7, read_only=True)
-    suspension_error_moment_std_nm: float = param(
-        500.0, "full model: the same for each bogie's secondary yaw moment, N m", low=1e-3,
-        high=1e7, read_only=True)
+    suspension_ratio_std: float = param(
+        0.3, "full model: prior std of each bogie's secondary lateral spring and damper "
+        'ratio to the modelled value, less 1 (states: the creep factor must not absorb a '
+        'suspension that is not as modelled), 1', low=1e-6, high=10.0, read_only=True)
+    suspension_ratio_walk_std_per_sqrt_s: float = param(
+        0.03, 'full model: random walk of those ratios, 1/sqrt(s)', low=1e-6, high=10.0,
+        read_only=True)
     track_history_s: float = param(5.0, 'full model: how long the published front track is '
                                    'kept for the rear wheelsets, s (below the car length '
                                    'over this, the rear track is unknown)', low=0.1,
@@ -401,7 +402,7 @@ class CreepEkfParams:
                     'creep_walk_std_per_sqrt_s', 'min_creep_factor', 'max_creep_factor',
                     'lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
                     'body_accel_process_std_mps2', 'full_car_process_std', 'full_change_threshold',
-                    'suspension_error_force_std_n', 'suspension_error_moment_std_nm',
+                    'suspension_ratio_std', 'suspension_ratio_walk_std_per_sqrt_s',
                     'track_history_s',
                     'other_bogie_force_std_n',
                     'other_bogie_moment_std_nm', 'other_bogie_correlation_s',
@@ -499,11 +500,14 @@ class Discretization:
         creep_factor: c where it was evaluated.
         fg: (n, n) F = e^{A(c) dt}.
         dfg: (n, n) dF/dc, exact (Frechet derivative of the matrix exponential).
+        sens: (k, n, n) dF/d delta_j of the suspension ratio errors carried in the state
+            (k = 0 without them), exact at c.
     """
 
     creep_factor: float
     fg: np.ndarray
     dfg: np.ndarray
+    sens: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -529,11 +533,14 @@ def estimation_model(params: CreepEkfParams, creep_factor: float = 1.0,
     if params.model == 'end':
         return car_end_state_space(vehicle, creep_factor, bogie=params.bogie)
     if params.model == 'full':
-        full = full_car_state_space(vehicle, creep_factor, suspension_errors=True)
-        rows = slice(3 * BOGIES.index(params.bogie), 3 * BOGIES.index(params.bogie) + 3)
-        return replace(full, c=full.c[rows], d=full.d[rows],
-                       output_names=full.output_names[rows])
+        return _bogie_sensors(full_car_state_space(vehicle, creep_factor), params.bogie)
     return half_car_state_space(vehicle, creep_factor)
+
+
+def _bogie_sensors(full: StateSpace, bogie: str) -> StateSpace:
+    """The full car with the monitored bogie's sensor outputs only."""
+    rows = slice(3 * BOGIES.index(bogie), 3 * BOGIES.index(bogie) + 3)
+    return replace(full, c=full.c[rows], d=full.d[rows], output_names=full.output_names[rows])
 
 
 def _full_car_state(channel: str, bogie: str) -> str:
@@ -571,7 +578,11 @@ class _SpeedModel:
         half = estimation_model(params, 0.5, speed)
         #: Wheelsets whose track alignment is in the state (the full car: all four).
         self.n_track = n_u = 4 if params.model == 'full' else N_U
-        n_q, n_d = one.a.shape[0], one.b.shape[1] - n_u
+        # The end model's other-bogie force and moment are inputs of its model; the full
+        # model's suspension ratio errors scale its springs and dampers (d_ratio below).
+        ratios = params.model == 'full'
+        n_q = one.a.shape[0]
+        n_d = len(SUSPENSION_RATIOS) if ratios else one.b.shape[1] - n_u
         spectrum = params.track_model == 'spectrum'
         self.n_map_error = 2 * n_u if spectrum else 0
         channels = measurement_channels(params.pattern, params.model)
@@ -593,19 +604,19 @@ class _SpeedModel:
         # that causes them (f / Ksy in m, m / Cpsi in rad/s), the scale of the other states:
         # in newtons, P would span 1e-12 to 1e7, beyond double precision.
         vehicle = params.vehicle
-        # End model: the other bogie's force and moment; full model: each bogie's suspension
-        # error force and moment (pairs).
-        self.disturbance_scale = np.tile([vehicle.secondary_lateral_stiffness,
-                                          vehicle.anti_yaw_damping], 2)[:n_d]
+        self.disturbance_scale = (np.ones(n_d) if ratios else np.array(
+            [vehicle.secondary_lateral_stiffness, vehicle.anti_yaw_damping])[:n_d])
 
         def augmented(a: np.ndarray, b: np.ndarray, kinematics: bool) -> np.ndarray:
             out = np.zeros((n, n))
             out[:n_q, :n_q] = a
             out[:n_q, track] = b[:, :n_u]
-            out[:n_q, dist] = b[:, n_u:] * self.disturbance_scale
+            if not ratios:
+                out[:n_q, dist] = b[:, n_u:] * self.disturbance_scale
             if kinematics:
                 out[track, rate] = np.eye(n_u)
-                out[dist, dist] = -np.eye(n_d) / params.other_bogie_correlation_s
+                if not ratios:
+                    out[dist, dist] = -np.eye(n_d) / params.other_bogie_correlation_s
                 if spectrum:
                     for value, rate_of in ((track, rate), (error, error_rate)):
                         out[value, rate_of] = np.eye(n_u)
@@ -617,6 +628,24 @@ class _SpeedModel:
         self.a0 = augmented(one.a, one.b, True) - self.da
         self.state_names = one.state_names
         self.n_disturbances = n_d
+        #: The full model's suspension ratio errors delta (ratio - 1, random walks): their
+        #: states, and dA/d delta and (pattern D) dC/d delta of each (exact: the springs' and
+        #: dampers' forces are linear in their ratios).
+        self.i_ratios = np.arange(dist.start, dist.stop) if ratios else np.zeros(0, np.int64)
+        self.d_ratio = np.zeros((len(self.i_ratios), n, n))
+        self.d_ratio_output = np.zeros((len(self.i_ratios), one.c.shape[0], n_q))
+        for j, name in enumerate(SUSPENSION_RATIOS if ratios else ()):
+            kind, bogie = name.split('_b')
+            ratio = np.ones(2)
+            ratio[int(bogie) - 1] = 2.0
+            changed = _bogie_sensors(full_car_state_space(
+                params.vehicle.with_speed(speed), 1.0,
+                spring_ratio=ratio if kind == 'spring' else np.ones(2),
+                damper_ratio=ratio if kind == 'damper' else np.ones(2)), params.bogie)
+            self.d_ratio[j, :n_q, :n_q] = changed.a - one.a
+            self.d_ratio_output[j] = changed.c - one.c
+            if not np.allclose(changed.d, one.d, rtol=0, atol=1e-12):
+                raise ValueError(f'the sensors see the track through the {name} ratio')
         # Output rows (pattern D: accelerations are rows of A) could depend on c; they do not
         # (the creep forces act on the wheelsets, the sensors sit on the bogie and body),
         # which the filter relies on: checked here rather than assumed.
@@ -626,9 +655,12 @@ class _SpeedModel:
         self.h = np.zeros((len(channels), n))
         self.h[:, self.i_offset:] = np.eye(len(channels))[:, :self.n_offsets]
         if params.pattern == 'D':
+            # With ratio errors the accelerations are bilinear in the state: H is the part at
+            # delta = 0, the filter adds the rest per sample (CreepEkf._linearised_output).
             self.h[:, :n_q] = one.c
             self.h[:, track] = one.d[:, :n_u]
-            self.h[:, dist] = one.d[:, n_u:] * self.disturbance_scale
+            if not ratios:
+                self.h[:, dist] = one.d[:, n_u:] * self.disturbance_scale
             return
         # The half car's y_v is the body above the bogie: its 'y_v_above' channel.
         names = [name.replace('y_v', 'y_v_above') if params.model == 'half' else name
@@ -680,6 +712,7 @@ class CreepEkf:
         self.i_theta = self._model.i_offset + self.n_offsets
         self.dim_x = self.i_theta + 1
         self._build_observation()
+        self._bilinear_output = p.pattern == 'D' and self._model.i_ratios.size > 0
         self._q_x = self._state_process_noise()
         self._jacobian = np.eye(self.dim_x)
         self._update_out = np.empty(3)      # ekf_update's NIS, ln c correction and spread
@@ -702,9 +735,10 @@ class CreepEkf:
     def _disturbance_std(self) -> np.ndarray:
         """Stationary std of the disturbance states (scaled units, see _SpeedModel)."""
         p = self.params
-        pair = ([p.suspension_error_force_std_n, p.suspension_error_moment_std_nm]
-                if p.model == 'full' else [p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])
-        return np.tile(pair, 2)[:self.n_disturbances] / self._model.disturbance_scale
+        if self._model.i_ratios.size:
+            return np.full(self.n_disturbances, p.suspension_ratio_std)
+        pair = np.array([p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])
+        return pair[:self.n_disturbances] / self._model.disturbance_scale
 
     def _track_variance(self) -> float:
         """Variance of the spectrum track model's alignment, m^2: the spectrum's integral
@@ -907,10 +941,13 @@ class CreepEkf:
             for i in range(n_u):
                 idx = [start + i, start + n_u + i]
                 q[np.ix_(idx, idx)] = values
-        decay = math.exp(-dt / p.other_bogie_correlation_s)
-        gm = self._disturbance_std() ** 2 * (1.0 - decay ** 2)
         dist = slice(n_q + 2 * n_u, n_q + 2 * n_u + self.n_disturbances)
-        q[dist, dist] = np.diag(gm)
+        if self._model.i_ratios.size:
+            q[dist, dist] = np.eye(self.n_disturbances) * (
+                p.suspension_ratio_walk_std_per_sqrt_s ** 2 * dt)
+        else:
+            decay = math.exp(-dt / p.other_bogie_correlation_s)
+            q[dist, dist] = np.diag(self._disturbance_std() ** 2 * (1.0 - decay ** 2))
         q[i_theta, i_theta] = p.creep_walk_std_per_sqrt_s ** 2 * dt
         return q
 
@@ -933,11 +970,14 @@ class CreepEkf:
     def _discretize(self, c: float) -> Discretization:
         m = self._model
         no_input = np.zeros((m.a0.shape[0], 0))
-        f, _, df, _ = discretize_zoh_sensitivity(m.a0 + c * m.da, no_input, m.da, no_input,
-                                                 self._dt)
+        a = m.a0 + c * m.da
+        f, _, df, _ = discretize_zoh_sensitivity(a, no_input, m.da, no_input, self._dt)
+        sens = np.array([discretize_zoh_sensitivity(a, no_input, d_ratio, no_input,
+                                                    self._dt)[2] for d_ratio in m.d_ratio])
         self.discretizations += 1
         # C-contiguous: what the compiled transition takes.
-        return Discretization(c, np.ascontiguousarray(f), np.ascontiguousarray(df))
+        return Discretization(c, np.ascontiguousarray(f), np.ascontiguousarray(df),
+                              np.ascontiguousarray(sens.reshape(len(m.d_ratio), *f.shape)))
 
     def transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The augmented transition x -> f(x) and its Jacobian df/dx at x.
@@ -961,7 +1001,8 @@ class CreepEkf:
         d = self.discretization(c, exact)
         x_next = np.empty_like(x)
         augmented_transition(np.ascontiguousarray(x), d.fg, d.dfg, c, d.creep_factor,
-                             self.i_theta, x_next, self._jacobian)
+                             self.i_theta, d.sens, self._model.i_ratios, x_next,
+                             self._jacobian)
         return x_next, self._jacobian
 
     # -- filter --------------------------------------------------------------------------------
@@ -1048,10 +1089,13 @@ class CreepEkf:
     def _update(self, z: np.ndarray, sample: tuple[tuple[int, ...], np.ndarray] | None,
                 ) -> tuple[str, float]:
         obs = self._observation(() if sample is None else sample[0])
+        h = obs.h
+        if self._bilinear_output:
+            h, z = self._linearised_output(h, z)
         z_all = z if sample is None else np.concatenate((z, sample[1]))
         # Joseph form, the gate on the vehicle channels and the ln c correction with its
         # predicted spread (K S K^T)_theta, compiled (creep_kernel.ekf_update).
-        outcome = ekf_update(self.x, self.P, obs.h, obs.r,
+        outcome = ekf_update(self.x, self.P, h, obs.r,
                              np.ascontiguousarray(z_all, dtype=float), self._n_meas,
                              self._gate2, self.i_theta, self._update_out)
         if outcome == OUTLIER:
@@ -1066,6 +1110,20 @@ class CreepEkf:
         if spread > 0.0:
             self._detect_change(correction / math.sqrt(spread))
         return 'ok', nis / z_all.size
+
+    def _linearised_output(self, h: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pattern D with ratio errors: y = (C + sum_j delta_j C_j) q + ..., linearised at x.
+
+        The kernel forms the residual z - H x; with the Jacobian H(x) that is the residual
+        of the model's prediction less sum_j delta_j C_j q, which is added back to z.
+        """
+        m, n_q = self._model, self.n_model
+        q, delta = self.x[:n_q], self.x[m.i_ratios]
+        h = h.copy()
+        effect = m.d_ratio_output @ q                      # (k, n_meas): C_j q
+        h[:self._n_meas, :n_q] += np.tensordot(delta, m.d_ratio_output, axes=1)
+        h[:self._n_meas, m.i_ratios] = effect.T
+        return h, z + delta @ effect
 
     def _detect_change(self, normalised_correction: float) -> None:
         """Two-sided CUSUM on the normalised ln c corrections; on alarm, widen P_theta.
@@ -1122,8 +1180,8 @@ class CreepEkf:
     def _predict(self) -> None:
         c = math.exp(self.x[self.i_theta])
         d = self.discretization(c)
-        ekf_predict(self.x, self.P, d.fg, d.dfg, c, d.creep_factor, self._q_x, self.i_theta,
-                    self._jacobian)
+        ekf_predict(self.x, self.P, d.fg, d.dfg, c, d.creep_factor, d.sens, self._model.i_ratios,
+                    self._q_x, self.i_theta, self._jacobian)
 
     def _check_divergence(self, status: str, nis_per_channel: float) -> bool:
         p = self.params
@@ -1140,6 +1198,10 @@ class CreepEkf:
             reason = 'outlier_run'
         elif self._pinned_run * self._dt > p.bound_hold_s:
             reason = 'pinned_at_bound'
+        elif np.any(self.x[self._model.i_ratios] <= -1.0):
+            # A spring or damper of ratio <= 0 is no suspension: the ratios took up inputs
+            # that are no vehicle (another car's data, a failed sensor).
+            reason = 'suspension_ratio_impossible'
         if not reason:
             return False
         self.resets[reason] = self.resets.get(reason, 0) + 1

@@ -22,51 +22,67 @@ from numba import njit, types
 import numpy as np
 
 VECTOR, MATRIX = types.float64[::1], types.float64[:, ::1]
+TENSOR, INDICES = types.float64[:, :, ::1], types.int64[::1]
 
 #: :func:`ekf_update` outcomes.
 UPDATED, OUTLIER, SINGULAR = 0, 1, 2
 
 
-@njit(types.void(VECTOR, MATRIX, MATRIX, types.float64, types.float64, types.int64, VECTOR,
-                 MATRIX),
+@njit(types.void(VECTOR, MATRIX, MATRIX, types.float64, types.float64, types.int64, TENSOR,
+                 INDICES, VECTOR, MATRIX),
       cache=True)
 def augmented_transition(x: np.ndarray, fg: np.ndarray, dfg: np.ndarray, c: float,
-                         c_grid: float, i_theta: int, x_next: np.ndarray,
-                         jac: np.ndarray) -> None:
+                         c_grid: float, i_theta: int, sens: np.ndarray, i_sens: np.ndarray,
+                         x_next: np.ndarray, jac: np.ndarray) -> None:
     """The augmented transition x -> f(x) and its Jacobian, F Taylor-stepped from a grid point.
+
+    F(c, delta) = F(c_grid) + (c - c_grid) dF/dc + sum_j delta_j dF/d delta_j, where the
+    delta_j = x[i_sens[j]] are parameters carried in the state (the full model's suspension
+    ratio errors): first order in each, as in c.
 
     Args:
         x: (n,) state, ln c last (index ``i_theta`` = n - 1).
         fg, dfg: (n - 1, n - 1) F and dF/dc at the grid point ``c_grid``.
         c: e^(x[i_theta]).
-        x_next: (n,) output: [F(c) x_q, ln c].
+        sens: (k, n - 1, n - 1) dF/d delta_j at the grid point (k may be 0).
+        i_sens: (k,) the states delta_j.
+        x_next: (n,) output: [F(c, delta) x_q, ln c].
         jac: (n, n) output, its last row the unit row of ln c (left as it is: the caller's
             buffer holds it).
     """
     dc = c - c_grid
+    k = i_sens.shape[0]
     for r in range(i_theta):
         acc = 0.0
         acc_c = 0.0
         for col in range(i_theta):
             f = fg[r, col] + dc * dfg[r, col]
+            for j in range(k):
+                f += x[i_sens[j]] * sens[j, r, col]
             jac[r, col] = f
             acc += f * x[col]
             acc_c += dfg[r, col] * x[col]
         x_next[r] = acc
         # d/d(ln c) = c d/dc of the Taylor-stepped transition actually used.
         jac[r, i_theta] = c * acc_c
+        for j in range(k):
+            acc = 0.0
+            for col in range(i_theta):
+                acc += sens[j, r, col] * x[col]
+            jac[r, i_sens[j]] += acc
     x_next[i_theta] = x[i_theta]
 
 
-@njit(types.void(VECTOR, MATRIX, MATRIX, MATRIX, types.float64, types.float64, MATRIX,
-                 types.int64, MATRIX),
+@njit(types.void(VECTOR, MATRIX, MATRIX, MATRIX, types.float64, types.float64, TENSOR,
+                 INDICES, MATRIX, types.int64, MATRIX),
       cache=True)
 def ekf_predict(x: np.ndarray, p: np.ndarray, fg: np.ndarray, dfg: np.ndarray, c: float,
-                c_grid: float, q: np.ndarray, i_theta: int, jac: np.ndarray) -> None:
+                c_grid: float, sens: np.ndarray, i_sens: np.ndarray, q: np.ndarray,
+                i_theta: int, jac: np.ndarray) -> None:
     """x <- f(x), P <- J P J^T + Q symmetrised, in place (``jac``: the (n, n) buffer of
     :func:`augmented_transition`)."""
     x_next = np.empty_like(x)
-    augmented_transition(x, fg, dfg, c, c_grid, i_theta, x_next, jac)
+    augmented_transition(x, fg, dfg, c, c_grid, i_theta, sens, i_sens, x_next, jac)
     x[:] = x_next
     propagated = np.dot(np.dot(jac, p), jac.T)
     n = x.shape[0]
