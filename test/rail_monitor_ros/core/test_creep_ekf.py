@@ -67,8 +67,8 @@ def _state(ekf: CreepEkf, rng: np.random.Generator, creep_factor: float) -> np.n
     x[:n_q] = rng.normal(size=n_q) * np.tile([2e-3, 2e-2, 1e-3, 1e-2], n_q // 4 + 1)[:n_q]
     x[n_q:n_q + n_u] = rng.normal(size=n_u) * 2e-3
     x[n_q + n_u:n_q + 2 * n_u] = rng.normal(size=n_u) * 5e-2
-    # The other bogie's forces (3 mm) or the suspension ratio errors (3e-3), the track map's error (0.3 mm, its rate 3 mm/s) and
-    # the sensor offsets (0.1 mm).
+    # The other bogie's forces (3 mm) or the suspension ratio errors (3e-3), the track map's
+    # error (0.3 mm, its rate 3 mm/s) and the sensor offsets (0.1 mm).
     rest = ekf.i_theta - n_q - 2 * n_u
     spread = np.concatenate([np.full(ekf.n_disturbances, 3e-3),
                              np.repeat([3e-4, 3e-3], ekf.n_map_error // 2),

@@ -68,12 +68,12 @@ def test_predict_is_the_taylor_stepped_transition(i_sens: tuple[int, ...]) -> No
     fg, dfg = rng.standard_normal((N - 1, N - 1)), rng.standard_normal((N - 1, N - 1))
     sens = rng.standard_normal((len(i_sens), N - 1, N - 1))
     c, c_grid = 0.71, 0.7
-    f = fg + (c - c_grid) * dfg + sum((x[i] * s for i, s in zip(i_sens, sens)),
+    f = fg + (c - c_grid) * dfg + sum((x[i] * s for i, s in zip(i_sens, sens, strict=True)),
                                       np.zeros_like(fg))
     jac = np.eye(N)
     jac[:-1, :-1] = f
     jac[:-1, -1] = c * (dfg @ x[:-1])
-    for i, s in zip(i_sens, sens):
+    for i, s in zip(i_sens, sens, strict=True):
         jac[:-1, i] += s @ x[:-1]
     expected = jac @ p @ jac.T + q
     x_kernel, p_kernel, buffer = x.copy(), p.copy(), np.eye(N)
