@@ -279,12 +279,21 @@ class CreepEkfParams:
                                          'drift further between changes than the end '
                                          "model's)", low=1e-3, high=1e6, read_only=True)
     suspension_ratio_std: float = param(
-        0.3, "full model: prior std of each bogie's secondary lateral spring and damper "
-        'ratio to the modelled value, less 1 (states: the creep factor must not absorb a '
-        'suspension that is not as modelled), 1', low=1e-6, high=10.0, read_only=True)
-    suspension_ratio_walk_std_per_sqrt_s: float = param(
-        0.03, 'full model: random walk of those ratios, 1/sqrt(s)', low=1e-6, high=10.0,
+        0.3, "full model, patterns A-C: prior std of each bogie's secondary lateral spring "
+        'and damper ratio to the modelled value, less 1 (states: the creep factor must not '
+        'absorb a suspension that is not as modelled), 1', low=1e-6, high=10.0,
         read_only=True)
+    suspension_ratio_walk_std_per_sqrt_s: float = param(
+        0.03, 'full model, patterns A-C: random walk of those ratios, 1/sqrt(s)', low=1e-6,
+        high=10.0, read_only=True)
+    suspension_error_force_std_n: float = param(
+        500.0, "full model, pattern D: std of each bogie's secondary lateral force beyond the "
+        'modelled springs and dampers (first-order Gauss-Markov, other_bogie_correlation_s), '
+        "N (D's accelerations would be bilinear in ratio errors)", low=1e-3, high=1e7,
+        read_only=True)
+    suspension_error_moment_std_nm: float = param(
+        500.0, "full model, pattern D: the same for each bogie's secondary yaw moment, N m",
+        low=1e-3, high=1e7, read_only=True)
     track_history_s: float = param(5.0, 'full model: how long the published front track is '
                                    'kept for the rear wheelsets, s (below the car length '
                                    'over this, the rear track is unknown)', low=0.1,
@@ -402,7 +411,8 @@ class CreepEkfParams:
                     'creep_walk_std_per_sqrt_s', 'min_creep_factor', 'max_creep_factor',
                     'lateral_accel_process_std_mps2', 'yaw_accel_process_std_rad_s2',
                     'body_accel_process_std_mps2', 'full_car_process_std', 'full_change_threshold',
-                    'suspension_ratio_std', 'suspension_ratio_walk_std_per_sqrt_s',
+                    'suspension_ratio_std', 'suspension_error_force_std_n',
+                    'suspension_error_moment_std_nm', 'suspension_ratio_walk_std_per_sqrt_s',
                     'track_history_s',
                     'other_bogie_force_std_n',
                     'other_bogie_moment_std_nm', 'other_bogie_correlation_s',
@@ -533,7 +543,8 @@ def estimation_model(params: CreepEkfParams, creep_factor: float = 1.0,
     if params.model == 'end':
         return car_end_state_space(vehicle, creep_factor, bogie=params.bogie)
     if params.model == 'full':
-        return _bogie_sensors(full_car_state_space(vehicle, creep_factor), params.bogie)
+        return _bogie_sensors(full_car_state_space(
+            vehicle, creep_factor, suspension_errors=params.pattern == 'D'), params.bogie)
     return half_car_state_space(vehicle, creep_factor)
 
 
@@ -578,9 +589,11 @@ class _SpeedModel:
         half = estimation_model(params, 0.5, speed)
         #: Wheelsets whose track alignment is in the state (the full car: all four).
         self.n_track = n_u = 4 if params.model == 'full' else N_U
-        # The end model's other-bogie force and moment are inputs of its model; the full
-        # model's suspension ratio errors scale its springs and dampers (d_ratio below).
-        ratios = params.model == 'full'
+        # The end model's other-bogie force and moment, and the full model's suspension
+        # errors for pattern D (a force and a moment per bogie), are inputs of their model;
+        # for patterns A-C the full model's suspension ratio errors scale its springs and
+        # dampers (d_ratio below): D's accelerations would be bilinear in them.
+        ratios = params.model == 'full' and params.pattern != 'D'
         n_q = one.a.shape[0]
         n_d = len(SUSPENSION_RATIOS) if ratios else one.b.shape[1] - n_u
         spectrum = params.track_model == 'spectrum'
@@ -604,8 +617,8 @@ class _SpeedModel:
         # that causes them (f / Ksy in m, m / Cpsi in rad/s), the scale of the other states:
         # in newtons, P would span 1e-12 to 1e7, beyond double precision.
         vehicle = params.vehicle
-        self.disturbance_scale = (np.ones(n_d) if ratios else np.array(
-            [vehicle.secondary_lateral_stiffness, vehicle.anti_yaw_damping])[:n_d])
+        self.disturbance_scale = (np.ones(n_d) if ratios else np.tile(
+            [vehicle.secondary_lateral_stiffness, vehicle.anti_yaw_damping], 2)[:n_d])
 
         def augmented(a: np.ndarray, b: np.ndarray, kinematics: bool) -> np.ndarray:
             out = np.zeros((n, n))
@@ -629,11 +642,10 @@ class _SpeedModel:
         self.state_names = one.state_names
         self.n_disturbances = n_d
         #: The full model's suspension ratio errors delta (ratio - 1, random walks): their
-        #: states, and dA/d delta and (pattern D) dC/d delta of each (exact: the springs' and
-        #: dampers' forces are linear in their ratios).
+        #: states and dA/d delta of each (exact: the springs' and dampers' forces are linear
+        #: in their ratios).
         self.i_ratios = np.arange(dist.start, dist.stop) if ratios else np.zeros(0, np.int64)
         self.d_ratio = np.zeros((len(self.i_ratios), n, n))
-        self.d_ratio_output = np.zeros((len(self.i_ratios), one.c.shape[0], n_q))
         for j, name in enumerate(SUSPENSION_RATIOS if ratios else ()):
             kind, bogie = name.split('_b')
             ratio = np.ones(2)
@@ -643,9 +655,6 @@ class _SpeedModel:
                 spring_ratio=ratio if kind == 'spring' else np.ones(2),
                 damper_ratio=ratio if kind == 'damper' else np.ones(2)), params.bogie)
             self.d_ratio[j, :n_q, :n_q] = changed.a - one.a
-            self.d_ratio_output[j] = changed.c - one.c
-            if not np.allclose(changed.d, one.d, rtol=0, atol=1e-12):
-                raise ValueError(f'the sensors see the track through the {name} ratio')
         # Output rows (pattern D: accelerations are rows of A) could depend on c; they do not
         # (the creep forces act on the wheelsets, the sensors sit on the bogie and body),
         # which the filter relies on: checked here rather than assumed.
@@ -655,12 +664,9 @@ class _SpeedModel:
         self.h = np.zeros((len(channels), n))
         self.h[:, self.i_offset:] = np.eye(len(channels))[:, :self.n_offsets]
         if params.pattern == 'D':
-            # With ratio errors the accelerations are bilinear in the state: H is the part at
-            # delta = 0, the filter adds the rest per sample (CreepEkf._linearised_output).
             self.h[:, :n_q] = one.c
             self.h[:, track] = one.d[:, :n_u]
-            if not ratios:
-                self.h[:, dist] = one.d[:, n_u:] * self.disturbance_scale
+            self.h[:, dist] = one.d[:, n_u:] * self.disturbance_scale
             return
         # The half car's y_v is the body above the bogie: its 'y_v_above' channel.
         names = [name.replace('y_v', 'y_v_above') if params.model == 'half' else name
@@ -712,7 +718,6 @@ class CreepEkf:
         self.i_theta = self._model.i_offset + self.n_offsets
         self.dim_x = self.i_theta + 1
         self._build_observation()
-        self._bilinear_output = p.pattern == 'D' and self._model.i_ratios.size > 0
         self._q_x = self._state_process_noise()
         self._jacobian = np.eye(self.dim_x)
         self._update_out = np.empty(3)      # ekf_update's NIS, ln c correction and spread
@@ -737,8 +742,9 @@ class CreepEkf:
         p = self.params
         if self._model.i_ratios.size:
             return np.full(self.n_disturbances, p.suspension_ratio_std)
-        pair = np.array([p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])
-        return pair[:self.n_disturbances] / self._model.disturbance_scale
+        pair = ([p.suspension_error_force_std_n, p.suspension_error_moment_std_nm]
+                if p.model == 'full' else [p.other_bogie_force_std_n, p.other_bogie_moment_std_nm])
+        return np.tile(pair, 2)[:self.n_disturbances] / self._model.disturbance_scale
 
     def _track_variance(self) -> float:
         """Variance of the spectrum track model's alignment, m^2: the spectrum's integral
@@ -1089,13 +1095,10 @@ class CreepEkf:
     def _update(self, z: np.ndarray, sample: tuple[tuple[int, ...], np.ndarray] | None,
                 ) -> tuple[str, float]:
         obs = self._observation(() if sample is None else sample[0])
-        h = obs.h
-        if self._bilinear_output:
-            h, z = self._linearised_output(h, z)
         z_all = z if sample is None else np.concatenate((z, sample[1]))
         # Joseph form, the gate on the vehicle channels and the ln c correction with its
         # predicted spread (K S K^T)_theta, compiled (creep_kernel.ekf_update).
-        outcome = ekf_update(self.x, self.P, h, obs.r,
+        outcome = ekf_update(self.x, self.P, obs.h, obs.r,
                              np.ascontiguousarray(z_all, dtype=float), self._n_meas,
                              self._gate2, self.i_theta, self._update_out)
         if outcome == OUTLIER:
@@ -1110,20 +1113,6 @@ class CreepEkf:
         if spread > 0.0:
             self._detect_change(correction / math.sqrt(spread))
         return 'ok', nis / z_all.size
-
-    def _linearised_output(self, h: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pattern D with ratio errors: y = (C + sum_j delta_j C_j) q + ..., linearised at x.
-
-        The kernel forms the residual z - H x; with the Jacobian H(x) that is the residual
-        of the model's prediction less sum_j delta_j C_j q, which is added back to z.
-        """
-        m, n_q = self._model, self.n_model
-        q, delta = self.x[:n_q], self.x[m.i_ratios]
-        h = h.copy()
-        effect = m.d_ratio_output @ q                      # (k, n_meas): C_j q
-        h[:self._n_meas, :n_q] += np.tensordot(delta, m.d_ratio_output, axes=1)
-        h[:self._n_meas, m.i_ratios] = effect.T
-        return h, z + delta @ effect
 
     def _detect_change(self, normalised_correction: float) -> None:
         """Two-sided CUSUM on the normalised ln c corrections; on alarm, widen P_theta.

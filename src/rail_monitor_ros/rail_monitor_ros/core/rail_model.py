@@ -513,19 +513,31 @@ def full_car_state_space(params: RailVehicleParams, creep_factor: float = 1.0,
         creep_factor: c, common to all wheelsets, in (0, 2].
         spring_ratio: (2,) Ksy multipliers, front and rear bogie, each in (0, 5].
         damper_ratio: (2,) Csy multipliers, front and rear bogie, each in (0, 5].
+        suspension_errors: also inputs [f_b1, m_b1, f_b2, m_b2] after the track's: per bogie
+            the secondary suspension's lateral force (N, on the bogie; the body takes it back
+            at the pivot) and yaw moment (N m) beyond the modelled springs and dampers.
     """
     c = _check_ratio('creep_factor', creep_factor, MAX_CREEP_FACTOR)
     srs = _check_pair('spring_ratio', spring_ratio)
     drs = _check_pair('damper_ratio', damper_ratio)
+    errors = ('f_b1', 'm_b1', 'f_b2', 'm_b2') if suspension_errors else ()
     asm = _Assembly(('y_w1', 'psi_w1', 'y_w2', 'psi_w2', 'y_w3', 'psi_w3', 'y_w4', 'psi_w4',
                      'y_b1', 'psi_b1', 'y_b2', 'psi_b2', 'y_v', 'psi_v'),
-                    ('y_r1', 'y_r2', 'y_r3', 'y_r4'))
+                    ('y_r1', 'y_r2', 'y_r3', 'y_r4', *errors))
     lv = params.bogie_pivot_semi_spacing
     for j in range(2):
         for k, lead_sign in enumerate((+1.0, -1.0)):
             i = 2 * j + k + 1
             _wheelset_and_primary(asm, params, c, f'w{i}', f'b{j + 1}', lead_sign, f'y_r{i}')
     _full_car_bogies_and_body(asm, params, srs, drs)
+    for j, pivot in enumerate((lv, -lv) if suspension_errors else ()):
+        # An internal force pair: on the bogie, and back on the body at the bogie's pivot.
+        force, moment = asm.inputs.index(f'f_b{j + 1}'), asm.inputs.index(f'm_b{j + 1}')
+        asm.e[asm.idx(f'y_b{j + 1}'), force] = 1.0
+        asm.e[asm.idx('y_v'), force] = -1.0
+        asm.e[asm.idx('psi_v'), force] = -pivot
+        asm.e[asm.idx(f'psi_b{j + 1}'), moment] = 1.0
+        asm.e[asm.idx('psi_v'), moment] = -1.0
     a, b, names = asm.state_space()
     rows_c, rows_d = [], []
     eye = np.eye(len(names))
