@@ -40,13 +40,16 @@ Choices and why:
   0/24 both (docs/methods/rail_family_evaluation.md). The rear track from the kept front
   track, not from the spectrum's Pade delays (the suspension monitor's track model): those do
   not carry a surveyed track's detail from one wheelset to the next (development family: 21/24
-  with the history, 12/24 without). Each bogie's suspension error (a force and a moment,
-  Gauss-Markov, ``suspension_error_*``): without it the full model read a failed spring or
-  damper as a change of c (the fault recording: c 0.36-1.57 for a true 1, low adhesion
-  flagged); with 500 N and N m, 0.69-1.09, at a price (development, C with the exact track:
-  23/24 without these states, 21/24 at 500, 13/24 at 1000). Its own CUSUM level
-  (``full_change_threshold`` 20, tuned on the development family before the suspension errors
-  were added: 8 gave 18/24, 12-30 gave 22-23/24) and model error (``full_car_process_std``;
+  with the history, 12/24 without). Each bogie's secondary lateral spring and damper ratio
+  as states (random walks, ``suspension_ratio_*``; patterns A-C): without them the full model
+  read a failed spring or damper as a change of c (the fault recording: c 0.36-1.57 for a
+  true 1, low adhesion flagged); with them 0.945-1.055, and development C with the exact track
+  at 23/24 as without them. They replaced a force and a moment per bogie (Gauss-Markov),
+  which any creep change could also explain: 0.69-1.09 there, development 21/24. Pattern D
+  keeps those (``suspension_error_*``, 0.90-1.04): its accelerations are bilinear in the
+  ratios, and with them the estimate was thrown to its bounds after a step at 53-60 m/s. Its
+  own CUSUM level (``full_change_threshold`` 30: 25 gave 22/24, 30 and 40 gave 23/24 with the
+  ratio states) and model error (``full_car_process_std``;
   1e-5 to 1e-3 gave the same figures).
 
 * **ln c as the state**: c stays positive without a constraint, and a random walk in ln c is a
@@ -679,10 +682,14 @@ class _SpeedModel:
 class CreepEkf:
     """Augmented-state EKF for the creep factor; one :meth:`step` per sample.
 
-    Augmented state x = [q (n_model), y_r1, y_r2, y_r1', y_r2', d (n_d), ln c]: the model's
-    states, the track alignment at the two wheelsets and its rate (integrated random walk), the
-    end model's other-bogie force and moment (Gauss-Markov; none in the half car), the log
-    creep factor (random walk).
+    Augmented state x = [q (n_model), y_r, y_r', d (n_d), e, e', offsets, ln c]: the model's
+    states, the track alignment under the model's wheelsets and its rate, d (the end model's
+    other-bogie force and moment, Gauss-Markov; the full model's suspension errors: each
+    bogie's spring and damper ratio less 1, random walks, or for pattern D a force and a
+    moment per bogie, Gauss-Markov; none in the half car), the track map's error under each
+    wheelset (the 'spectrum' track model), the sensor offsets, the log creep factor (random
+    walk). A suspension ratio at or below 0 is divergence (reset, reason
+    'suspension_ratio_impossible'): the ratios took up data that are no vehicle.
 
     Args:
         params: filter settings.

@@ -343,11 +343,11 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             self._creep_state = (f'uncertain (std {std:.2f}): model keeps '
                                  f'{imm.creep_factor:.2f}')
         elif imm.fault.detected or normal < 0.5:
-            # The creep estimator models a healthy suspension: while this one suspects a
-            # fault its estimate is off (measured on rail_imm_spring_damper_fault with the
-            # full-car creep model: 0.72-1.57 for a true 1.0, std 0.06-0.29), and every switch
-            # of the bank suppresses the declaration (a damper fault declared after 3.6 s
-            # instead of 0.09 s). Held until the suspension is normal again.
+            # Under a suspension fault the creep estimate may be off (on
+            # rail_imm_spring_damper_fault a full-car creep model without suspension error
+            # states ran 0.72-1.57 for a true 1.0, std 0.06-0.29), and every switch of the
+            # bank suppresses the declaration (a damper fault declared after 3.6 s instead of
+            # 0.09 s). Held until the suspension is normal again.
             self._creep_state = (f'held while a suspension fault is suspected: model keeps '
                                  f'{imm.creep_factor:.2f}')
         else:
