@@ -35,9 +35,9 @@ Choices and why:
 * **The full car (default since 2026-12-05)**: the end model's Gauss-Markov stand-in for the
   other bogie is its largest model error; the full car driven by the track under each
   wheelset follows the simulated car to 1e-6 m. On the held-out family (pattern C, exact
-  track, within 5 % within 1 s of each step) 19/24 cases against the end model's 10/24; D with
-  the exact track 24/24 against 20/24; with a 0.3 mm map 2/24 against 0/24; without a track
-  0/24 both (docs/methods/rail_family_evaluation.md). The rear track from the kept front
+  track, within 5 % within 1 s of each step) 22/24 cases against the end model's 10/24; D with
+  the exact track 24/24 against 20/24; with a 0.3 mm map and without a track 0/24 both
+  (docs/methods/rail_family_evaluation.md). The rear track from the kept front
   track, not from the spectrum's Pade delays (the suspension monitor's track model): those do
   not carry a surveyed track's detail from one wheelset to the next (development family: 21/24
   with the history, 12/24 without). Each bogie's secondary lateral spring and damper ratio

@@ -51,25 +51,17 @@ def augmented_transition(x: np.ndarray, fg: np.ndarray, dfg: np.ndarray, c: floa
             buffer holds it).
     """
     dc = c - c_grid
-    k = i_sens.shape[0]
-    for r in range(i_theta):
-        acc = 0.0
-        acc_c = 0.0
-        for col in range(i_theta):
-            f = fg[r, col] + dc * dfg[r, col]
-            for j in range(k):
-                f += x[i_sens[j]] * sens[j, r, col]
-            jac[r, col] = f
-            acc += f * x[col]
-            acc_c += dfg[r, col] * x[col]
-        x_next[r] = acc
-        # d/d(ln c) = c d/dc of the Taylor-stepped transition actually used.
-        jac[r, i_theta] = c * acc_c
-        for j in range(k):
-            acc = 0.0
-            for col in range(i_theta):
-                acc += sens[j, r, col] * x[col]
-            jac[r, i_sens[j]] += acc
+    n = i_theta
+    f = fg + dc * dfg
+    for j in range(i_sens.shape[0]):
+        f += x[i_sens[j]] * sens[j]
+    x_q = x[:n]
+    x_next[:n] = np.dot(f, x_q)
+    jac[:n, :n] = f
+    # d/d(ln c) = c d/dc of the Taylor-stepped transition actually used.
+    jac[:n, i_theta] = c * np.dot(dfg, x_q)
+    for j in range(i_sens.shape[0]):
+        jac[:n, i_sens[j]] += np.dot(sens[j], x_q)
     x_next[i_theta] = x[i_theta]
 
 
