@@ -290,6 +290,37 @@ def test_divergence_detected_and_reset(creep_steps: RailSimulationResult) -> Non
     assert metrics[0].steady_error == pytest.approx(0.0, abs=0.08)
 
 
+def test_rewinding_without_widening_reproduces_the_first_pass(
+        creep_steps: RailSimulationResult) -> None:
+    """Going back to the change's onset keeps the whole filter state: with the widening all
+    but off (1e-4), the run that goes back at the first alarm and filters again (over a gap
+    of missing samples between the step and the alarm) gives the estimates of the run that
+    does not, up to its second alarm (after which a threshold crossing may move by a
+    sample)."""
+    y, track, _ = simulation_inputs(creep_steps, 'C')
+    period = round(1e9 / 200.0)
+    missing = set(range(1010, 1014))      # the step is at sample 1000, the alarm after 1020
+    runs = {}
+    for rewind in (2.0, 0.0):
+        ekf = CreepEkf(CreepEkfParams(pattern='C', change_log_std=1e-4, change_rewind_s=rewind,
+                                      **SURVEYED_TRACK))
+        estimates, alarms, rewinds = [], [], []
+        for k in range(1200):
+            if k in missing:
+                continue
+            ekf.advance_to(k * period)
+            before = ekf.changes_detected
+            estimates.append(ekf.step(y[k], track[k]).creep_factor)
+            if ekf.changes_detected > before:
+                alarms.append(len(estimates) - 1)
+            rewinds.append(ekf.rewinds)
+        runs[rewind] = (np.array(estimates), alarms, rewinds)
+    (with_rewind, alarms, rewinds), (plain, plain_alarms, _) = runs[2.0], runs[0.0]
+    assert alarms[0] == plain_alarms[0] and rewinds[alarms[0]] == 1
+    until = plain_alarms[1]
+    np.testing.assert_allclose(with_rewind[:until], plain[:until], rtol=1e-5)
+
+
 def test_low_adhesion_hysteresis() -> None:
     """The flag turns on below the threshold and off only above threshold + hysteresis."""
     ekf = CreepEkf(CreepEkfParams(pattern='C', low_adhesion_threshold=0.5,

@@ -125,7 +125,7 @@ acceleration above the bogie). For the body channels see :func:`measurement_chan
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import math
@@ -392,6 +392,11 @@ class CreepEkfParams:
                                     read_only=True)
     change_log_std: float = param(0.5, 'on an alarm, added in quadrature to the std of ln c',
                                   low=1e-4, high=10.0, read_only=True)
+    change_rewind_s: float = param(2.0, 'on an alarm, the filter goes back to where the alarm '
+                                   "side's CUSUM statistic last left zero (the change's onset) "
+                                   'if that is at most this long ago, widens ln c there and '
+                                   'filters the samples since again; 0: widen at the alarm '
+                                   'only, s', low=0.0, high=60.0, read_only=True)
     low_adhesion_threshold: float = param(0.5, 'low_adhesion turns on when c falls below this',
                                           low=0.01, high=2.0)
     low_adhesion_hysteresis: float = param(0.05, 'and off when c rises above threshold + this',
@@ -431,6 +436,7 @@ class CreepEkfParams:
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
                     'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
                     'change_log_std', 'low_adhesion_threshold')
+        require_positive(self, ('change_rewind_s',), allow_zero=True)
         require_positive(self, positive)
         require_positive(self, ('low_adhesion_hysteresis',), allow_zero=True)
         if not self.min_creep_factor < self.max_creep_factor <= MAX_CREEP_FACTOR:
@@ -679,6 +685,79 @@ class _SpeedModel:
         self.h[:, :n_q] = np.eye(n_q)[[names.index(channel) for channel in channels]]
 
 
+@dataclass(frozen=True)
+class _Input:
+    """What one step filtered: the checked measurement (or None), the track rows and values
+    it observed (or None), the model's speed; or, with ``gap`` > 0, that many samples
+    predicted over a gap."""
+
+    z: np.ndarray | None
+    track: tuple[tuple[int, ...], np.ndarray] | None
+    speed: float | None
+    gap: int
+
+
+class _Kept:
+    """The filter's state after a sample (predicted to the next), to go back to."""
+
+    def __init__(self, ekf: CreepEkf) -> None:
+        self.x, self.p = ekf.x.copy(), ekf.P.copy()
+        self.scalars = (ekf._nis_average, ekf._outlier_fraction, ekf._pinned_run,
+                        ekf._low_adhesion)
+        self.speed = ekf.speed
+
+    def restore(self, ekf: CreepEkf) -> None:
+        ekf.set_speed(self.speed)
+        ekf.x, ekf.P = self.x.copy(), self.p.copy()
+        (ekf._nis_average, ekf._outlier_fraction, ekf._pinned_run,
+         ekf._low_adhesion) = self.scalars
+
+
+class _Rewind:
+    """The samples since each CUSUM side last stood at zero, and the state kept there
+    (:meth:`CreepEkf._rewind_to_onset`); at most ``max_inputs`` back."""
+
+    def __init__(self, max_inputs: int) -> None:
+        self.max_inputs = max_inputs
+        self.inputs: deque[_Input] = deque()
+        self.first = 0          # index of inputs[0]
+        self.count = 0          # index of the next input
+        self.kept: dict[str, tuple[int, _Kept] | None] = {'up': None, 'down': None}
+
+    def record(self, entry: _Input) -> None:
+        if self.max_inputs:
+            self.inputs.append(entry)
+            self.count += 1
+
+    def keep(self, ekf: CreepEkf) -> None:
+        """After a step: a side whose statistic is zero starts here; forget what is older
+        than the oldest start, and a start beyond ``max_inputs``."""
+        if not self.max_inputs:
+            return
+        now = None
+        for side, statistic in (('up', ekf._cusum_up), ('down', ekf._cusum_down)):
+            kept = self.kept[side]
+            if statistic == 0.0:
+                now = now or (self.count, _Kept(ekf))
+                self.kept[side] = now
+            elif kept is not None and self.count - kept[0] > self.max_inputs:
+                self.kept[side] = None
+        starts = [kept[0] for kept in self.kept.values() if kept is not None]
+        oldest = min(starts, default=self.count)
+        while self.first < oldest:
+            self.inputs.popleft()
+            self.first += 1
+
+    def onset(self, side: str) -> _Kept | None:
+        kept = self.kept[side]
+        return None if kept is None else kept[1]
+
+    def since(self, side: str) -> list[_Input]:
+        kept = self.kept[side]
+        assert kept is not None
+        return list(self.inputs)[kept[0] - self.first:]
+
+
 class CreepEkf:
     """Augmented-state EKF for the creep factor; one :meth:`step` per sample.
 
@@ -732,6 +811,10 @@ class CreepEkf:
         self.resets: dict[str, int] = {}
         self.clipped = 0
         self.changes_detected = 0
+        #: Alarms followed by filtering again from the change's onset (change_rewind_s).
+        self.rewinds = 0
+        self._alarm = ''
+        self._replaying = False
         self.last_reset_reason = ''
         self._low_adhesion = False
         self._period_ns = round(1e9 / p.sample_rate_hz)
@@ -807,6 +890,7 @@ class CreepEkf:
         self._cusum_up = self._cusum_down = 0.0
         # The kept track belongs to data before the reset (a gap, a time jump, divergence).
         self._history.clear()
+        self._rewind = _Rewind(math.floor(p.change_rewind_s / self._dt))
 
     @property
     def creep_factor(self) -> float:
@@ -1047,6 +1131,8 @@ class CreepEkf:
                 self._history.push(None)
             self._predict()
         self.predicted_missing += n_samples
+        if n_samples:
+            self._rewind.record(_Input(None, None, None, n_samples))
 
     def step(self, measurement: np.ndarray | None, track: np.ndarray | None = None,
              speed: float | None = None) -> CreepEstimate:
@@ -1067,7 +1153,6 @@ class CreepEkf:
         if speed is not None:
             self.set_speed(speed)
         status = 'predicted'
-        nis = math.nan
         z = None
         if measurement is not None:
             z = np.asarray(measurement, dtype=float)
@@ -1085,14 +1170,58 @@ class CreepEkf:
                 self._reject('track_non_finite')
                 u_meas = None
         sample = self._track_sample(u_meas)
+        entry = _Input(z, sample, self._model.speed, 0)
+        estimate = self._filter(entry, status)
+        self._rewind.record(entry)
+        if self._alarm:
+            estimate = self._rewind_to_onset(estimate)
+        self._rewind.keep(self)
+        return estimate
+
+    def _filter(self, entry: _Input, status: str) -> CreepEstimate:
+        """The update with one checked sample (or the track alone), then the prediction."""
         reset = False
-        if z is not None:
-            status, nis = self._update(z, sample)
+        nis = math.nan
+        if entry.z is not None:
+            status, nis = self._update(entry.z, entry.track)
             reset = self._check_divergence(status, nis)
-        elif sample is not None:
-            self._update_track(sample)
+        elif entry.track is not None:
+            self._update_track(entry.track)
         estimate = self._estimate(status, nis, reset)
         self._predict()
+        return estimate
+
+    def _rewind_to_onset(self, estimate: CreepEstimate) -> CreepEstimate:
+        """A change was detected: filter again from its onset with ln c widened there.
+
+        The alarm says c changed where the alarm side's CUSUM statistic last left zero; the
+        filter ran on the old c since, and the other states (the suspension ratios most)
+        took up part of the change. Going back to the state kept there, widening ln c and
+        filtering the kept samples again follows the change from its onset (the published
+        estimates of those samples stay as they were). Counters are those of the first pass.
+        """
+        side, self._alarm = self._alarm, ''
+        kept = self._rewind.onset(side)
+        if kept is None:
+            return estimate         # the onset is beyond change_rewind_s: widened at the alarm
+        counts = (dict(self.rejected), self.clipped)
+        kept.restore(self)
+        self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
+        # The change is the one detected: no CUSUM while filtering again, and both sides
+        # start from zero after it, as after an alarm without going back.
+        self._replaying = True
+        for entry in self._rewind.since(side):
+            if entry.gap:
+                for _ in range(entry.gap):
+                    self._predict()
+            else:
+                if entry.speed is not None:
+                    self.set_speed(entry.speed)
+                estimate = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
+        self._replaying = False
+        self._cusum_up = self._cusum_down = 0.0
+        self.rejected, self.clipped = counts
+        self.rewinds += 1
         return estimate
 
     def _reject(self, reason: str) -> str:
@@ -1131,9 +1260,12 @@ class CreepEkf:
         follows a step fast while a slow random walk keeps the estimate quiet in between.
         """
         p = self.params
+        if self._replaying:
+            return
         self._cusum_up = max(0.0, self._cusum_up + normalised_correction - p.change_drift)
         self._cusum_down = max(0.0, self._cusum_down - normalised_correction - p.change_drift)
         if max(self._cusum_up, self._cusum_down) > self._change_threshold:
+            self._alarm = 'up' if self._cusum_up > self._cusum_down else 'down'
             self.P[self.i_theta, self.i_theta] += p.change_log_std ** 2
             self._cusum_up = self._cusum_down = 0.0
             self.changes_detected += 1
