@@ -67,7 +67,7 @@ Choices and why:
   left zero and filters the samples since again (``change_rewind_s``; Gustafsson's
   restart at the estimated change time). At low speed the alarm comes 0.1-0.7 s after a
   step, and meanwhile the suspension ratio states took up part of the change (development,
-  C with the exact track: 23 -> 24/24, the slowest step 1.61 -> 0.49 s). Filtering again
+  C with the exact track: 23 -> 24/24, the slowest step 1.61 -> 0.46 s). Filtering again
   costs the samples since the onset once per alarm (at most 2 s: 400 samples, some 40 ms).
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
