@@ -489,8 +489,10 @@ class RadiusFeeder:
                 self.wheel.publish(msg)
             for i in range(k, k + 20):
                 ns = round(drive['t_imu'][i] * 1e9)
+                # Stamped with the IMU sample, as the recordings do: a bin closes once a wheel
+                # speed and a driver input at or after its stamp are in.
                 driver = DriverInputs()
-                driver.header.stamp = _time(ns - 2_000_000)
+                driver.header.stamp = _time(ns)
                 driver.wheel_torque = drive['torque'][i].tolist()
                 self.driver.publish(driver)
                 imu = Imu()

@@ -15,9 +15,15 @@ Time alignment. The core runs at ~100 Hz on synchronised samples. Each IMU sampl
 a bin (t_prev, t_k] (at most one ``1 / sample_rate_hz`` long; IMU samples closer than 0.75 of
 that to the previous bin end are skipped, so a faster IMU is decimated): the wheel speeds
 stamped in the bin are averaged, and the driver input used is the newest one stamped at or
-before t_k. A bin waits until a wheel speed stamped at or after t_k has arrived (topics arrive
-in any order); if none comes within ``max_latency_s`` of IMU time, it is processed with the
-wheel speeds it has, or as missing (NaN) if it has none. A driver input older than
+before t_k. A bin waits until a wheel speed and a driver input stamped at or after t_k have
+arrived, and whether the pending bins are processed is decided bin by bin: topics arrive in
+any order, and neither what a bin holds nor where a chunk ends may depend on it, or the live
+graph's outputs would depend on its delivery (with the driver inputs 30 messages late, 120 of
+121 outputs of road_kim_huh_relation_check differed before). The price: a bin waits for the
+next driver input, up to one of its periods when its stamps lag the IMU's (none on the
+recordings, which stamp both alike). If they do not come within ``max_latency_s`` of IMU
+time, the bin is processed with the wheel speeds it has, or as missing (NaN) if it has none
+(without driver inputs every bin waits that long). A driver input older than
 ``max_input_age_s`` is stale: the torque becomes NaN (longitudinal filters pause) and the
 steering angle NaN (the front-axle lateral measurement pauses). Without the IMU no bin closes:
 the analysis pauses (the node reports the silence).
@@ -251,7 +257,7 @@ class WheelRadiusAnalyzerProcessor(
         if ns is None:
             return outputs
         self._driver.append((ns, float(msg.steering_angle), torque))
-        return outputs
+        return outputs + self._drain()
 
     # -- alignment -----------------------------------------------------------------------------
 
@@ -259,14 +265,17 @@ class WheelRadiusAnalyzerProcessor(
         """Close every IMU bin whose wheel speeds are complete (or waited long enough)."""
         if not self._imu:
             return []
-        n = self.node_params
         newest_wheel = self._wheels[-1][0] if self._wheels else None
+        newest_driver = self._driver[-1][0] if self._driver else None
         newest_imu = self._imu[-1][0]
-        latency_ns = int(n.max_latency_s * 1e9)
-        rows: list[Row] = []
+        latency_ns = int(self.node_params.max_latency_s * 1e9)
+        outputs: list[Output] = []
         while self._imu:
             t_k, yaw = self._imu[0]
-            complete = newest_wheel is not None and newest_wheel >= t_k
+            # Complete once every input has passed t_k: what a bin holds must not depend on
+            # the order the topics arrive in (the live graph's delivery).
+            complete = (newest_wheel is not None and newest_wheel >= t_k
+                        and newest_driver is not None and newest_driver >= t_k)
             if not complete and newest_imu - t_k <= latency_ns:
                 break
             self._imu.popleft()
@@ -276,10 +285,15 @@ class WheelRadiusAnalyzerProcessor(
             start = t_k - self._bin_ns if self._last_bin_end is None else \
                 max(self._last_bin_end, t_k - self._bin_ns)
             self._last_bin_end = t_k
-            rows.append((t_k * 1e-9, self._bin_mean(start, t_k), yaw, *self._driver_at(t_k)))
-        self._pending.extend(rows)
-        if not self._pending:
-            return []
+            self._pending.append(
+                (t_k * 1e-9, self._bin_mean(start, t_k), yaw, *self._driver_at(t_k)))
+            # Due or not is decided bin by bin, not for the bins one message closes together.
+            outputs += self._process_if_due()
+        return outputs
+
+    def _process_if_due(self) -> list[Output]:
+        """Process the pending bins when a chunk is full or an output falls due (soon)."""
+        n = self.node_params
         first_s, last_s = self._pending[0][0], self._pending[-1][0]
         if self._last_publish_s == -math.inf:
             # The first bin is answered at once, or output_phase_s later.
