@@ -33,8 +33,8 @@ from rail_monitor_ros.simulation.rail_simulator import (
 
 # docs/targets.md: within 5 % (A-C) / 10 % (D) of the true c from 1 s after each step. Measured on
 # the seeded run (known input, surveyed track), largest error after 1 s, steps to 40 % / 60 %:
-# the full model (default) A 1.3 / 1.3 %, B 2.1 / 1.9 %, C 2.3 / 1.9 %, D 1.7 / 1.6 %; the end
-# model A 1.4 / 1.2 %, B 1.5 / 2.8 %, C 1.8 / 2.8 %, D 3.1 / 2.6 %.
+# the full model (default) A 1.3 / 1.4 %, B 1.8 / 2.0 %, C 1.8 / 1.9 %, D 1.7 / 1.5 %; the end
+# model A 1.4 / 1.2 %, B 1.5 / 2.5 %, C 1.7 / 2.8 %, D 3.4 / 1.2 %.
 SPEC_TARGET = {'A': 0.05, 'B': 0.05, 'C': 0.05, 'D': 0.10}
 
 
@@ -435,9 +435,9 @@ def test_predict_through_gap_is_prediction_steps(creep_steps: RailSimulationResu
 def test_pattern_c_reads_only_the_spec_fields(creep_steps: RailSimulationResult) -> None:
     """Issue 19: pattern C is the bogie and body lateral displacement and velocity only; with
     every other RailLateralStates field NaN no sample is rejected and the contract target (the
-    exact track) holds (measured on the seeded run: settled 0.49 / 0.24 s, largest error after
-    1 s 2.3 / 1.9 %; told the default map accuracy, 0.3 mm, instead: 0.985 / 0.595 s, 4.7 / 3.8
-    %)."""
+    exact track) holds (measured on the seeded run: settled 0.16 / 0.105 s, largest error
+    after 1 s 1.8 / 1.9 %; told the default map accuracy, 0.3 mm, instead: 0.21 / 0.47 s,
+    2.8 / 3.3 %)."""
     fields = lateral_states_fields(creep_steps.measured_state, creep_steps.state_names)
     spec = ('bogie_lateral', 'bogie_lateral_rate', 'body_lateral', 'body_lateral_rate')
     fields = {name: (values if name in spec else np.full_like(values, np.nan))
@@ -455,7 +455,7 @@ def test_track_map_weighted_by_its_stated_accuracy(creep_steps: RailSimulationRe
     """A published track map with 0.3 mm rms error (the spectrum's shape) over the simulated
     band: the spectrum track model told the map's accuracy and band has less than half the
     worst error of one that takes the map as exact (measured, largest error from 1 s after
-    the 0.4 -> 0.6 step: 13.1 % against 76.1 %; with the force and moment suspension errors
+    the 0.4 -> 0.6 step: 13.0 % against 42.9 %; with the force and moment suspension errors
     before 2026-12-05, 20.5 % against 59.1 %, and 32.5 % when the stated rms was taken as the
     whole spectrum's; the issue's +/-5 % is not reached, see
     docs/methods/rail_family_evaluation.md)."""

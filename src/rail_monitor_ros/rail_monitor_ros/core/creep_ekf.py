@@ -442,9 +442,8 @@ class CreepEkfParams:
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
                     'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
                     'change_log_std', 'low_adhesion_threshold')
-        require_positive(self, ('change_rewind_s',), allow_zero=True)
         require_positive(self, positive)
-        require_positive(self, ('low_adhesion_hysteresis',), allow_zero=True)
+        require_positive(self, ('change_rewind_s', 'low_adhesion_hysteresis'), allow_zero=True)
         if not self.min_creep_factor < self.max_creep_factor <= MAX_CREEP_FACTOR:
             raise ValueError(f'need min_creep_factor < max_creep_factor <= {MAX_CREEP_FACTOR}, '
                              f'got {self.min_creep_factor}, {self.max_creep_factor}')

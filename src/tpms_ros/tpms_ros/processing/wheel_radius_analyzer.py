@@ -262,7 +262,8 @@ class WheelRadiusAnalyzerProcessor(
     # -- alignment -----------------------------------------------------------------------------
 
     def _drain(self) -> list[Output]:
-        """Close every IMU bin whose wheel speeds are complete (or waited long enough)."""
+        """Close every IMU bin whose wheel speeds and driver input are in (or waited long
+        enough)."""
         if not self._imu:
             return []
         newest_wheel = self._wheels[-1][0] if self._wheels else None
