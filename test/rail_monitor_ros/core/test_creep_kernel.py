@@ -23,22 +23,23 @@ def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_update_is_the_joseph_form_update(seed: int) -> None:
-    """x + K y and P - KHP - (KHP)^T + K S K^T, the NIS and the ln c correction and spread."""
+    """x + K y and P - KHP - (KHP)^T + K S K^T, the NIS, the ln c correction and spread, and
+    ln det S."""
     rng = np.random.default_rng(seed)
     x, p = rng.standard_normal(N), _spd(rng, N)
     h, r, z = rng.standard_normal((M, N)), rng.uniform(0.5, 1.0, M), rng.standard_normal(M)
     s = h @ p @ h.T + np.diag(r)
     y = z - h @ x
     gain = p @ h.T @ np.linalg.inv(s)
-    x_kernel, p_kernel, out = x.copy(), p.copy(), np.empty(3)
+    x_kernel, p_kernel, out = x.copy(), p.copy(), np.empty(4)
     assert ekf_update(x_kernel, p_kernel, h, r, z, M, 1e12, N - 1, out) == UPDATED
     np.testing.assert_allclose(x_kernel, x + gain @ y, rtol=1e-10, atol=1e-12)
     a = gain @ h @ p
     np.testing.assert_allclose(p_kernel, p - a - a.T + gain @ s @ gain.T, rtol=1e-10,
                                atol=1e-12)
     ksk = gain @ s @ gain.T
-    np.testing.assert_allclose(out, [y @ np.linalg.solve(s, y), (gain @ y)[-1], ksk[-1, -1]],
-                               rtol=1e-10)
+    np.testing.assert_allclose(out, [y @ np.linalg.solve(s, y), (gain @ y)[-1], ksk[-1, -1],
+                                     np.linalg.slogdet(s)[1]], rtol=1e-10)
 
 
 def test_update_gates_outliers_and_refuses_a_singular_innovation() -> None:
@@ -48,7 +49,7 @@ def test_update_gates_outliers_and_refuses_a_singular_innovation() -> None:
     h, r = rng.standard_normal((M, N)), np.ones(M)
     z = h @ x
     z[0] += 1e3
-    x_kernel, p_kernel, out = x.copy(), p.copy(), np.empty(3)
+    x_kernel, p_kernel, out = x.copy(), p.copy(), np.empty(4)
     assert ekf_update(x_kernel, p_kernel, h, r, z, 1, 9.0, N - 1, out) == OUTLIER
     # The same residual in a channel that is not gated is used.
     assert ekf_update(x_kernel, p_kernel, np.roll(h, -1, axis=0), np.roll(r, -1),

@@ -63,12 +63,16 @@ Choices and why:
   fraction of a second (Gustafsson 2000, change detection with covariance increase). A single
   fast walk cannot do both: at 0.15 / sqrt(s) B-D wandered by 5-10 %, at 0.05 they took
   seconds to follow the 0.4 -> 0.6 step. The widening is applied where the change began, not
-  at the alarm: the filter goes back to the state kept where the alarm side's statistic last
-  left zero and filters the samples since again (``change_rewind_s``; Gustafsson's
-  restart at the estimated change time). At low speed the alarm comes 0.1-0.7 s after a
-  step, and meanwhile the suspension ratio states took up part of the change (development,
-  C with the exact track: 23 -> 24/24, the slowest step 1.61 -> 0.46 s). Filtering again
-  costs the samples since the onset once per alarm (at most 2 s: 400 samples, some 40 ms).
+  at the alarm: the filter goes back to a state kept there and filters the samples since
+  again (``change_rewind_s``; Gustafsson's restart at the estimated change time). At low
+  speed the alarm comes 0.1-0.7 s after a step, and meanwhile the suspension ratio states
+  took up part of the change (development, C with the exact track: 23 -> 24/24, the slowest
+  step 1.61 -> 0.46 s). Where the change began is the maximum likelihood change time
+  (Willsky and Jones 1976), searched on a grid of kept states (``change_onset_*``): the point
+  where the alarm side's statistic last left zero is late when those states took up the
+  change's first samples, and early when noise had lifted it before the change
+  (development-wide, the three slowest steps 0.85-1.11 s -> 0.18-0.28 s). Each onset tried
+  costs the samples since it once per alarm (some 10-20 onsets of 0.1-0.6 s each).
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
   the track), so the discretisation sees the track move within a sample (a first-order hold).
@@ -134,6 +138,7 @@ from __future__ import annotations
 from collections import OrderedDict, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+import itertools
 import math
 
 import numpy as np
@@ -398,11 +403,16 @@ class CreepEkfParams:
                                     read_only=True)
     change_log_std: float = param(0.5, 'on an alarm, added in quadrature to the std of ln c',
                                   low=1e-4, high=10.0, read_only=True)
-    change_rewind_s: float = param(2.0, 'on an alarm, the filter goes back to where the alarm '
-                                   "side's CUSUM statistic last left zero (the change's onset) "
-                                   'if that is at most this long ago, widens ln c there and '
-                                   'filters the samples since again; 0: widen at the alarm '
+    change_rewind_s: float = param(2.0, "on an alarm, the filter goes back to the change's "
+                                   'onset if that is at most this long ago, widens ln c there '
+                                   'and filters the samples since again; 0: widen at the alarm '
                                    'only, s', low=0.0, high=60.0, read_only=True)
+    change_onset_search_s: float = param(
+        0.3, "the onsets tried run from this long before the alarm side's CUSUM statistic last "
+        'left zero up to the alarm; the one whose samples are the most likely is kept (maximum '
+        'likelihood change time), s', low=0.0, high=60.0, read_only=True)
+    change_onset_step_s: float = param(0.05, 'spacing of the onsets tried (a filter state is '
+                                       'kept at each), s', low=1e-3, high=10.0, read_only=True)
     low_adhesion_threshold: float = param(0.5, 'low_adhesion turns on when c falls below this',
                                           low=0.01, high=2.0)
     low_adhesion_hysteresis: float = param(0.05, 'and off when c rises above threshold + this',
@@ -441,9 +451,10 @@ class CreepEkfParams:
                     'rediscretize_tolerance', 'speed_tolerance_mps', 'gate_sigma',
                     'divergence_window_s', 'divergence_nis_ratio', 'max_outlier_run_s',
                     'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
-                    'change_log_std', 'low_adhesion_threshold')
+                    'change_log_std', 'change_onset_step_s', 'low_adhesion_threshold')
         require_positive(self, positive)
-        require_positive(self, ('change_rewind_s', 'low_adhesion_hysteresis'), allow_zero=True)
+        require_positive(self, ('change_rewind_s', 'change_onset_search_s',
+                                'low_adhesion_hysteresis'), allow_zero=True)
         if not self.min_creep_factor < self.max_creep_factor <= MAX_CREEP_FACTOR:
             raise ValueError(f'need min_creep_factor < max_creep_factor <= {MAX_CREEP_FACTOR}, '
                              f'got {self.min_creep_factor}, {self.max_creep_factor}')
@@ -719,48 +730,56 @@ class _Kept:
 
 
 class _Rewind:
-    """The samples since each CUSUM side last stood at zero, and the state kept there
-    (:meth:`CreepEkf._rewind_to_onset`); at most ``max_inputs`` back."""
+    """The last ``max_inputs`` inputs with their log-likelihoods in the first pass, the filter's
+    state kept every ``grid`` inputs, and where each CUSUM side last stood at zero
+    (:meth:`CreepEkf._rewind_to_onset`). Input i is the i-th recorded; the state kept at i is
+    the one before input i."""
 
-    def __init__(self, max_inputs: int) -> None:
-        self.max_inputs = max_inputs
+    def __init__(self, max_inputs: int, search: int, grid: int) -> None:
+        self.max_inputs, self.search, self.grid = max_inputs, search, grid
         self.inputs: deque[_Input] = deque()
+        self.log_likelihoods: deque[float] = deque()
+        self.states: dict[int, _Kept] = {}
         self.first = 0          # index of inputs[0]
         self.count = 0          # index of the next input
-        self.kept: dict[str, tuple[int, _Kept] | None] = {'up': None, 'down': None}
+        self.zero: dict[str, int] = {}
 
-    def record(self, entry: _Input) -> None:
+    def record(self, entry: _Input, log_likelihood: float) -> None:
         if self.max_inputs:
             self.inputs.append(entry)
+            self.log_likelihoods.append(log_likelihood)
             self.count += 1
 
     def keep(self, ekf: CreepEkf) -> None:
-        """After a step: a side whose statistic is zero starts here; forget what is older
-        than the oldest start, and a start beyond ``max_inputs``."""
+        """After a step: the state on the grid, the sides whose statistic is zero; forget
+        what is older than ``max_inputs``."""
         if not self.max_inputs:
             return
-        now = None
+        if self.count % self.grid == 0:
+            self.states[self.count] = _Kept(ekf)
         for side, statistic in (('up', ekf._cusum_up), ('down', ekf._cusum_down)):
-            kept = self.kept[side]
             if statistic == 0.0:
-                now = now or (self.count, _Kept(ekf))
-                self.kept[side] = now
-            elif kept is not None and self.count - kept[0] > self.max_inputs:
-                self.kept[side] = None
-        starts = [kept[0] for kept in self.kept.values() if kept is not None]
-        oldest = min(starts, default=self.count)
-        while self.first < oldest:
+                self.zero[side] = self.count
+        while self.first < self.count - self.max_inputs:
             self.inputs.popleft()
+            self.log_likelihoods.popleft()
+            self.states.pop(self.first, None)
             self.first += 1
 
-    def onset(self, side: str) -> _Kept | None:
-        kept = self.kept[side]
-        return None if kept is None else kept[1]
+    def starts(self, side: str) -> list[int]:
+        """The onsets to try for an alarm of ``side``: the kept states from ``search`` before
+        where it last left zero up to now; none if that is older than the inputs kept."""
+        zero = self.zero.get(side)
+        if zero is None or zero < self.first:
+            return []
+        return sorted(i for i in self.states if i >= zero - self.search)
 
-    def since(self, side: str) -> list[_Input]:
-        kept = self.kept[side]
-        assert kept is not None
-        return list(self.inputs)[kept[0] - self.first:]
+    def since(self, start: int) -> list[_Input]:
+        return list(self.inputs)[start - self.first:]
+
+    def first_pass_log_likelihood(self, start: int, end: int) -> float:
+        """Of inputs start .. end - 1 as the first pass filtered them."""
+        return sum(itertools.islice(self.log_likelihoods, start - self.first, end - self.first))
 
 
 class CreepEkf:
@@ -811,13 +830,18 @@ class CreepEkf:
         self._build_observation()
         self._q_x = self._state_process_noise()
         self._jacobian = np.eye(self.dim_x)
-        self._update_out = np.empty(3)      # ekf_update's NIS, ln c correction and spread
+        self._update_out = np.empty(4)      # ekf_update's NIS, ln c correction, spread, ln det S
+        self._sample_log_likelihood = 0.0
         self.rejected: dict[str, int] = {}
         self.resets: dict[str, int] = {}
         self.clipped = 0
         self.changes_detected = 0
-        #: Alarms followed by filtering again from the change's onset (change_rewind_s).
+        #: Alarms followed by filtering again from the change's onset (change_rewind_s), the
+        #: samples filtered again for them (every onset tried) and how long before its alarm
+        #: the last one began, s.
         self.rewinds = 0
+        self.refiltered = 0
+        self.last_change_lead_s = math.nan
         self._alarm = ''
         self._replaying = False
         self.last_reset_reason = ''
@@ -895,7 +919,9 @@ class CreepEkf:
         self._cusum_up = self._cusum_down = 0.0
         # The kept track belongs to data before the reset (a gap, a time jump, divergence).
         self._history.clear()
-        self._rewind = _Rewind(math.floor(p.change_rewind_s / self._dt))
+        self._rewind = _Rewind(math.floor(p.change_rewind_s / self._dt),
+                               round(p.change_onset_search_s / self._dt),
+                               max(1, round(p.change_onset_step_s / self._dt)))
 
     @property
     def creep_factor(self) -> float:
@@ -1137,7 +1163,7 @@ class CreepEkf:
             self._predict()
         self.predicted_missing += n_samples
         if n_samples:
-            self._rewind.record(_Input(None, None, None, n_samples))
+            self._rewind.record(_Input(None, None, None, n_samples), 0.0)
 
     def step(self, measurement: np.ndarray | None, track: np.ndarray | None = None,
              speed: float | None = None) -> CreepEstimate:
@@ -1176,8 +1202,9 @@ class CreepEkf:
                 u_meas = None
         sample = self._track_sample(u_meas)
         entry = _Input(z, sample, self._model.speed, 0)
+        self._sample_log_likelihood = 0.0
         estimate = self._filter(entry, status)
-        self._rewind.record(entry)
+        self._rewind.record(entry, self._sample_log_likelihood)
         if self._alarm:
             estimate = self._rewind_to_onset(estimate)
         self._rewind.keep(self)
@@ -1197,33 +1224,54 @@ class CreepEkf:
         return estimate
 
     def _rewind_to_onset(self, estimate: CreepEstimate) -> CreepEstimate:
-        """A change was detected: filter again from its onset with ln c widened there.
+        """A change was detected: find where it began and filter again from there, ln c widened.
 
-        The alarm says c changed where the alarm side's CUSUM statistic last left zero; the
-        filter ran on the old c since, and the other states (the suspension ratios most)
-        took up part of the change. Going back to the state kept there, widening ln c and
-        filtering the kept samples again follows the change from its onset (the published
-        estimates of those samples stay as they were). Counters are those of the first pass.
+        Where the alarm side's CUSUM statistic last left zero is the usual estimate of the
+        onset, but the other states (the suspension ratios most) take up the first samples of
+        a change, so the statistic leaves zero late, or noise lifted it before the change. The
+        onset kept is the maximum likelihood change time instead (Willsky and Jones 1976;
+        Gustafsson 2000, ch. 9): from each kept state from ``change_onset_search_s`` before
+        that point up to the alarm, the filter widens ln c and filters the samples since
+        again; the onset whose samples are the most likely (the first pass's log-likelihoods
+        before it, the new ones after) is kept, with its state at the alarm's sample. The
+        published estimates of those samples stay as they were. Counters are those of the
+        first pass.
         """
         side, self._alarm = self._alarm, ''
-        kept = self._rewind.onset(side)
-        if kept is None:
+        rewind = self._rewind
+        starts = rewind.starts(side)
+        if not starts:
             return estimate         # the onset is beyond change_rewind_s: widened at the alarm
         counts = (dict(self.rejected), self.clipped)
-        kept.restore(self)
-        self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
         # The change is the one detected: no CUSUM while filtering again, and both sides
         # start from zero after it, as after an alarm without going back.
         self._replaying = True
-        for entry in self._rewind.since(side):
-            if entry.gap:
-                for _ in range(entry.gap):
-                    self._predict()
-            else:
+        best: tuple[float, _Kept, CreepEstimate, int] | None = None
+        for start in starts:
+            log_likelihood = rewind.first_pass_log_likelihood(starts[0], start)
+            rewind.states[start].restore(self)
+            self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
+            last, samples = estimate, 0
+            for entry in rewind.since(start):
+                if entry.gap:
+                    for _ in range(entry.gap):
+                        self._predict()
+                    samples += entry.gap
+                    continue
                 if entry.speed is not None:
                     self.set_speed(entry.speed)
-                estimate = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
+                self._sample_log_likelihood = 0.0
+                last = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
+                log_likelihood += self._sample_log_likelihood
+                samples += 1
+            self.refiltered += samples
+            if best is None or log_likelihood > best[0]:
+                best = (log_likelihood, _Kept(self), last, samples)
         self._replaying = False
+        assert best is not None
+        _, kept, estimate, samples = best
+        kept.restore(self)
+        self.last_change_lead_s = (samples - 1) * self._dt
         self._cusum_up = self._cusum_down = 0.0
         self.rejected, self.clipped = counts
         self.rewinds += 1
@@ -1249,7 +1297,8 @@ class CreepEkf:
             return self._reject('outlier'), math.nan
         if outcome == SINGULAR:
             return self._reject('singular_innovation'), math.nan
-        nis, correction, spread = self._update_out.tolist()
+        nis, correction, spread, log_det = self._update_out.tolist()
+        self._sample_log_likelihood = -0.5 * (nis + log_det)
         self._clip()
         if spread > 0.0:
             self._detect_change(correction / math.sqrt(spread))

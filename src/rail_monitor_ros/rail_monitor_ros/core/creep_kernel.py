@@ -101,7 +101,7 @@ def ekf_update(x: np.ndarray, p: np.ndarray, h: np.ndarray, r: np.ndarray, z: np
     Returns:
         :data:`UPDATED`, :data:`OUTLIER` or :data:`SINGULAR` (S not positive definite:
         nothing changes). When updated, ``out`` holds [y^T S^-1 y, the correction of
-        x[i_theta] (K y)_theta, its predicted variance (K S K^T)_theta].
+        x[i_theta] (K y)_theta, its predicted variance (K S K^T)_theta, ln det S].
     """
     m, n = h.shape
     hp = np.dot(h, p)                                 # H P, (m, n)
@@ -154,7 +154,10 @@ def ekf_update(x: np.ndarray, p: np.ndarray, h: np.ndarray, r: np.ndarray, z: np
         nis += y[a] * solved[a, n]
         correction += hp[a, i_theta] * solved[a, n]
         spread += hp[a, i_theta] * solved[a, i_theta]
-    out[0], out[1], out[2] = nis, correction, spread
+    log_det = 0.0
+    for a in range(m):
+        log_det += math.log(chol[a, a])
+    out[0], out[1], out[2], out[3] = nis, correction, spread, 2.0 * log_det
     # gain[k, a] = solved[a, k]: x += K y; K S as rows for the last term of the Joseph form.
     gain_s = np.empty((n, m))
     for k in range(n):
