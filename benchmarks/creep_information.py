@@ -40,9 +40,12 @@ on most such cases.
   that band, ``track_shaping.map_error_roughness``) added to the alignment the map gives.
 
 **The estimator's own view** (``--estimator``): the same bound under the creep EKF's model as
-the evaluation configures it (the end model, its track and map-error states, the other bogie's
-forces as Gauss-Markov states, its process and measurement noise; ``--ekf-set NAME=VALUE``
-changes a setting): how much of the information its stated model errors leave it.
+the evaluation configures it (its model, ``full`` by default: the car, its track and map-error
+states, the rear wheelsets' track from the front pair's a wheelbase earlier; the end model: the
+other bogie's forces as Gauss-Markov states; its process and measurement noise;
+``--ekf-set NAME=VALUE`` changes a setting, ``--ekf-set model=end`` the model): how much of the
+information its stated model errors leave it. The suspension ratio states do not enter it: at
+ratio 0 their effect on the dynamics, linearised, vanishes.
 
 Run: ``source tools/env.sh && python benchmarks/creep_information.py [--seeds held-out|
 development] [--cars N] [--speeds K] [--patterns D/none,D/exact,C/exact] [--estimator
@@ -238,10 +241,11 @@ def fisher_rate(car: FamilyCar, speed: float, creep_factor: float, pattern: str,
 
 def _ekf_spectrum(ekf: CreepEkf, creep_factor: float, known: int) -> OutputSpectrum:
     """The creep EKF's own model of its measurements at a fixed creep factor (its state
-    without ln c: the end model, track and map-error states, other-bogie forces, offsets)."""
+    without ln c: the car, track and map-error states, other-bogie forces, offsets), with the
+    full model's rear track rows, as it runs once it has kept a wheelbase's time of track."""
     n = ekf.i_theta
     model = ModeModel(ekf._discretize(creep_factor).fg[:n, :n], ekf._q_x[:n, :n], {})
-    h, r = ekf.measurement_model(known)
+    h, r = ekf.measurement_model(known, rear=True)
     return OutputSpectrum(model, h[:, :n], np.diag(r))
 
 

@@ -554,6 +554,26 @@ def test_full_model_knows_the_rear_track_from_the_front(creep_steps: RailSimulat
     assert np.all(rear[0.1][1] > 1e-3)
 
 
+def test_measurement_model_with_the_rear_rows(creep_steps: RailSimulationResult) -> None:
+    """measurement_model(rear=True) is the update a full-model sample makes once the front
+    track is kept a wheelbase's time: the same rows (the front and rear pairs' alignment and
+    rate) as the filter's own sample; without ``rear``, the front pair's only."""
+    params = CreepEkfParams(pattern='C', **SURVEYED_TRACK)
+    y, track, speed = simulation_inputs(creep_steps, 'C', model=params.model)
+    ekf = CreepEkf(params)
+    ekf.run(y[:400], track[:400], speed[:400])
+    rows, _ = ekf._track_sample(track[400])                 # noqa: SLF001
+    h_rear, r_rear = ekf.measurement_model(4, rear=True)
+    expected = ekf._observation(rows)                       # noqa: SLF001
+    np.testing.assert_array_equal(h_rear, expected.h)
+    np.testing.assert_array_equal(r_rear, expected.r)
+    h_front, _ = ekf.measurement_model(4)
+    assert h_front.shape[0] == h_rear.shape[0] - 4          # the rear pair's two rows each
+    end = CreepEkf(CreepEkfParams(pattern='C', model='end'))
+    np.testing.assert_array_equal(end.measurement_model(4, rear=True)[0],
+                                  end.measurement_model(4)[0])
+
+
 def test_the_full_model_takes_the_front_pair_track() -> None:
     """Whichever bogie it monitors, the full model takes the front pair's published track
     (the rear runs on it later); the others the monitored bogie's."""

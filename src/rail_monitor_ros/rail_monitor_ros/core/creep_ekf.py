@@ -988,14 +988,18 @@ class CreepEkf:
             self._observations[rows] = entry
         return entry
 
-    def measurement_model(self, track_size: int) -> tuple[np.ndarray, np.ndarray]:
+    def measurement_model(self, track_size: int, rear: bool = False,
+                          ) -> tuple[np.ndarray, np.ndarray]:
         """(H, diagonal of R) of a sample whose track part is the front pair's as published:
-        ``track_size`` 0 (none), 2 (alignment) or 4 (alignment and rate); the full model's
-        rear rows, which it adds once it has kept the front track, are not in it."""
+        ``track_size`` 0 (none), 2 (alignment) or 4 (alignment and rate); with ``rear``, also
+        the full model's rear rows, which it adds once it has kept the front track a
+        wheelbase's time (without, a sample before then)."""
         if track_size not in (0, N_U, 2 * N_U):
             raise ValueError(f'track_size must be 0, {N_U} or {2 * N_U}, got {track_size}')
         n_u = self._model.n_track
-        rows = (0, 1)[:track_size] + ((n_u, n_u + 1) if track_size == 2 * N_U else ())
+        wheelsets = range(n_u if rear and track_size else min(track_size, N_U))
+        rows = tuple(wheelsets) + (tuple(n_u + i for i in wheelsets)
+                                   if track_size == 2 * N_U else ())
         obs = self._observation(rows)
         return obs.h, obs.r
 
