@@ -71,8 +71,12 @@ Choices and why:
   (Willsky and Jones 1976), searched on a grid of kept states (``change_onset_*``): the point
   where the alarm side's statistic last left zero is late when those states took up the
   change's first samples, and early when noise had lifted it before the change
-  (development-wide, the three slowest steps 0.85-1.11 s -> 0.18-0.28 s). Each onset tried
-  costs the samples since it once per alarm (some 10-20 onsets of 0.1-0.6 s each).
+  (development-wide, C with the exact track: the three slowest steps 0.85-1.11 s -> 0.19-0.28
+  s, while one, 0.83 s, became 1.28 s). Each onset tried costs the samples since it once per
+  alarm (some 10-20 onsets of 0.1-0.6 s each); they are ranked on the discretisations already
+  cached (``ONSET_SEARCH_GRID_REACH``), as new ones were most of an alarm's cost, and the one
+  kept is filtered again exactly (the same onsets and estimates on rail_creep_steps, half the
+  discretisations).
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
   the track), so the discretisation sees the track move within a sample (a first-order hold).
@@ -227,6 +231,11 @@ def _channel_kind(channel: str) -> str:
     if channel in _CHANNEL_KINDS:
         return _CHANNEL_KINDS[channel]
     return _CHANNEL_KINDS[channel.split('_')[0]]
+
+
+#: While the change's onsets are ranked, a cached discretisation up to this many grid points
+#: away stands in for a new one (first-order Taylor in c from it; 8 points: 8 % in c).
+ONSET_SEARCH_GRID_REACH = 8
 
 
 @dataclass(frozen=True)
@@ -816,6 +825,7 @@ class CreepEkf:
         self._r_meas = np.array([noise[k] ** 2 for k in kinds])
         self._n_meas = len(kinds)
         self._cache: OrderedDict[int, Discretization] = OrderedDict()
+        self._grid_reach = 0        # grid points a cached one may stand in for (onset search)
         self.discretizations = 0
         self._model = _SpeedModel(p, p.vehicle.speed)
         self.state_names = self._model.state_names
@@ -1090,13 +1100,17 @@ class CreepEkf:
         tol = self.params.rediscretize_tolerance
         key = round(math.log(creep_factor) / tol)
         entry = self._cache.get(key)
+        for offset in range(1, self._grid_reach + 1):
+            if entry is not None:
+                break
+            entry = self._cache.get(key - offset) or self._cache.get(key + offset)
         if entry is None:
             entry = self._discretize(math.exp(key * tol))
             self._cache[key] = entry
             if len(self._cache) > self.params.cache_size:
                 self._cache.popitem(last=False)
         else:
-            self._cache.move_to_end(key)
+            self._cache.move_to_end(round(math.log(entry.creep_factor) / tol))
         return entry
 
     def _discretize(self, c: float) -> Discretization:
@@ -1214,6 +1228,32 @@ class CreepEkf:
         self._rewind.keep(self)
         return estimate
 
+    def _try_onset(self, starts: list[int], index: int, estimate: CreepEstimate,
+                   ) -> tuple[float, _Kept, CreepEstimate, int]:
+        """The change begun at kept state ``starts[index]``: (the log-likelihood of the samples
+        since ``starts[0]``, the state at the alarm's sample, the estimate there, the samples
+        filtered again)."""
+        rewind = self._rewind
+        start = starts[index]
+        log_likelihood = rewind.first_pass_log_likelihood(starts[0], start)
+        rewind.states[start].restore(self)
+        self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
+        last, samples = estimate, 0
+        for entry in rewind.since(start):
+            if entry.gap:
+                for _ in range(entry.gap):
+                    self._predict()
+                samples += entry.gap
+                continue
+            if entry.speed is not None:
+                self.set_speed(entry.speed)
+            self._sample_log_likelihood = 0.0
+            last = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
+            log_likelihood += self._sample_log_likelihood
+            samples += 1
+        self.refiltered += samples
+        return log_likelihood, _Kept(self), last, samples
+
     def _filter(self, entry: _Input, status: str) -> CreepEstimate:
         """The update with one checked sample (or the track alone), then the prediction."""
         reset = False
@@ -1250,31 +1290,16 @@ class CreepEkf:
         # The change is the one detected: no CUSUM while filtering again, and both sides
         # start from zero after it, as after an alarm without going back.
         self._replaying = True
-        best: tuple[float, _Kept, CreepEstimate, int] | None = None
-        for start in starts:
-            log_likelihood = rewind.first_pass_log_likelihood(starts[0], start)
-            rewind.states[start].restore(self)
-            self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
-            last, samples = estimate, 0
-            for entry in rewind.since(start):
-                if entry.gap:
-                    for _ in range(entry.gap):
-                        self._predict()
-                    samples += entry.gap
-                    continue
-                if entry.speed is not None:
-                    self.set_speed(entry.speed)
-                self._sample_log_likelihood = 0.0
-                last = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
-                log_likelihood += self._sample_log_likelihood
-                samples += 1
-            self.refiltered += samples
-            if best is None or log_likelihood > best[0]:
-                best = (log_likelihood, _Kept(self), last, samples)
+        # The onsets are ranked on the grid points already cached where one lies within
+        # ONSET_SEARCH_GRID_REACH of c (Taylor from there): each onset drives the widened c
+        # through its own path, and new grid points (five Frechet derivatives each) were most
+        # of an alarm's cost. The onset kept is then filtered again on the grid as usual.
+        self._grid_reach = ONSET_SEARCH_GRID_REACH
+        likelihoods = [self._try_onset(starts, i, estimate)[0] for i in range(len(starts))]
+        self._grid_reach = 0
+        best = max(range(len(starts)), key=likelihoods.__getitem__)
+        _, kept, estimate, samples = self._try_onset(starts, best, estimate)
         self._replaying = False
-        assert best is not None
-        _, kept, estimate, samples = best
-        kept.restore(self)
         self.last_change_lead_s = (samples - 1) * self._dt
         self._cusum_up = self._cusum_down = 0.0
         self.rejected, self.clipped = counts
