@@ -358,6 +358,28 @@ def test_onsets_ranked_on_cached_grid_points(creep_steps: RailSimulationResult, 
     assert ranked_count < 0.6 * exact_count
 
 
+def test_an_onset_the_filter_diverges_from_is_not_kept(creep_steps: RailSimulationResult,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A divergence while the onsets are tried does not reset the filter (that would drop the
+    kept samples and the track history): the onset is out, and when every onset is, the
+    change is widened at the alarm, exactly as without going back."""
+    reason = CreepEkf._divergence_reason                       # noqa: SLF001
+
+    def diverged_while_replaying(ekf: CreepEkf) -> str:
+        return 'innovation_inconsistent' if ekf._replaying else reason(ekf)  # noqa: SLF001
+
+    monkeypatch.setattr(CreepEkf, '_divergence_reason', diverged_while_replaying)
+    y, track, _ = simulation_inputs(creep_steps, 'C')
+    runs = {}
+    for rewind in (2.0, 0.0):
+        ekf = CreepEkf(CreepEkfParams(pattern='C', change_rewind_s=rewind, **SURVEYED_TRACK))
+        estimates = [ekf.step(y[k], track[k]).creep_factor for k in range(y.shape[0])]
+        runs[rewind] = (np.array(estimates), ekf.changes_detected, ekf.rewinds, ekf.resets)
+    (tried, alarms, rewinds, resets), (at_alarm, plain_alarms, _, _) = runs[2.0], runs[0.0]
+    assert alarms == plain_alarms == 2 and rewinds == 0 and resets == {}
+    np.testing.assert_allclose(tried, at_alarm, rtol=1e-12)
+
+
 def test_low_adhesion_hysteresis() -> None:
     """The flag turns on below the threshold and off only above threshold + hysteresis."""
     ekf = CreepEkf(CreepEkfParams(pattern='C', low_adhesion_threshold=0.5,

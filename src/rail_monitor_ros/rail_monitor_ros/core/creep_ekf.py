@@ -854,6 +854,7 @@ class CreepEkf:
         self.last_change_lead_s = math.nan
         self._alarm = ''
         self._replaying = False
+        self._replay_diverged = False
         self.last_reset_reason = ''
         self._low_adhesion = False
         self._period_ns = round(1e9 / p.sample_rate_hz)
@@ -1229,15 +1230,16 @@ class CreepEkf:
         return estimate
 
     def _try_onset(self, starts: list[int], index: int, estimate: CreepEstimate,
-                   ) -> tuple[float, _Kept, CreepEstimate, int]:
-        """The change begun at kept state ``starts[index]``: (the log-likelihood of the samples
-        since ``starts[0]``, the state at the alarm's sample, the estimate there, the samples
-        filtered again)."""
+                   ) -> tuple[float, CreepEstimate, int]:
+        """Filter again from kept state ``starts[index]`` with ln c widened there: (the
+        log-likelihood of the samples since ``starts[0]``, -inf if the filter diverged, the
+        estimate at the alarm's sample, the samples filtered again)."""
         rewind = self._rewind
         start = starts[index]
         log_likelihood = rewind.first_pass_log_likelihood(starts[0], start)
         rewind.states[start].restore(self)
         self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
+        self._replay_diverged = False
         last, samples = estimate, 0
         for entry in rewind.since(start):
             if entry.gap:
@@ -1251,8 +1253,11 @@ class CreepEkf:
             last = self._filter(entry, 'ok' if entry.z is not None else 'predicted')
             log_likelihood += self._sample_log_likelihood
             samples += 1
+            if self._replay_diverged:
+                log_likelihood = -math.inf
+                break
         self.refiltered += samples
-        return log_likelihood, _Kept(self), last, samples
+        return log_likelihood, last, samples
 
     def _filter(self, entry: _Input, status: str) -> CreepEstimate:
         """The update with one checked sample (or the track alone), then the prediction."""
@@ -1282,10 +1287,10 @@ class CreepEkf:
         first pass.
         """
         side, self._alarm = self._alarm, ''
-        rewind = self._rewind
-        starts = rewind.starts(side)
+        starts = self._rewind.starts(side)
         if not starts:
             return estimate         # the onset is beyond change_rewind_s: widened at the alarm
+        at_alarm = _Kept(self)
         counts = (dict(self.rejected), self.clipped)
         # The change is the one detected: no CUSUM while filtering again, and both sides
         # start from zero after it, as after an alarm without going back.
@@ -1298,13 +1303,17 @@ class CreepEkf:
         likelihoods = [self._try_onset(starts, i, estimate)[0] for i in range(len(starts))]
         self._grid_reach = 0
         best = max(range(len(starts)), key=likelihoods.__getitem__)
-        _, kept, estimate, samples = self._try_onset(starts, best, estimate)
+        log_likelihood, refiltered, samples = self._try_onset(starts, best, estimate)
         self._replaying = False
-        self.last_change_lead_s = (samples - 1) * self._dt
         self._cusum_up = self._cusum_down = 0.0
         self.rejected, self.clipped = counts
+        if not math.isfinite(log_likelihood):
+            # The filter diverged from every onset: widened at the alarm, as without going back.
+            at_alarm.restore(self)
+            return estimate
+        self.last_change_lead_s = (samples - 1) * self._dt
         self.rewinds += 1
-        return estimate
+        return refiltered
 
     def _reject(self, reason: str) -> str:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -1402,23 +1411,33 @@ class CreepEkf:
             outlier - self._outlier_fraction)
         if not outlier:
             self._nis_average += alpha * (nis_per_channel - self._nis_average)
-        reason = ''
-        if self._nis_average > p.divergence_nis_ratio:
-            reason = 'innovation_inconsistent'
-        elif self._outlier_fraction > 0.5:
-            reason = 'outlier_run'
-        elif self._pinned_run * self._dt > p.bound_hold_s:
-            reason = 'pinned_at_bound'
-        elif np.any(self.x[self._model.i_ratios] <= -1.0):
-            # A spring or damper of ratio <= 0 is no suspension: the ratios took up inputs
-            # that are no vehicle (another car's data, a failed sensor).
-            reason = 'suspension_ratio_impossible'
+        reason = self._divergence_reason()
         if not reason:
+            return False
+        if self._replaying:
+            # An onset the filter diverges from is not the change's; resetting here would
+            # drop the kept samples and the track history.
+            self._replay_diverged = True
             return False
         self.resets[reason] = self.resets.get(reason, 0) + 1
         self.last_reset_reason = reason
         self.reset()
         return True
+
+    def _divergence_reason(self) -> str:
+        """Why the filter has diverged ('' if it has not), from its running statistics."""
+        p = self.params
+        if self._nis_average > p.divergence_nis_ratio:
+            return 'innovation_inconsistent'
+        if self._outlier_fraction > 0.5:
+            return 'outlier_run'
+        if self._pinned_run * self._dt > p.bound_hold_s:
+            return 'pinned_at_bound'
+        if np.any(self.x[self._model.i_ratios] <= -1.0):
+            # A spring or damper of ratio <= 0 is no suspension: the ratios took up inputs
+            # that are no vehicle (another car's data, a failed sensor).
+            return 'suspension_ratio_impossible'
+        return ''
 
     def _estimate(self, status: str, nis: float, reset: bool) -> CreepEstimate:
         p = self.params
