@@ -63,11 +63,11 @@ def per_sample(params: CreepEkfParams, y: np.ndarray, track: np.ndarray,
     seconds = np.empty(y.shape[0])
     alarm = np.zeros(y.shape[0], dtype=bool)
     for k in range(y.shape[0]):
-        rewinds = ekf.rewinds
+        alarms = ekf.changes_detected
         start = time.perf_counter()
         ekf.step(y[k], track[k], float(speed[k]))
         seconds[k] = time.perf_counter() - start
-        alarm[k] = ekf.rewinds != rewinds
+        alarm[k] = ekf.changes_detected != alarms
     return seconds, alarm
 
 

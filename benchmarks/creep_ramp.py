@@ -23,6 +23,7 @@ from eval_rail_family import (
     case_seed,
     creep_inputs,
     creep_params,
+    creep_track,
     sample_speeds,
     simulate,
 )
@@ -52,8 +53,7 @@ def ramp_errors(car: FamilyCar, walks: Sequence[float], ramp_s: float, to: float
         car, f'family_{car.seed}_ramp_{speed:g}', speed, case_seed(car, 300),
         BEFORE_S + ramp_s + AFTER_S, events, {'creep_factor': START}, 0.0)))
     z = creep_inputs(result, 'C', True)
-    track = np.column_stack([result.measured_track_alignment[:, :2],
-                             result.measured_track_alignment_rate[:, :2]])
+    track = creep_track(result)
     during = (result.time >= BEFORE_S + 1.0) & (result.time <= BEFORE_S + ramp_s)
     after = result.time > BEFORE_S + ramp_s + 1.0
     out = {}

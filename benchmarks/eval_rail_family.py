@@ -181,6 +181,12 @@ def creep_inputs(result: RailSimulationResult, pattern: str, spec_fields: bool,
     return lateral_states_measurement(states, pattern, 'front')
 
 
+def creep_track(result: RailSimulationResult) -> np.ndarray:
+    """The track input as the node takes it: the front pair's alignment and its rate."""
+    return np.column_stack([result.measured_track_alignment[:, :2],
+                            result.measured_track_alignment_rate[:, :2]])
+
+
 def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
                  offset_states: bool = True, overrides: Mapping[str, Any] | None = None,
                  ) -> CreepEkfParams:
@@ -210,10 +216,7 @@ def run_creep_case(car: FamilyCar, speed: float, config: str,
     result = sims[MAP_ERROR if track_kind == 'map0.3' else 0.0]
     params = creep_params(car, speed, config, track_model, offset_states, overrides)
     z = creep_inputs(result, pattern, fields_kind == 'C-spec')
-    track = None
-    if track_kind != 'none':
-        track = np.column_stack([result.measured_track_alignment[:, :2],
-                                 result.measured_track_alignment_rate[:, :2]])
+    track = None if track_kind == 'none' else creep_track(result)
     start = time.process_time()
     run = CreepEkf(params).run(z, track, result.speed, result.time, result.creep_factor)
     case = CreepCase(car.seed, speed, config, seconds=time.process_time() - start)

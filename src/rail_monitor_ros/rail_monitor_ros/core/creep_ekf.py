@@ -140,7 +140,7 @@ acceleration above the bogie). For the body channels see :func:`measurement_chan
 from __future__ import annotations
 
 from collections import OrderedDict, deque
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 import itertools
 import math
@@ -783,8 +783,8 @@ class _Rewind:
             return []
         return sorted(i for i in self.states if i >= zero - self.search)
 
-    def since(self, start: int) -> list[_Input]:
-        return list(self.inputs)[start - self.first:]
+    def since(self, start: int) -> Iterator[_Input]:
+        return itertools.islice(self.inputs, start - self.first, None)
 
     def first_pass_log_likelihood(self, start: int, end: int) -> float:
         """Of inputs start .. end - 1 as the first pass filtered them."""
