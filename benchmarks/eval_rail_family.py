@@ -101,12 +101,14 @@ from vehicle_monitor_common.family_results import (  # noqa: E402
     today,
     write_family_results,
 )
+from vehicle_monitor_common.graph_spec import load_graph  # noqa: E402
 from vehicle_monitor_common.parameters import (  # noqa: E402
     ConfigurationError,
     build,
     flatten,
     parse_assignments,
 )
+from vehicle_monitor_common.resources import share_dir  # noqa: E402
 
 CREEP_CONFIGS = ('C-spec/exact', 'C-spec/map0.3', 'C-all/exact', 'C-all/map0.3', 'D/none',
                  'D/exact')
@@ -187,13 +189,25 @@ def creep_track(result: RailSimulationResult) -> np.ndarray:
                             result.measured_track_alignment_rate[:, :2]])
 
 
+def shipped_creep_values(pattern: str) -> dict[str, Any]:
+    """The creep EKF settings the shipped rail graph gives its estimator of this pattern
+    beyond the config file (pattern D's node: the track's delays), so the family judges the
+    estimator as shipped; the track's accuracy is the case's (set by :func:`creep_params`)."""
+    graph = load_graph(share_dir('rail_monitor_ros', 'config') / 'rail_graph.yaml')
+    name = 'creep_estimator_imu' if pattern == 'D' else 'creep_estimator'
+    node = next(n for n in graph.nodes if n.name == name)
+    fields = set(CreepEkfParams.__dataclass_fields__) - {'pattern', 'track_map_error_m'}
+    return {key: value for key, value in node.parameters.items() if key in fields}
+
+
 def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
                  offset_states: bool = True, overrides: Mapping[str, Any] | None = None,
                  ) -> CreepEkfParams:
     """The creep estimator's parameters for a case: the car's, the pattern's and, with the
     ``spectrum`` track model, the line's spectrum and the map's stated accuracy."""
     fields_kind, track_kind = config.split('/')
-    values = {**vehicle_values(car, speed), 'pattern': fields_kind[0]}
+    values = {**vehicle_values(car, speed), **shipped_creep_values(fields_kind[0]),
+              'pattern': fields_kind[0]}
     if not offset_states:
         values['sensor_offsets'] = False
     if track_model == 'spectrum':
