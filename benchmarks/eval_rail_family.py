@@ -54,6 +54,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 import argparse  # noqa: E402
 from collections.abc import Mapping, Sequence  # noqa: E402
 from dataclasses import dataclass, field, replace  # noqa: E402
+import functools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
@@ -193,11 +194,17 @@ def shipped_creep_values(pattern: str) -> dict[str, Any]:
     """The creep EKF settings the shipped rail graph gives its estimator of this pattern
     beyond the config file (pattern D's node: the track's delays), so the family judges the
     estimator as shipped; the track's accuracy is the case's (set by :func:`creep_params`)."""
+    return dict(_shipped_creep_items('creep_estimator_imu' if pattern == 'D'
+                                     else 'creep_estimator'))
+
+
+@functools.cache
+def _shipped_creep_items(node_name: str) -> tuple[tuple[str, Any], ...]:
+    """The rail graph file read once per process, not once per case."""
     graph = load_graph(share_dir('rail_monitor_ros', 'config') / 'rail_graph.yaml')
-    name = 'creep_estimator_imu' if pattern == 'D' else 'creep_estimator'
-    node = next(n for n in graph.nodes if n.name == name)
+    node = next(n for n in graph.nodes if n.name == node_name)
     fields = set(CreepEkfParams.__dataclass_fields__) - {'pattern', 'track_map_error_m'}
-    return {key: value for key, value in node.parameters.items() if key in fields}
+    return tuple((key, value) for key, value in node.parameters.items() if key in fields)
 
 
 def creep_params(car: FamilyCar, speed: float, config: str, track_model: str,
