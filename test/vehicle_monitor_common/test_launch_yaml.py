@@ -92,6 +92,28 @@ def test_shipped_launch_files_resolve(package: str, file: str) -> None:
         assert node.parameters['use_sim_time'] is False
 
 
+@pytest.mark.parametrize('package,launch_file,graph_file', [
+    ('tpms_ros', 'road_monitor.launch.yaml', 'road_graph.yaml'),
+    ('rail_monitor_ros', 'rail_monitor.launch.yaml', 'rail_graph.yaml')])
+def test_shipped_launch_files_and_graphs_set_the_estimators_alike(
+        package: str, launch_file: str, graph_file: str) -> None:
+    """A setting beyond a node's params file (the IMU creep estimator's pattern D and the
+    track's delays) is written twice: in the launch file a vehicle starts and in the graph
+    the main job, the evaluation and the offline engine run. Every launch node's inline value
+    is its graph node's, so what is measured is what a vehicle runs."""
+    launch = load_graph(ROOT / 'src' / package / 'launch' / launch_file)
+    graph = {node.name: node for node in
+             load_graph(ROOT / 'src' / package / 'config' / graph_file).nodes}
+    inline_values = 0
+    for node in launch.nodes:
+        name = node.name or node.plugin.split('/')[-1]     # unnamed: the executable's default
+        assert name in graph, name
+        inline = {k: v for k, v in node.parameters.items() if k != 'use_sim_time'}
+        assert {k: graph[name].parameters.get(k) for k in inline} == inline, name
+        inline_values += len(inline)
+    assert inline_values == (2 if package == 'rail_monitor_ros' else 0)
+
+
 def test_shipped_road_launch_file_gives_two_independent_vehicles(ros_context: Any) -> None:
     """The shipped road launch file under /car1 and /car2 in one process (as two `ros2 launch`
     would on one computer): every node comes up configured by its /**-keyed params file, and
