@@ -586,15 +586,12 @@ class Discretization:
         dfg: (n, n) dF/dc, exact (Frechet derivative of the matrix exponential).
         sens: (k, n, n) dF/d delta_j of the suspension ratio errors carried in the state
             (k = 0 without them), exact at c.
-        dfv: (n, n) dF/dv at c and the model's speed, exact: a sample at another speed
-            steps F to it (:meth:`CreepEkf.set_speed`).
     """
 
     creep_factor: float
     fg: np.ndarray
     dfg: np.ndarray
     sens: np.ndarray
-    dfv: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -901,6 +898,8 @@ class CreepEkf:
         self._r_meas = np.array([noise[k] ** 2 for k in kinds])
         self._n_meas = len(kinds)
         self._cache: OrderedDict[int, Discretization] = OrderedDict()
+        #: dF/dv at the current model's speed, per c of a discretisation (CreepEkf._at_speed).
+        self._speed_derivatives: dict[float, np.ndarray] = {}
         self._grid_reach = 0        # grid points a cached one may stand in for (onset search)
         self.discretizations = 0
         self._model = _SpeedModel(p, p.vehicle.speed)
@@ -1053,6 +1052,7 @@ class CreepEkf:
         if abs(speed - self._model.speed) > self.params.speed_tolerance_mps:
             self._model = _SpeedModel(self.params, speed)
             self._cache.clear()
+            self._speed_derivatives.clear()
             self._build_observation()
             self._q_x = self._state_process_noise()
 
@@ -1237,13 +1237,10 @@ class CreepEkf:
         f, _, df, _ = discretize_zoh_sensitivity(a, no_input, m.da, no_input, self._dt)
         sens = np.array([discretize_zoh_sensitivity(a, no_input, d_ratio, no_input,
                                                     self._dt)[2] for d_ratio in m.d_ratio])
-        dfv = discretize_zoh_sensitivity(a, no_input, m.da0_dv + c * m.dda_dv, no_input,
-                                         self._dt)[2]
         self.discretizations += 1
         # C-contiguous: what the compiled transition takes.
         return Discretization(c, np.ascontiguousarray(f), np.ascontiguousarray(df),
-                              np.ascontiguousarray(sens.reshape(len(m.d_ratio), *f.shape)),
-                              dfv)
+                              np.ascontiguousarray(sens.reshape(len(m.d_ratio), *f.shape)))
 
     def transition(self, x: np.ndarray, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The augmented transition x -> f(x) and its Jacobian df/dx at x.
@@ -1272,11 +1269,22 @@ class CreepEkf:
         return x_next, self._jacobian
 
     def _at_speed(self, d: Discretization) -> np.ndarray:
-        """F at the samples' speed: the model's, stepped by (v - its speed) dF/dv."""
+        """F at the samples' speed: the model's, stepped by (v - its speed) dF/dv, dF/dv
+        exact at the model's speed and d's c (computed when first needed: at constant speed
+        never, which saves a Frechet derivative per grid point of ln c)."""
         dv = self._speed - self._model.speed
         if dv == 0.0:
             return d.fg
-        np.multiply(d.dfv, dv, out=self._stepped_f)
+        dfv = self._speed_derivatives.get(d.creep_factor)
+        if dfv is None:
+            m, c = self._model, d.creep_factor
+            no_input = np.zeros((m.a0.shape[0], 0))
+            dfv = discretize_zoh_sensitivity(m.a0 + c * m.da, no_input,
+                                             m.da0_dv + c * m.dda_dv, no_input, self._dt)[2]
+            if len(self._speed_derivatives) >= self.params.cache_size:
+                self._speed_derivatives.clear()
+            self._speed_derivatives[c] = dfv
+        np.multiply(dfv, dv, out=self._stepped_f)
         self._stepped_f += d.fg
         return self._stepped_f
 
