@@ -657,8 +657,10 @@ class _SpeedModel:
     same shaping, its own variance): the map measures y_r + e.
     """
 
-    def __init__(self, params: CreepEkfParams, speed: float, derivatives: bool = True) -> None:
+    def __init__(self, params: CreepEkfParams, speed: float) -> None:
         self.speed = float(speed)
+        self._params = params
+        self._speed_slopes: tuple[np.ndarray, np.ndarray] | None = None
         one = estimation_model(params, 1.0, speed)
         # The creep forces are linear in c: the difference of two evaluations is the exact
         # derivative (c -> 0 is outside the model's valid range, so c = 1 and 1/2).
@@ -737,15 +739,6 @@ class _SpeedModel:
 
         self.da = augmented(2.0 * (one.a - half.a), 2.0 * (one.b - half.b), False)
         self.a0 = augmented(one.a, one.b, True) - self.da
-        #: dA0/dv and d(dA)/dv (central differences: A is smooth in v, through the creep
-        #: coefficients' 1/v, the track's poles and the Pade sections' 1/tau).
-        self.da0_dv = self.dda_dv = np.zeros((0, 0))
-        if derivatives:
-            step = SPEED_DIFFERENCE * self.speed
-            up, down = (_SpeedModel(params, self.speed + sign * step, derivatives=False)
-                        for sign in (1.0, -1.0))
-            self.da0_dv = (up.a0 - down.a0) / (2.0 * step)
-            self.dda_dv = (up.da - down.da) / (2.0 * step)
         self.state_names = one.state_names
         self.n_disturbances = n_d
         #: The full model's suspension ratio errors delta (ratio - 1, random walks): their
@@ -781,6 +774,19 @@ class _SpeedModel:
         if params.model == 'full':
             channels = tuple(_full_car_state(channel, params.bogie) for channel in channels)
         self.h[:, :n_q] = np.eye(n_q)[[names.index(channel) for channel in channels]]
+
+    def speed_slopes(self) -> tuple[np.ndarray, np.ndarray]:
+        """dA0/dv and d(dA)/dv, built when a sample at another speed first needs them (at
+        constant speed never): central differences of two models beside this one (A is smooth
+        in v, through the creep coefficients' 1/v, the track's poles and the Pade sections'
+        1/tau)."""
+        if self._speed_slopes is None:
+            step = SPEED_DIFFERENCE * self.speed
+            up, down = (_SpeedModel(self._params, self.speed + sign * step)
+                        for sign in (1.0, -1.0))
+            self._speed_slopes = ((up.a0 - down.a0) / (2.0 * step),
+                                  (up.da - down.da) / (2.0 * step))
+        return self._speed_slopes
 
 
 @dataclass(frozen=True)
@@ -1109,6 +1115,12 @@ class CreepEkf:
         obs = self._observation(rows)
         return obs.h, obs.r
 
+    @property
+    def _keeps_history(self) -> bool:
+        """Whether the rear wheelsets' track comes from the kept front track: the full model
+        without the track's delays."""
+        return self._model.n_track > N_U and self._model.track_shaping is None
+
     def _push_history(self, front: np.ndarray | None) -> None:
         """Keep this sample's front track at the distance travelled, then travel on."""
         self._history.push(front, self._travelled_m)
@@ -1122,14 +1134,14 @@ class CreepEkf:
         n_u = self._model.n_track
         if n_u == N_U:
             return None if front is None else (tuple(range(front.size)), front)
-        delays = self._model.track_shaping is not None
-        if not delays:
+        keeps_history = self._keeps_history
+        if keeps_history:
             self._push_history(front)
         if front is None:
             return None
         has_rate = front.size == 2 * N_U
         rows = [0, 1] + ([n_u, n_u + 1] if has_rate else [])
-        if delays:
+        if not keeps_history:
             # The model's delays carry the front track to the rear wheelsets: the kept history
             # would observe the same track again, against the Pade cascades' approximation of
             # it (development-wide, pattern D with the exact track: 52/72 within the band with
@@ -1278,9 +1290,10 @@ class CreepEkf:
         dfv = self._speed_derivatives.get(d.creep_factor)
         if dfv is None:
             m, c = self._model, d.creep_factor
+            da0_dv, dda_dv = m.speed_slopes()
             no_input = np.zeros((m.a0.shape[0], 0))
-            dfv = discretize_zoh_sensitivity(m.a0 + c * m.da, no_input,
-                                             m.da0_dv + c * m.dda_dv, no_input, self._dt)[2]
+            dfv = discretize_zoh_sensitivity(m.a0 + c * m.da, no_input, da0_dv + c * dda_dv,
+                                             no_input, self._dt)[2]
             if len(self._speed_derivatives) >= self.params.cache_size:
                 self._speed_derivatives.clear()
             self._speed_derivatives[c] = dfv
@@ -1313,7 +1326,7 @@ class CreepEkf:
     def predict_through_gap(self, n_samples: int) -> None:
         """Prediction only over ``n_samples`` missing samples (counted)."""
         for _ in range(n_samples):
-            if self._model.n_track > N_U and self._model.track_shaping is None:
+            if self._keeps_history:
                 self._push_history(None)
             self._predict()
         self.predicted_missing += n_samples
