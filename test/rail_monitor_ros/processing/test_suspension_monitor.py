@@ -79,3 +79,23 @@ def test_a_creep_estimate_is_not_followed_while_a_fault_is_suspected() -> None:
     assert factors[2.9] == pytest.approx(1.5, abs=0.05)
     assert processor.imm.creep_factor == factors[2.9]
     assert processor._creep_state.startswith('held while a suspension fault is suspected')
+
+
+def test_a_car_configured_above_its_critical_speed_declares_no_fault() -> None:
+    """The fault recording (spring then spring+damper faults, car at 40 m/s) with the node
+    told 70 m/s, above the shipped car's critical speed (63 m/s at creep factor 1): the model
+    is unstable, its likelihoods mean nothing, so nothing is declared and the status says why
+    at ERROR (before, the mode restarted from the indefinite 'stationary' prior failed its
+    next update with a LinAlgError on a car driven past its critical speed)."""
+    processor = make_processor({'vehicle.speed': 70.0}, '/suspension_monitor')
+    outputs = [o for topic, _, _, msg in read_messages(
+        BAG, ['/rail/bogie/imu', '/rail/body/imu', '/rail/track_irregularity'])
+        for o in processor.process(topic.lstrip('/'), msg)]
+    assert len(outputs) > 1000
+    assert not any(o.fields['fault_detected'] for o in outputs)
+    status = processor.status(0)
+    assert status.level == 2 and 'unstable at 70.0 m/s' in status.message
+    assert status.values['model_stable'] is False
+    processor.imm.reset_states()     # every mode at the prior
+    prior = processor.imm.P[0]
+    assert np.linalg.eigvalsh(prior).min() >= -1e-9 * np.linalg.eigvalsh(prior).max()

@@ -522,6 +522,10 @@ class SuspensionImm:
             studies of a vehicle other than the configured one). Full car: its
             speed sets the creep forces, the track bandwidth and the delays (change it with
             :meth:`set_speed`); the half car does not use it.
+
+    ``model_stable`` says whether the nominal model is stable at the model's speed and creep
+    factor (False above the configured car's critical speed: the modes' likelihoods then mean
+    nothing, and the suspension monitor declares no fault).
     """
 
     def __init__(self, params: SuspensionImmParams | None = None,
@@ -633,11 +637,21 @@ class SuspensionImm:
     def _prior(self) -> np.ndarray:
         """Initial covariance: full car, the nominal model's stationary covariance on the
         modelled track (the car is running when monitoring starts); half car, the configured
-        initial stds and the input states at their stationary variance."""
+        initial stds and the input states at their stationary variance. Sets
+        ``model_stable``: whether the nominal model is stable at the model's speed."""
+        nominal = self._discretize(1.0, 1.0)
+        self.model_stable = bool(np.max(np.abs(np.linalg.eigvals(nominal.f))) < 1.0)
         if self._full_car:
-            nominal = self._discretize(1.0, 1.0)
             p = scipy.linalg.solve_discrete_lyapunov(nominal.f, nominal.q)
-            return 0.5 * (p + p.T)
+            p = 0.5 * (p + p.T)
+            if not self.model_stable:
+                # Above the configured car's critical speed no stationary covariance exists:
+                # the Lyapunov solution is indefinite, and a mode restarted from it failed its
+                # next update (a LinAlgError, measured on a car accelerated past its critical
+                # speed). Its eigenvalues' magnitudes keep the states' scale.
+                eig, vec = np.linalg.eigh(p)
+                p = (vec * np.abs(eig)) @ vec.T
+            return p
         params = self.params
         initial_std = [_initial_std(name, params) for name in self.state_names]
         # Input states w and w' (var(w') = w1 w2 var(w)).

@@ -40,7 +40,9 @@ WARN. A frozen, malformed or non-finite track message is rejected; a track strea
 use and goes stale switches the IMM to the process-noise model. After an input fault or a
 switch of the track model, and after a time jump, ``fault_detected`` stays false for
 ``fault_recovery_s`` of data time (the status says 'recovering'), the time the IMM needs to
-settle again (measured: docs/methods/suspension_monitor.md).
+settle again (measured: docs/methods/suspension_monitor.md). A configured car that is unstable
+at its speed (above its critical speed: a wrong speed, conicity or suspension parameter, or a
+car that hunts) declares no fault and reports ERROR until it is stable again.
 """
 
 from __future__ import annotations
@@ -449,6 +451,12 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
                 'damper_ratio': out.damper_ratio,
                 'fault_detected': out.fault.detected,
                 'fault_component': out.fault.component}
+        if not self.imm.model_stable:
+            # The configured car is unstable at this speed (above its critical speed): the
+            # modes' likelihoods mean nothing (measured on healthy development cars with the
+            # model told 1.05-1.2 x their critical speed: normal below 0.5 for 62-83 % of
+            # the time), so no fault is declared until the model is stable again and settled.
+            self._suppress(stamp, 'the model was unstable')
         if self._suppressed(stamp):
             fields.update(fault_detected=False, fault_component='')
         self.last_output = Output(MODES, stamp, fields)
@@ -471,6 +479,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             'track_irregularity': self._track_state,
             'creep_factor_input': self._creep_state,
             'model_creep_factor': self.imm.creep_factor,
+            'model_stable': self.imm.model_stable,
             'covariance_repairs': self.imm.covariance_repairs,
             'steady_state_failures': self.imm.steady_state_failures,
             'rediscretizations': self.imm.rediscretizations,
@@ -499,6 +508,11 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         new = self._new_rejections(self.rejected, self.params.sample_rate_hz)
         if new:
             return Status(WARN, f'inputs rejected since last report: {new}', values)
+        if not self.imm.model_stable:
+            imm = self.imm
+            return Status(ERROR, f'the configured car is unstable at {imm.vehicle.speed:.1f} m/s '
+                          f'(creep factor {imm.creep_factor:.2f}): above its critical speed, no '
+                          'fault decision; check vehicle.speed and the vehicle parameters', values)
         if self._last_stamp_ns is not None and self._suppressed(self._last_stamp_ns):
             assert self._suppress_until_ns is not None
             left = (self._suppress_until_ns - self._last_stamp_ns) * 1e-9
