@@ -81,6 +81,6 @@ def test_offline_evaluation_scores_every_message(tmp_path: Path) -> None:
     bag = Path(__file__).resolve().parents[2] / 'bags' / 'rail_imm_spring_damper_fault'
     evaluation, stats = run_task(Task('imm', 'rail', bag, 'bag', offline=True), tmp_path,
                                  quiet=True)
-    assert stats is not None and stats.dropped == 0 and stats.published == 8004
+    assert stats is not None and stats.dropped == 0 and stats.published == 8205
     imm = [m for m in evaluation.metrics if m.method == 'IMM' and m.passed is not None]
     assert imm and all(m.passed for m in imm)

@@ -112,7 +112,7 @@ def test_rail_graph_end_to_end_on_the_imm_bag(tmp_path: Path) -> None:
                                        executor='single', log=lambda line: None,
                                        timeout_s=240.0)
     assert stats.dropped == 0
-    assert stats.published == 14007
+    assert stats.published == 14208
     assert stats.bag_duration_s == pytest.approx(10.0)
     outputs = read_stamped_series(recorded, ['/rail/suspension/modes', '/rail/creep_factor',
                                              '/rail/creep_factor_imu', '/rail/bogie/imu'])

@@ -219,10 +219,11 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
     samples); after that the process-noise model and a 'stale' diagnostic; a wrongly sized
     track message is counted. A pair waits for its track sample while the track stream is
     alive (pair_timeout_s = 0.1 s of data time, 20 samples), so once the track stops the
-    outputs come 20 samples late, then at once. (No creep estimator here: a stream never heard
-    is waited for as long at the start, so the node is told not to follow one.)"""
+    outputs come 20 samples late, then at once. (No creep estimator and no speed here: a
+    stream never heard is waited for as long at the start, so the node is told not to follow
+    them.)"""
     data = _imu_from_bag(paper_bag)
-    monitor, feeder, got, _ = _setup(make_node, use_creep_factor=False)
+    monitor, feeder, got, _ = _setup(make_node, use_creep_factor=False, use_speed_input=False)
     for k in range(60):
         stamp = START_NS + k * DT_NS
         if k < 30:
@@ -244,8 +245,10 @@ def test_known_inputs_used_when_fresh_and_stale_reported(
 def test_model_follows_the_creep_estimate(make_node: Callable[..., Any],
                                           spin_until: Callable[..., bool]) -> None:
     """A confident creep factor estimate re-discretises the full-car bank at that factor; an
-    uncertain one is not used (said on diagnostics), an invalid one is counted."""
-    monitor, feeder, _, _ = _setup(make_node, use_track_irregularity=False)
+    uncertain one is not used (said on diagnostics), an invalid one is counted. (No speed
+    stream: the node is told not to wait for one.)"""
+    monitor, feeder, _, _ = _setup(make_node, use_track_irregularity=False,
+                                   use_speed_input=False)
     publisher = make_node('creep_feeder').create_publisher(CreepFactor, 'rail/creep_factor',
                                                            DEEP)
     assert spin_until(lambda: publisher.get_subscription_count() > 0)

@@ -17,9 +17,12 @@ from rail_monitor_ros.processing.creep_estimator import (
     LATERAL_FIELDS,
     LATERAL_STATES,
     TRACK,
+    UNKNOWN_STD,
     make_processor,
 )
-from vehicle_monitor_common.bag_io import read_messages
+from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
+from rail_monitor_ros.simulation.rail_simulator import simulate, to_topic_series
+from vehicle_monitor_common.bag_io import read_messages, series_messages
 from vehicle_monitor_common.parameters import ConfigurationError
 from vehicle_monitor_common.processing import ERROR, OK, WARN
 
@@ -44,8 +47,8 @@ def _recording(topics: list[str]) -> list[tuple[str, Any]]:
 def test_processor_is_the_core_on_the_recorded_samples() -> None:
     """Pattern C: one output per lateral-states sample with its stamp, equal to the core fed
     the same measurement and track vectors (the track of a sample paired by stamp; the first
-    sample is recorded before the first track message, when the track stream is not yet
-    alive, so it goes on without)."""
+    sample, recorded before the first track message, waits for the speed stream, not heard
+    yet, for ``pair_timeout_s`` of data time, and has its track by then)."""
     processor = make_processor({}, '/creep_estimator')
     messages = _recording(['/rail/lateral_states', '/rail/track_irregularity'])
     outputs = [o for topic, msg in messages for o in processor.process(topic, msg)]
@@ -55,18 +58,18 @@ def test_processor_is_the_core_on_the_recorded_samples() -> None:
     assert all(o.topic == CREEP for o in outputs)
     ekf = CreepEkf(CreepEkfParams())
     expected = []
-    for k, msg in enumerate(lateral):
+    for msg in lateral:
         fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
                   for name in LATERAL_FIELDS}
         z = lateral_states_measurement(fields, 'C')[0]
-        track = tracks.get(_stamp(msg)) if k > 0 else None
+        track = tracks.get(_stamp(msg))
         u = None if track is None else np.concatenate(
             [track.lateral_alignment[:2], track.lateral_alignment_rate[:2]])
         expected.append(ekf.step(z, u).creep_factor)
     np.testing.assert_allclose([o.fields['creep_factor'] for o in outputs], expected,
                                rtol=1e-12)
     counts = processor.counts
-    assert counts['known_input'] == len(lateral) - 1 and counts['unpaired'] == 0
+    assert counts['known_input'] == len(lateral) and counts['unpaired'] == 0
     assert processor.status(0).values['track_input'] == 'known'
 
 
@@ -172,13 +175,100 @@ def test_the_rear_bogie_takes_the_track_its_model_needs(model: str, pair: slice)
     tracks = {_stamp(m): m for t, m in messages if t == TRACK}
     ekf = CreepEkf(CreepEkfParams(bogie='rear', model=model))
     expected = []
-    for k, msg in enumerate(lateral):
+    for msg in lateral:
         fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
                   for name in LATERAL_FIELDS}
         z = lateral_states_measurement(fields, 'C', 'rear', model=model)[0]
-        track = tracks.get(_stamp(msg)) if k > 0 else None
+        track = tracks.get(_stamp(msg))
         u = None if track is None else np.concatenate(
             [track.lateral_alignment[pair], track.lateral_alignment_rate[pair]])
         expected.append(ekf.step(z, u).creep_factor)
     np.testing.assert_allclose([o.fields['creep_factor'] for o in outputs], expected,
                                rtol=1e-12)
+
+
+def _speed_ramp_messages(topics: tuple[str, ...]) -> tuple[list[tuple[str, Any]], Any]:
+    """A car accelerating from 30 to 35 m/s over 3-6 s (c = 1, the track measured), its
+    messages in stamp order (the speed, at 20 Hz, before the samples of its stamp), and the
+    simulation."""
+    result = simulate(rail_scenario_from_dict({
+        'duration': 7.0, 'seed': 3, 'initial': {'speed': 30.0},
+        'events': [{'time': 3.0, 'speed': 35.0, 'ramp': 3.0}]}))
+    series = to_topic_series(result, low_adhesion_threshold=0.5)
+    stamped = [(stamp, rank, topic.lstrip('/'), msg)
+               for rank, topic in enumerate(topics)
+               for stamp, msg in zip(series[topic].stamps_ns, series_messages(series[topic]),
+                                     strict=True)]
+    stamped.sort(key=lambda item: (item[0], item[1]))
+    return [(topic, msg) for _, _, topic, msg in stamped], result
+
+
+def test_the_model_follows_the_published_speed() -> None:
+    """rail/speed (20 Hz) on a car accelerating by 5 m/s: the processor gives the core each
+    sample's held speed (outputs equal to the core's, set_speed per sample), and its estimate
+    stays right where the same processor without the speed topic, its model at the
+    configured 30 m/s, reads the creep factor wrong by the speed's share and more."""
+    messages, result = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
+                                             '/rail/lateral_states'))
+    config = {'vehicle.speed': 30.0, 'track_map_error_m': 1.0e-5}
+    following = make_processor(config, '/creep_estimator')
+    fixed = make_processor(config, '/creep_estimator')
+    outputs = [o for topic, msg in messages for o in following.process(topic, msg)]
+    fixed_outputs = [o for topic, msg in messages if topic != 'rail/speed'
+                     for o in fixed.process(topic, msg)]
+    ekf = CreepEkf(following.params)
+    expected, speed = [], 30.0
+    tracks = {_stamp(m): m for t, m in messages if t == TRACK}
+    for topic, msg in messages:
+        if topic == 'rail/speed':
+            speed = msg.twist.linear.x
+            continue
+        if topic != LATERAL_STATES:
+            continue
+        ekf.set_speed(speed)
+        fields = {name: np.asarray(getattr(msg, name), dtype=float)[None, ...]
+                  for name in LATERAL_FIELDS}
+        track = tracks[_stamp(msg)]
+        expected.append(ekf.step(lateral_states_measurement(fields, 'C')[0], np.concatenate(
+            [track.lateral_alignment[:2], track.lateral_alignment_rate[:2]])).creep_factor)
+    c = np.array([o.fields['creep_factor'] for o in outputs])
+    np.testing.assert_allclose(c, expected, rtol=1e-12)
+    assert following.ekf.speed == pytest.approx(35.0)
+    assert following.status(0).values['speed_input'] == 'following'
+    late = result.time[:c.size] > 5.0          # the speed 33-35 m/s, the estimates settled
+    c_fixed = np.array([o.fields['creep_factor'] for o in fixed_outputs])
+    assert np.abs(c[late] - 1.0).max() < 0.05
+    assert np.abs(c_fixed[late] - 1.0).min() > 0.08
+
+
+def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
+    """A speed below min_speed_mps (a train standing) holds the estimate as an input fault
+    (std widened, status WARN); a speed stream that stops leaves the model at its last speed,
+    reported stale; a negative speed is refused and counted."""
+    messages, _ = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
+                                        '/rail/lateral_states'))
+    processor = make_processor({'vehicle.speed': 30.0}, '/creep_estimator')
+    statuses, stds = [], []
+    for topic, msg in messages:
+        stamp_s = _stamp(msg) * 1e-9
+        if topic == 'rail/speed':
+            if 1.0 <= stamp_s < 2.0:
+                msg.twist.linear.x = 2.0                 # standing
+            elif stamp_s >= 4.0:
+                if stamp_s < 4.01:
+                    msg.twist.linear.x = -1.0            # refused
+                else:
+                    continue                             # the stream stops
+        outputs = processor.process(topic, msg)
+        if outputs:
+            statuses.append((stamp_s, processor.status(0)))
+            stds += [(stamp_s, o.fields['std_dev']) for o in outputs]
+    standing = [s for t, s in statuses if 1.1 < t < 2.0]
+    assert all('input fault (below_min_speed)' in s.message and s.level == WARN
+               for s in standing)
+    assert all(std >= UNKNOWN_STD for t, std in stds if 1.1 < t < 2.0)
+    assert processor.counts['below_min_speed'] > 150
+    assert processor._rejections()['speed_invalid'] == 1
+    last = statuses[-1][1]
+    assert last.level == WARN and last.message.startswith('speed input stale')
+    assert last.values['model_speed'] == pytest.approx(processor.ekf.speed)

@@ -99,3 +99,28 @@ def test_a_car_configured_above_its_critical_speed_declares_no_fault() -> None:
     processor.imm.reset_states()     # every mode at the prior
     prior = processor.imm.P[0]
     assert np.linalg.eigvalsh(prior).min() >= -1e-9 * np.linalg.eigvalsh(prior).max()
+
+
+def test_the_model_follows_the_published_speed() -> None:
+    """The fault recording with its rail/speed (40 m/s, 20 Hz) and the node configured for
+    30 m/s: the model runs at the published 40 m/s and declares what it declares when
+    configured right (spring, then spring+damper at the end); a speed below min_speed_mps
+    (the train standing, from 6 s) holds the IMM as an input fault: nothing declared, the
+    status says why."""
+    topics = ['/rail/bogie/imu', '/rail/body/imu', '/rail/track_irregularity', '/rail/speed']
+    following = make_processor({'vehicle.speed': 30.0}, '/suspension_monitor')
+    standing = make_processor({'vehicle.speed': 30.0}, '/suspension_monitor')
+    outputs, standing_outputs = [], []
+    for topic, _, _, msg in read_messages(BAG, topics):
+        outputs += following.process(topic.lstrip('/'), msg)
+        if topic == '/rail/speed' and msg.header.stamp.sec >= 6:
+            msg.twist.linear.x = 2.0
+        standing_outputs += standing.process(topic.lstrip('/'), msg)
+    assert following.imm.vehicle.speed == 40.0
+    assert following.status(0).values['speed_input'] == 'following'
+    assert outputs[-1].fields['fault_component'] == 'spring+damper'
+    assert not any(o.fields['fault_detected'] for o in standing_outputs
+                   if o.stamp_ns * 1e-9 > 6.1)
+    assert standing.rejected['below_min_speed'] > 100
+    status = standing.status(0)
+    assert status.level == 1 and 'input fault (below_min_speed)' in status.message

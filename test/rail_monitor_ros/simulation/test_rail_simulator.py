@@ -24,6 +24,7 @@ from rail_monitor_ros.simulation.rail_scenario import (
     shipped_scenario,
 )
 from rail_monitor_ros.simulation.rail_simulator import (
+    SPEED_DECIMATION,
     RailSimulationResult,
     simulate,
     to_topic_series,
@@ -221,11 +222,14 @@ def test_topic_series() -> None:
     topics = to_topic_series(result, low_adhesion_threshold=0.5)
     assert set(topics) == {'/rail/bogie/imu', '/rail/body/imu', '/rail/lateral_states',
                            '/truth/lateral_states', '/rail/track_irregularity',
-                           '/truth/suspension', '/truth/creep_factor'}
+                           '/rail/speed', '/truth/suspension', '/truth/creep_factor'}
     n = result.time.size
-    for series in topics.values():
-        assert len(series) == n
-        np.testing.assert_array_equal(series.stamps_ns, np.round(result.time * 1e9))
+    for topic, series in topics.items():
+        every = SPEED_DECIMATION if topic == '/rail/speed' else 1
+        assert len(series) == len(range(0, n, every))
+        np.testing.assert_array_equal(series.stamps_ns, np.round(result.time[::every] * 1e9))
+    np.testing.assert_array_equal(topics['/rail/speed'].fields['twist.linear.x'],
+                                  result.speed[::SPEED_DECIMATION])
     assert topics['/rail/bogie/imu'].msgtype == 'sensor_msgs/msg/Imu'
     np.testing.assert_array_equal(topics['/rail/bogie/imu'].fields['angular_velocity.z'],
                                   result.bogie_yaw_rate)

@@ -54,6 +54,6 @@ def test_every_message_of_a_foreign_bag_is_screened(tmp_path: Path, storage: Sto
     assert run.failed == 0, run.errors
     summary = read_table(tmp_path / 'out', 'summary').to_pandas()
     assert set(summary['messages_in']) == {count}
-    assert count == 8004
+    assert count == 8205     # 2001 samples x 4 topics, 201 speeds
     modes = summary.set_index('method').loc['suspension']
     assert modes['messages'] == 2001

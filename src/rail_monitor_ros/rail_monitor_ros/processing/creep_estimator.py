@@ -65,7 +65,13 @@ from rail_monitor_ros.core.creep_ekf import (
     pattern_fields,
     track_wheelsets,
 )
-from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
+from rail_monitor_ros.processing.rail_imu_inputs import (
+    SPEED,
+    SPEED_TYPE,
+    RailImuInputs,
+    RailImuNodeParams,
+    SpeedInput,
+)
 from vehicle_monitor_common.imu_pairing import ImuPair
 from vehicle_monitor_common.input_health import FrozenDetector, all_finite
 from vehicle_monitor_common.parameters import param
@@ -134,7 +140,8 @@ _MISSING = np.empty(0)
 BURST_PERIODS = 10
 # Counters of rejected inputs (the status names the new ones).
 _REJECTIONS = ('missing_fields', 'frozen', 'wrong_size', 'non_finite', 'saturated', 'rate_burst',
-               'track_wrong_size', 'track_frozen', 'main_late', 'track_late', 'overflow')
+               'track_wrong_size', 'track_frozen', 'main_late', 'track_late', 'overflow',
+               'below_min_speed')
 _WRONG_SIZE = np.empty(0)
 # Pattern D's measurement channels, in the order of its vector.
 _IMU_CHANNELS = (f'{BOGIE_IMU} linear_acceleration.y', f'{BOGIE_IMU} angular_velocity.z',
@@ -160,6 +167,8 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             inputs[LATERAL_STATES] = Input('vehicle_monitor_msgs/msg/RailLateralStates')
         if node_params.use_track_input:
             inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
+        if node_params.use_speed_input:
+            inputs[SPEED] = Input(SPEED_TYPE, optional=True)
         super().__init__(node_params, inputs)
         self.ekf = CreepEkf(params)
         # Patterns A-C of the end model measure a selection of the lateral states' fields.
@@ -167,7 +176,9 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
                            measurement_fields(params.pattern, params.bogie, params.model))
         self._driving = BOGIE_IMU if params.pattern == 'D' else LATERAL_STATES
         self._handlers = {LATERAL_STATES: self._on_lateral_states, BOGIE_IMU: self._on_bogie,
-                          BODY_IMU: self._on_body, TRACK: self._on_track}
+                          BODY_IMU: self._on_body, TRACK: self._on_track,
+                          SPEED: self._on_speed}
+        self._speed = SpeedInput()
         self._pending: list[_Pending] = []
         self._latest = {'main': -1, 'track': -1}
         self._stamp_rejected: dict[str, int] = {}
@@ -180,7 +191,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             ('received', 'processed', 'published', 'frozen', 'wrong_size', 'overflow',
              'known_input', 'unknown_input', 'track_received', 'track_wrong_size', 'main_late',
              'track_late', 'non_finite', 'saturated', 'track_frozen', 'track_lost', 'held',
-             'time_jumps', 'rate_burst', 'missing_fields'), 0)
+             'time_jumps', 'rate_burst', 'missing_fields', 'below_min_speed'), 0)
         self.last: CreepEstimate | None = None
         # Input faults: the current one, and the data time until which the estimate is still
         # reported unknown (and why); the low-adhesion flag held meanwhile.
@@ -258,6 +269,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         self._pending.clear()
         self._latest = {'main': -1, 'track': -1}
         self._last_processed_ns = self._burst_until_ns = None
+        self._speed.clear()
         self._arrivals.clear()
         self._frozen.reset()
         self._track_frozen = None
@@ -325,6 +337,10 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             outputs += self._add_part('main', pair.stamp_ns, vector, unfed)
         return outputs
 
+    def _on_speed(self, stamp: int, msg: Any) -> list[Output]:
+        self._speed.add(stamp, msg)
+        return self._drain()
+
     def _on_track(self, stamp: int, msg: Any) -> list[Output]:
         self._counts['track_received'] += 1
         pair = track_wheelsets(self.params.bogie, self.params.model)
@@ -377,6 +393,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         n = self.node_params
         tolerance = round(n.pair_tolerance_s * 1e9)
         max_age = round(n.track_max_age_s * 1e9)
+        wait = round(n.pair_timeout_s * 1e9)
         outputs: list[Output] = []
         while self._pending:
             entry = self._pending[0]
@@ -387,8 +404,10 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
                            and self._latest['track'] >= s - max_age)
             track_done = (not track_alive or entry.track is not None
                           or self._latest['track'] > s + tolerance)
+            speed_done = not n.use_speed_input or self._speed.held.settled(
+                s, self._latest['main'], tolerance, wait)
             overflow = len(self._pending) > n.max_pending
-            if not (main_done and track_done) and not overflow:
+            if not (main_done and track_done and speed_done) and not overflow:
                 break
             if overflow:
                 self._counts['overflow'] += 1
@@ -416,7 +435,13 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         self.ekf.advance_to(stamp)
         self._last_processed_ns = stamp
         self._unfed = entry.unfed
+        speed, speed_fault = self._speed.at(stamp, self.node_params, self.ekf.speed)
+        if speed is not None:
+            self.ekf.set_speed(speed)
         vector, fault = self._check_measurement(entry)
+        if speed_fault and not fault:
+            self._counts[speed_fault] += 1
+            fault = speed_fault
         if not fault and self._burst_until_ns is not None and stamp < self._burst_until_ns:
             fault = 'rate_burst'
         track = entry.track
@@ -502,6 +527,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             'std_dev': last.std_dev if last else math.nan,
             'low_adhesion': bool(last.low_adhesion) if last else False,
             'model_speed': ekf.speed,
+            'speed_input': self._speed.state,
         }
         # Silence (the adapter reports it per input at ERROR): no claim on old data.
         silent_s = self._silent_s(self._counts['received'], now_ns)
@@ -528,6 +554,8 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
                                     f'{left:.1f} s')
         elif self.node_params.use_track_input and self._track_stale:
             level, message = WARN, 'track input stale: unknown-input mode, c less accurate'
+        elif self._speed.stale:
+            level, message = WARN, f'speed input {self._speed.state}'
         elif last is not None and last.low_adhesion:
             level, message = WARN, f'low adhesion: creep factor {last.creep_factor:.2f}'
         else:
@@ -539,6 +567,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         """Rejected inputs so far, by reason."""
         return {**{k: self._counts[k] for k in _REJECTIONS},
                 'unpaired': self._pairer.unpaired['bogie'], **self._stamp_rejected,
+                'speed_invalid': self._speed.invalid,
                 **{f'ekf_{k}': v for k, v in self.ekf.rejected.items()}}
 
 

@@ -1,9 +1,14 @@
 """What both rail processors do with their inputs before their method sees a sample: the
 bogie/body IMU pairing and saturation limits (node parameters of the same meaning in both), the
 input-rate meters, the stamp check of every input, whose confirmed time jump restarts the
-processor (``_restart``) and whose corrupt stamps it counts (``_reject_stamp``), and what their
-statuses report alike: how long the input has been silent and the rejections since the previous
-status.
+processor (``_restart``) and whose corrupt stamps it counts (``_reject_stamp``), the train's
+speed from ``rail/speed`` (:class:`SpeedInput`), and what their statuses report alike: how long
+the input has been silent and the rejections since the previous status.
+
+Streams held in data time (:class:`HeldStream`): the value for a sample is the latest message
+not newer than its stamp, and a sample waits until the stream has reached its stamp or fallen
+silent, so a live node, whose inputs come from different publishers, and the offline engine
+see the same values.
 
 An IMU pair's measurement is (bogie lateral acceleration, bogie yaw rate, body lateral
 acceleration), as :class:`vehicle_monitor_common.imu_pairing.ImuPairer` pairs them in both.
@@ -11,6 +16,7 @@ acceleration), as :class:`vehicle_monitor_common.imu_pairing.ImuPairer` pairs th
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
@@ -36,12 +42,133 @@ class RailImuNodeParams(ProcessorParams):
                                     'm/s^2', low=0.1, high=1e4)
     gyro_limit_rad_s: float = param(5.0, 'an IMU yaw rate at or beyond this is saturated, rad/s',
                                     low=0.01, high=1e3)
+    use_speed_input: bool = param(True, 'follow rail/speed (the train\'s forward speed) as the '
+                                  'model\'s speed when it is published; else vehicle.speed',
+                                  read_only=True)
+    speed_max_age_s: float = param(0.5, 'the speed is stale when its last stamp is this much '
+                                   'older than the sample (the model keeps the last speed), s',
+                                   low=0.001, high=60.0)
+    min_speed_mps: float = param(5.0, 'below this speed (from rail/speed) nothing is estimated: '
+                                 'the estimates are held, m/s', low=0.1, high=200.0)
 
     def imu_saturated(self, pair: np.ndarray) -> bool:
         """Whether an IMU pair (bogie ay, bogie yaw rate, body ay) reaches a sensor's limit."""
         return bool(abs(pair[0]) >= self.accel_limit_mps2
                     or abs(pair[2]) >= self.accel_limit_mps2
                     or abs(pair[1]) >= self.gyro_limit_rad_s)
+
+
+SPEED = 'rail/speed'
+SPEED_TYPE = 'geometry_msgs/msg/TwistStamped'
+
+
+class HeldStream:
+    """A stream sampled and held at another stream's stamps, decided in data time: the value
+    for a sample is the latest not newer than its stamp (plus the tolerance), and a sample is
+    settled once the stream has delivered a stamp at or after it, or has fallen silent (its
+    newest stamp a wait horizon behind the newest sample; a stream not heard yet, the wait
+    horizon after the first sample that asked for it)."""
+
+    def __init__(self) -> None:
+        self.samples: deque[tuple[int, Any]] = deque()
+        self.latest: int | None = None      # newest stamp seen (valid or not)
+        self._first_asked: int | None = None  # the first sample's stamp while nothing was seen
+
+    def seen(self, stamp_ns: int) -> None:
+        self.latest = stamp_ns
+
+    def add(self, stamp_ns: int, value: Any) -> None:
+        self.samples.append((stamp_ns, value))
+
+    def settled(self, stamp_ns: int, newest_ns: int, tolerance_ns: int, wait_ns: int) -> bool:
+        """Whether the value for ``stamp_ns`` is known: the stream delivered that stamp or a
+        later one, or it is silent (``wait_ns`` behind the newest sample ``newest_ns``).
+
+        A stream not heard yet is waited for as one that fell silent at the first sample: in
+        a live graph another node's first outputs come after the IMU samples they answer (the
+        offline engine delivers them in log order), so treating it as absent at once made the
+        live suspension monitor start without the creep factor the engine had
+        (rail_creep_steps: its first 100 pairs, while the full-car creep model was confident
+        after 70).
+        """
+        if self.latest is None:
+            if self._first_asked is None:
+                self._first_asked = stamp_ns
+            return self._first_asked < newest_ns - wait_ns
+        return self.latest >= stamp_ns - tolerance_ns or self.latest < newest_ns - wait_ns
+
+    def at(self, stamp_ns: int, tolerance_ns: int) -> tuple[int, Any] | None:
+        """The latest sample not newer than ``stamp_ns + tolerance_ns`` (older ones are
+        forgotten: the samples come in stamp order)."""
+        while len(self.samples) > 1 and self.samples[1][0] <= stamp_ns + tolerance_ns:
+            self.samples.popleft()
+        if self.samples and self.samples[0][0] <= stamp_ns + tolerance_ns:
+            return self.samples[0]
+        return None
+
+    def clear(self) -> None:
+        self.samples.clear()
+        self.latest = None
+        self._first_asked = None
+
+
+class SpeedInput:
+    """The train's forward speed from ``rail/speed`` (geometry_msgs/TwistStamped: twist.linear.x,
+    m/s; a tachometer or odometry), held at the samples' stamps.
+
+    Why a topic: the models' creep forces scale with 1 / v, the track's bandwidth with v and
+    its delays with 1 / v, so a train that accelerates or brakes needs its speed per sample (a
+    speed 0.2 % wrong reads the creep factor 1.6 % wrong: docs/methods/creep_estimator.md);
+    the ``vehicle.speed`` parameter is for a constant speed.
+
+    Per sample (:meth:`at`): a fresh speed is the model's; a stale one (older than
+    ``speed_max_age_s``) leaves the model at the last speed (the status says so); a speed
+    below ``min_speed_mps`` is an input fault, the estimates are held (standing at a station,
+    the models and their excitation mean nothing). A non-finite or negative speed is rejected
+    and counted (``speed_invalid``). Never heard: ``vehicle.speed`` is used as before.
+    """
+
+    def __init__(self) -> None:
+        self.held = HeldStream()
+        self.invalid = 0
+        self.stale = False
+        self.state = 'not received: vehicle.speed used'
+
+    def add(self, stamp_ns: int, message: Any) -> None:
+        """A speed message (its stamp already checked)."""
+        self.held.seen(stamp_ns)
+        speed = float(message.twist.linear.x)
+        if math.isfinite(speed) and speed >= 0.0:
+            self.held.add(stamp_ns, speed)
+        else:
+            self.invalid += 1
+
+    def at(self, stamp_ns: int, node_params: RailImuNodeParams, model_speed: float,
+           ) -> tuple[float | None, str]:
+        """For the sample at ``stamp_ns``: (the speed to give the model, or None to keep
+        ``model_speed``; the input fault, '' or 'below_min_speed')."""
+        n = node_params
+        held = self.held.at(stamp_ns, round(n.pair_tolerance_s * 1e9))
+        self.stale = held is not None and (stamp_ns - held[0]) * 1e-9 > n.speed_max_age_s
+        if held is None:
+            if self.held.latest is not None:
+                self.state = f'none yet for this sample: model keeps {model_speed:.2f} m/s'
+            return None, ''
+        if self.stale:
+            age_s = (stamp_ns - held[0]) * 1e-9
+            self.state = f'stale ({age_s:.2f} s): model keeps {model_speed:.2f} m/s'
+            return None, ''
+        speed = held[1]
+        if speed < n.min_speed_mps:
+            self.state = f'{speed:.2f} m/s, below min_speed_mps: estimates held'
+            return None, 'below_min_speed'
+        self.state = 'following'
+        return speed, ''
+
+    def clear(self) -> None:
+        self.held.clear()
+        self.stale = False
+        self.state = 'not received: vehicle.speed used'
 
 
 P = TypeVar('P', bound=RailImuNodeParams)

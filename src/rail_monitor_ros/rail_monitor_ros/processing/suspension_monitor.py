@@ -61,7 +61,14 @@ from rail_monitor_ros.core.suspension_imm import (
     SuspensionImm,
     SuspensionImmParams,
 )
-from rail_monitor_ros.processing.rail_imu_inputs import RailImuInputs, RailImuNodeParams
+from rail_monitor_ros.processing.rail_imu_inputs import (
+    SPEED,
+    SPEED_TYPE,
+    HeldStream,
+    RailImuInputs,
+    RailImuNodeParams,
+    SpeedInput,
+)
 from vehicle_monitor_common.imu_pairing import ImuPair
 from vehicle_monitor_common.input_health import FrozenDetector, all_finite
 from vehicle_monitor_common.parameters import param
@@ -103,55 +110,6 @@ class SuspensionMonitorNodeParams(RailImuNodeParams):
                                     'IMM settles), s', low=0.0, high=60.0)
 
 
-class _Held:
-    """A stream sampled and held at the IMU pairs' stamps, decided in data time: the value
-    for a pair is the latest not newer than its stamp (plus the tolerance), and a pair is
-    settled once the stream has delivered a stamp at or after it, or has fallen silent (its
-    newest stamp a wait horizon behind the newest IMU pair; a stream not heard yet, the wait
-    horizon after the first pair that asked for it)."""
-
-    def __init__(self) -> None:
-        self.samples: deque[tuple[int, Any]] = deque()
-        self.latest: int | None = None      # newest stamp seen (valid or not)
-        self._first_asked: int | None = None  # the first pair's stamp while nothing was seen
-
-    def seen(self, stamp_ns: int) -> None:
-        self.latest = stamp_ns
-
-    def add(self, stamp_ns: int, value: Any) -> None:
-        self.samples.append((stamp_ns, value))
-
-    def settled(self, stamp_ns: int, newest_ns: int, tolerance_ns: int, wait_ns: int) -> bool:
-        """Whether the value for ``stamp_ns`` is known: the stream delivered that stamp or a
-        later one, or it is silent (``wait_ns`` behind the newest IMU pair ``newest_ns``).
-
-        A stream not heard yet is waited for as one that fell silent at the first pair: in a
-        live graph another node's first outputs come after the IMU samples they answer (the
-        offline engine delivers them in log order), so treating it as absent at once made the
-        live monitor start without the creep factor the engine had (rail_creep_steps: its
-        first 100 pairs, while the full-car creep model was confident after 70).
-        """
-        if self.latest is None:
-            if self._first_asked is None:
-                self._first_asked = stamp_ns
-            return self._first_asked < newest_ns - wait_ns
-        return self.latest >= stamp_ns - tolerance_ns or self.latest < newest_ns - wait_ns
-
-    def at(self, stamp_ns: int, tolerance_ns: int) -> tuple[int, Any] | None:
-        """The latest sample not newer than ``stamp_ns + tolerance_ns`` (older ones are
-        forgotten: the pairs come in stamp order)."""
-        while len(self.samples) > 1 and self.samples[1][0] <= stamp_ns + tolerance_ns:
-            self.samples.popleft()
-        if self.samples and self.samples[0][0] <= stamp_ns + tolerance_ns:
-            return self.samples[0]
-        return None
-
-    def clear(self) -> None:
-        self.samples.clear()
-        self.latest = None
-        self._first_asked = None
-
-
 class _RepeatCounter:
     """How many consecutive messages repeated the previous one exactly (all channels: a
     frozen measurement system; one constant channel may be a straight track)."""
@@ -173,7 +131,8 @@ class _RepeatCounter:
 # After a pair closer than half a period to the previous one (a burst), the IMM holds until
 # the pairs have come at their rate for this many periods.
 BURST_PERIODS = 10
-_STREAMS = {BOGIE_IMU: 'bogie', BODY_IMU: 'body', TRACK: 'track', CREEP: 'creep'}
+_STREAMS = {BOGIE_IMU: 'bogie', BODY_IMU: 'body', TRACK: 'track', CREEP: 'creep',
+            SPEED: 'speed'}
 
 
 class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
@@ -196,6 +155,8 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             inputs[TRACK] = Input('vehicle_monitor_msgs/msg/TrackIrregularity', optional=True)
         if n.use_creep_factor:
             inputs[CREEP] = Input('vehicle_monitor_msgs/msg/CreepFactor', optional=True)
+        if n.use_speed_input:
+            inputs[SPEED] = Input(SPEED_TYPE, optional=True)
         super().__init__(node_params, inputs)
         self.params = params
         self.imm = SuspensionImm(params)
@@ -205,11 +166,14 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self.processed = 0
         self.known_input_samples = 0
         self.time_jumps = 0
-        self._track = _Held()
-        self._creep = _Held()
+        self._track = HeldStream()
+        self._creep = HeldStream()
+        self._speed = SpeedInput()
         # The held streams a pair waits for: those this node subscribes.
         self._awaited = tuple(held for held, used in ((self._track, n.use_track_irregularity),
-                                                      (self._creep, n.use_creep_factor)) if used)
+                                                      (self._creep, n.use_creep_factor),
+                                                      (self._speed.held, n.use_speed_input))
+                              if used)
         self._pending: deque[ImuPair] = deque()
         self._track_state = 'not received' if n.use_track_irregularity else 'disabled'
         self._creep_state = 'not received' if n.use_creep_factor else 'disabled'
@@ -227,7 +191,8 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self._burst_until_ns: int | None = None
         self.last_output: Output | None = None
         self._handlers = {BOGIE_IMU: self._on_bogie, BODY_IMU: self._on_body,
-                          TRACK: self._on_track, CREEP: self._on_creep_factor}
+                          TRACK: self._on_track, CREEP: self._on_creep_factor,
+                          SPEED: self._on_speed}
 
     @property
     def rejected(self) -> Counter[str]:
@@ -235,6 +200,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         counts = Counter(self._rejected)
         counts['unpaired'] += sum(self._pairer.unpaired.values())
         counts.update(self._pairer.rejected)
+        counts['speed_invalid'] += self._speed.invalid
         return +counts
 
     def update_params(self, params: SuspensionImmParams) -> None:
@@ -261,6 +227,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self._pending.clear()
         self._track.clear()
         self._creep.clear()
+        self._speed.clear()
         self._frozen.reset()
         self._snapshots.clear()
         self._track_frozen.reset()
@@ -287,6 +254,10 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             self._rejected['creep_factor_invalid'] += 1
         else:
             self._creep.add(stamp, (c, std))
+        return self._drain()
+
+    def _on_speed(self, stamp: int, msg: Any) -> list[Output]:
+        self._speed.add(stamp, msg)
         return self._drain()
 
     def _on_track(self, stamp: int, msg: Any) -> list[Output]:
@@ -328,8 +299,12 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
                        for held in self._awaited):
                 break
             self._pending.popleft()
+            speed, speed_fault = self._speed.at(pair.stamp_ns, n, self.imm.vehicle.speed)
+            if speed is not None:
+                self.imm.set_speed(speed)
             self._follow_creep(pair.stamp_ns, tolerance)
-            output = self._process(pair.stamp_ns, np.array([*pair.bogie, pair.body]))
+            output = self._process(pair.stamp_ns, np.array([*pair.bogie, pair.body]),
+                                   speed_fault)
             if output is not None:
                 outputs.append(output)
         return outputs
@@ -403,7 +378,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
                                           None if rate is None else rate[None, :2],
                                           self.params.vehicle.speed)[0]
 
-    def _process(self, stamp: int, z: np.ndarray) -> Output | None:
+    def _process(self, stamp: int, z: np.ndarray, speed_fault: str) -> Output | None:
         period_ns = 1e9 / self.params.sample_rate_hz
         if self._last_stamp_ns is not None and stamp - self._last_stamp_ns < 0.5 * period_ns:
             # Closer than half a period to the previous pair: a burst, not the sensor's rate;
@@ -412,7 +387,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             self._burst_until_ns = stamp + round(BURST_PERIODS * period_ns)
             return None
         self._last_stamp_ns = stamp
-        problem = self._check(z)
+        problem = self._check(z) or speed_fault
         if not problem and self._burst_until_ns is not None and stamp < self._burst_until_ns:
             problem = 'rate_burst'
         if problem:
@@ -478,6 +453,8 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
             'time_jumps': self.time_jumps,
             'track_irregularity': self._track_state,
             'creep_factor_input': self._creep_state,
+            'speed_input': self._speed.state,
+            'model_speed': self.imm.vehicle.speed,
             'model_creep_factor': self.imm.creep_factor,
             'model_stable': self.imm.model_stable,
             'covariance_repairs': self.imm.covariance_repairs,
@@ -521,6 +498,8 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         if self.node_params.use_track_irregularity and self._track.latest is not None \
                 and not self._track_fresh:
             return Status(WARN, f'track input {self._track_state}', values)
+        if self._speed.stale:
+            return Status(WARN, f'speed input {self._speed.state}', values)
         if out['fault_detected']:
             size = {'spring': f'spring {spring:.2f}', 'damper': f'damper {damper:.2f}',
                     'spring+damper': f'spring {spring:.2f}, damper {damper:.2f}'}[component]

@@ -303,6 +303,10 @@ RAIL_LATERAL_STATES_TYPE = 'vehicle_monitor_msgs/msg/RailLateralStates'
 TRACK_IRREGULARITY_TYPE = 'vehicle_monitor_msgs/msg/TrackIrregularity'
 SUSPENSION_STATE_TYPE = 'vehicle_monitor_msgs/msg/SuspensionState'
 CREEP_FACTOR_TYPE = 'vehicle_monitor_msgs/msg/CreepFactor'
+SPEED_TYPE = 'geometry_msgs/msg/TwistStamped'
+# The forward speed is published at a tachometer's rate, every this many samples (20 Hz at
+# 200 Hz): the estimators hold it between messages.
+SPEED_DECIMATION = 10
 
 
 def scenario_topics(path: str | Path, seed: int | None = None) -> dict[str, TopicSeries]:
@@ -320,8 +324,9 @@ def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float 
     Topics: ``/rail/bogie/imu`` and ``/rail/body/imu`` (sensor_msgs/Imu: linear_acceleration.y,
     angular_velocity.z; no orientation, so orientation_covariance[0] = -1 per REP 145),
     ``/rail/lateral_states`` (measured, with noise) and ``/truth/lateral_states`` (true),
-    ``/rail/track_irregularity`` (the four wheelsets, front to rear), ``/truth/suspension``,
-    ``/truth/creep_factor``.
+    ``/rail/track_irregularity`` (the four wheelsets, front to rear), ``/rail/speed``
+    (geometry_msgs/TwistStamped, twist.linear.x: the forward speed as simulated, every
+    ``SPEED_DECIMATION``-th sample), ``/truth/suspension``, ``/truth/creep_factor``.
 
     Args:
         result: a simulation result.
@@ -369,12 +374,15 @@ def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float 
         'f22': result.creep_factor * params.lateral_creep_coefficient,
         'low_adhesion': result.creep_factor < low_adhesion_threshold,
     })
+    speed = TopicSeries(SPEED_TYPE, stamps[::SPEED_DECIMATION], {
+        'twist.linear.x': result.speed[::SPEED_DECIMATION]}, frame_id='front_bogie')
     return {
         '/rail/bogie/imu': bogie_imu,
         '/rail/body/imu': body_imu,
         '/rail/lateral_states': measured,
         '/truth/lateral_states': truth_states,
         '/rail/track_irregularity': track,
+        '/rail/speed': speed,
         '/truth/suspension': suspension,
         '/truth/creep_factor': creep,
     }
