@@ -110,8 +110,8 @@ class RailVehicleParams:
                             read_only=True)
     wheel_radius: float = param(0.37, 'r0, wheel rolling radius, m', low=0.1, high=2.0,
                                 read_only=True)
-    speed: float = param(40.0, 'v, forward speed, m/s (no speed topic in the contract: set it '
-                         'at runtime; the model is rebuilt)', low=1.0, high=150.0)
+    speed: float = param(40.0, 'v, forward speed, m/s (settable at runtime; the nodes follow '
+                         'rail/speed instead when it is published)', low=1.0, high=150.0)
     bogie_pivot_semi_spacing: float = param(_MANCHESTER_BOGIE_PIVOT_SEMI_SPACING,
                                             'lv, body centre to bogie centre, m', low=0.1,
                                             high=50.0, read_only=True)
