@@ -423,3 +423,21 @@ def test_runtime_decision_parameters_keep_a_declared_fault() -> None:
     imm.update_runtime_params(changed)
     assert imm.decision.state == ((1.5, 1.0), 0, (0, 0, 0))
     assert imm.decision.clear_samples == 600 and imm.decision.min_deviation == 0.35
+
+
+@pytest.mark.parametrize('dv', [0.25, -0.45])
+def test_bank_stepped_to_a_nearby_speed_is_near_the_exact_bank(dv: float) -> None:
+    """Within speed_resolution_mps the bank is not re-discretised: each mode's transition is
+    stepped to the sample's speed, F + dv dF/dv. Against the bank discretised at that speed
+    it is off by about 1 % of what the unstepped bank is off (measured 0.55 % for +0.25 m/s,
+    0.99 % for -0.45 m/s at 40 m/s); back at the bank's speed it is the bank's again."""
+    imm = SuspensionImm(SuspensionImmParams())
+    bank = imm._f.copy()
+    imm.set_speed(40.0 + dv)
+    assert imm.vehicle.speed == 40.0          # not re-discretised
+    exact = SuspensionImm(replace(SuspensionImmParams(), vehicle=replace(
+        SuspensionImmParams().vehicle, speed=40.0 + dv)))._f
+    unstepped = np.abs(bank - exact).max()
+    assert np.abs(imm._f - exact).max() < 0.015 * unstepped
+    imm.set_speed(40.0)
+    np.testing.assert_array_equal(imm._f, bank)

@@ -95,6 +95,7 @@ from rail_monitor_ros.core.track_shaping import (
     TrackShapingModel,
     input_shaped_model,
     primary_input_combination,
+    track_driven_matrix,
     track_driven_model,
     track_shaping_model,
 )
@@ -107,6 +108,10 @@ ESTIMATION_MODELS = ('full_car', 'half_car')
 # The steady-state kernel's measurement argument for a sample without one.
 _NO_MEASUREMENT = np.empty(0)
 
+
+# Relative speed step of the central differences for dA/dv (_speed_slopes): A is smooth in v,
+# so the difference's error (~1e-7 of dA/dv) stays below the first-order step's own.
+SPEED_DIFFERENCE = 1e-3
 
 @dataclass(frozen=True)
 class SteadyStateGain:
@@ -236,7 +241,8 @@ class SuspensionImmParams:
             than 3/4 of a step from the model's (hysteresis: a noisy estimate does not toggle;
             the grid lets the banks and their Riccati solutions be reused).
         speed_resolution_mps: full car: :meth:`SuspensionImm.set_speed` re-discretises the bank
-            when the speed moved by at least this much, m/s.
+            when the speed moved by at least this much, m/s; within it the bank's transitions
+            are stepped to each sample's speed (F + dv dF/dv).
         wheelset_lateral_std_m: half car: stationary std of the wheelset lateral displacement,
             m (the bogie's mean wheelset lateral input).
         wheelset_yaw_std_rad: half car: stationary std of the wheelset yaw angle, rad. The bogie's
@@ -343,8 +349,9 @@ class SuspensionImmParams:
                                           low=0.1, high=100.0, read_only=True)
     known_track_std_m: float = param(5e-4, 'full car: measured track alignment std, m',
                                      low=1e-9, high=1.0, read_only=True)
-    speed_resolution_mps: float = param(0.5, 'full car: a speed change re-discretises the '
-                                        'bank from this size, m/s', low=1e-3, high=50.0,
+    speed_resolution_mps: float = param(2.0, 'full car: a speed change re-discretises the '
+                                        'bank from this size (within it the transitions are '
+                                        'stepped to the speed), m/s', low=1e-3, high=50.0,
                                         read_only=True)
     creep_resolution: float = param(0.1, 'full car: the model\'s creep factor moves in these '
                                     'steps (with 3/4-step hysteresis), 1', low=1e-3, high=1.0,
@@ -595,6 +602,9 @@ class SuspensionImm:
                     [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
         self._q_model = q_model
         self._discretized: dict[tuple[float, float], ModeModel] = {}
+        # dF/dv per mode key (_speed_slopes), and the samples' speed less the bank's.
+        self._slopes: dict[tuple[object, ...], np.ndarray] = {}
+        self._speed_offset = 0.0
         self._solved: set[tuple[tuple[object, ...], int]] = set()
         self._p0 = self._prior()
         self.decision = _fault_decision(params, dt)
@@ -612,10 +622,11 @@ class SuspensionImm:
         self.reset()
 
     # ----------------------------------------------------------------------- model bank
-    def _model(self, spring: float, damper: float) -> StateSpace:
+    def _model(self, spring: float, damper: float,
+               vehicle: RailVehicleParams | None = None) -> StateSpace:
         if self.params.estimation_model == 'full_car':
-            full = full_car_state_space(self.vehicle, self.creep_factor, (spring, 1.0),
-                                        (damper, 1.0))
+            full = full_car_state_space(vehicle or self.vehicle, self.creep_factor,
+                                        (spring, 1.0), (damper, 1.0))
             # The monitored (front) bogie's sensors only.
             return replace(full, c=full.c[:N_OUTPUTS], d=full.d[:N_OUTPUTS],
                            output_names=full.output_names[:N_OUTPUTS])
@@ -714,10 +725,52 @@ class SuspensionImm:
         if not self._full_car:
             self.vehicle = self.vehicle.with_speed(speed)   # not used by the half car
             return
-        if abs(speed - self.vehicle.speed) < self.params.speed_resolution_mps:
+        offset = speed - self.vehicle.speed
+        if abs(offset) < self.params.speed_resolution_mps:
+            if offset != self._speed_offset:
+                self._speed_offset = offset
+                self._step_transitions()
             return
         self.vehicle = self.vehicle.with_speed(speed)
+        self._speed_offset = 0.0
         self._rediscretize()
+
+    def _step_transitions(self) -> None:
+        """The bank's transitions at the samples' speed: each mode's F stepped from the
+        bank's speed to first order, F + dv dF/dv (Q and the steady-state gains stay the
+        bank's: the track noise's density moves by dv / v, 1.2 % for 0.5 m/s at 40 m/s, a
+        covariance's share, where F carries the means the likelihoods are made of)."""
+        if self._speed_offset == 0.0:
+            self._set_transitions(self._f_bank)
+        else:
+            self._set_transitions(self._f_bank + self._speed_offset * self._speed_slopes())
+
+    def _speed_slopes(self) -> np.ndarray:
+        """dF/dv of every mode at the bank's speed, exact to the difference of A: the Frechet
+        derivative of the matrix exponential at A dt in the direction dA/dv dt, dA/dv by
+        central differences of two models beside the bank's (A is smooth in v through the
+        creep coefficients' 1/v, the track's poles and the Pade sections). Built when a
+        sample at another speed first needs them (at constant speed never), kept per mode."""
+        missing = [k for k, key in enumerate(self._mode_keys) if key not in self._slopes]
+        if missing:
+            params, v = self.params, self.vehicle.speed
+            step = SPEED_DIFFERENCE * v
+            beside = [(self.vehicle.with_speed(v + sign * step), track_shaping_model(
+                params.track_roughness_m_rad, params.track_corner_wavenumber_rad_per_m,
+                params.track_long_wavenumber_rad_per_m, v + sign * step,
+                self.vehicle.wheelset_offsets, params.delay_min_wavelength_m))
+                for sign in (1.0, -1.0)]
+            track = self._track_model()
+            for k in missing:
+                spring = float(self.mode_spring_ratio[k])
+                damper = float(self.mode_damper_ratio[k])
+                up, down = (track_driven_matrix(self._model(spring, damper, vehicle), shaping)
+                            for vehicle, shaping in beside)
+                a = track_driven_matrix(self._model(spring, damper), track)
+                self._slopes[self._mode_keys[k]] = scipy.linalg.expm_frechet(
+                    a * params.dt, (up - down) * (params.dt / (2.0 * step)),
+                    compute_expm=False)
+        return np.stack([self._slopes[key] for key in self._mode_keys])
 
     def set_creep_factor(self, creep_factor: float) -> None:
         """The wheel-rail creep factor changed (full car: the wheelsets' creep forces, e.g.
@@ -740,6 +793,7 @@ class SuspensionImm:
         """The model's vehicle or creep factor changed: new discretisations, prior and bank
         (states and probabilities kept)."""
         self._discretized.clear()
+        self._slopes.clear()
         self._p0 = self._prior()
         self._build_bank(self._damper_spring)
 
@@ -756,18 +810,12 @@ class SuspensionImm:
         # and the offline engine, a second run in one process) give the same outputs.
         self._mode_keys = [(self.vehicle, self.creep_factor, round(s, RATIO_DECIMALS),
                             round(d, RATIO_DECIMALS)) for s, d in pairs]
-        self._f = np.stack([m.f for m in self._mode_models])
-        # F = [[F_x, F_xw], [0, F_w]]: the input (track) states do not depend on the vehicle
-        # and F_w is the same for every mode, so F P F^T is computed by blocks (exact, about
-        # half the products).
+        self._f_bank = np.stack([m.f for m in self._mode_models])
         n = self.n_states
-        self._f_top = np.ascontiguousarray(self._f[:, :n, :])
-        self._f_top_t = np.ascontiguousarray(self._f_top.transpose(0, 2, 1))
-        self._f_input = np.ascontiguousarray(self._f[0, n:, n:])
-        self._f_input_t = np.ascontiguousarray(self._f_input.T)
-        if not (np.all(self._f[:, n:, :n] == 0.0)
-                and np.all(self._f[:, n:, n:] == self._f[0, n:, n:])):
+        if not (np.all(self._f_bank[:, n:, :n] == 0.0)
+                and np.all(self._f_bank[:, n:, n:] == self._f_bank[0, n:, n:])):
             raise RuntimeError('input states must be shared and independent of the vehicle')
+        self._step_transitions()
         self._q = np.stack([m.q for m in self._mode_models])
         self._h = {k: np.stack([m.h[k] for m in self._mode_models]) for k in self._known_sizes}
         self._steady_bank: dict[int, tuple[np.ndarray, ...] | None] = {}
@@ -782,6 +830,25 @@ class SuspensionImm:
         self._hypothesis_index = np.array([self.hypotheses.index(k) for k in keys])
 
     # ----------------------------------------------------------------------- state
+    def _set_transitions(self, f: np.ndarray) -> None:
+        """The bank's transitions, by blocks: F = [[F_x, F_xw], [0, F_w]], the input (track)
+        states independent of the vehicle and F_w the same for every mode, so F P F^T is
+        computed by blocks (exact, about half the products)."""
+        n = self.n_states
+        self._f = f
+        self._f_top = np.ascontiguousarray(f[:, :n, :])
+        self._f_top_t = np.ascontiguousarray(self._f_top.transpose(0, 2, 1))
+        self._f_input = np.ascontiguousarray(f[0, n:, n:])
+        self._f_input_t = np.ascontiguousarray(self._f_input.T)
+        self._hf_rows: dict[int, np.ndarray] = {}
+
+    def _measured_transitions(self, known: int) -> np.ndarray:
+        """H F of every mode with ``known`` known inputs, as rows (the steady cycle's)."""
+        if known not in self._hf_rows:
+            self._hf_rows[known] = np.matmul(self._h[known], self._f).reshape(
+                -1, self._f.shape[2])
+        return self._hf_rows[known]
+
     def reset(self) -> None:
         """Restart: mode 1 (normal) with probability 1, states at rest with the prior P; data
         time starts again with the next stamp (after a time jump)."""
@@ -834,7 +901,7 @@ class SuspensionImm:
         self._steps = 0
 
     def _steady_state_bank(self, known: int) -> tuple[np.ndarray, ...] | None:
-        """Stacked steady-state (P- H^T, S, posterior, H F as rows) of every mode with
+        """Stacked steady-state (P- H^T, S, posterior) of every mode with
         ``known`` known inputs, or None when a mode has no stabilising Riccati solution (the
         bank then stays exact; counted in ``steady_state_failures``)."""
         if known not in self._steady_bank:
@@ -850,8 +917,7 @@ class SuspensionImm:
                 self._steady_bank[known] = (
                     np.stack([g.prior_ht for g in gains]),
                     np.stack([g.innovation for g in gains]),
-                    np.stack([g.posterior for g in gains]),
-                    np.matmul(self._h[known], self._f).reshape(-1, self._f.shape[2]))
+                    np.stack([g.posterior for g in gains]))
         return self._steady_bank[known]
 
     # ----------------------------------------------------------------------- IMM cycle
@@ -910,7 +976,8 @@ class SuspensionImm:
         self.P = 0.5 * (p + p.transpose(0, 2, 1))
         return _log_likelihood(y, s_inv_y, chol)
 
-    def _steady_cycle(self, z: np.ndarray | None, steady: tuple[np.ndarray, ...]) -> None:
+    def _steady_cycle(self, z: np.ndarray | None, known: int,
+                      steady: tuple[np.ndarray, ...]) -> None:
         """The IMM cycle on the steady-state covariances plus the mixing's spread of means
         (:func:`rail_monitor_ros.core.imm_kernel.steady_imm_cycle`): sets ``x``, ``mu``,
         ``_cbar``; the mode covariances left in ``P`` are the steady-state posteriors.
@@ -923,7 +990,8 @@ class SuspensionImm:
         (measured: with known inputs, which make P-ss small, dropping it delayed the damper
         detection from 0.12 s to 1.5 s).
         """
-        prior_ht, s_ss, posterior, hf_rows = steady
+        prior_ht, s_ss, posterior = steady
+        hf_rows = self._measured_transitions(known)
         x = np.empty_like(self.x)
         mu = np.empty(self.n_modes)
         self._cbar = np.empty(self.n_modes)
@@ -1031,7 +1099,7 @@ class SuspensionImm:
                 or all((key, known) in self._solved for key in self._mode_keys)):
             steady = self._steady_state_bank(known)
         if steady is not None:
-            self._steady_cycle(z, steady)
+            self._steady_cycle(z, known, steady)
         else:
             self._mix_and_predict()
             if z is None:

@@ -219,19 +219,24 @@ def map_error_roughness(roughness: float, corner_wavenumber: float, long_wavenum
     return roughness * error_rms ** 2 / band_variance
 
 
+def track_driven_matrix(model: StateSpace, track: TrackShapingModel) -> np.ndarray:
+    """The continuous A of [x; track states]: the car driven by the track model's outputs."""
+    n, k = model.a.shape[0], track.a.shape[0]
+    a_aug = np.zeros((n + k, n + k))
+    a_aug[:n, :n] = model.a
+    a_aug[:n, n:] = model.b @ track.c
+    a_aug[n:, n:] = track.a
+    return a_aug
+
+
 def track_driven_model(model: StateSpace, track: TrackShapingModel, dt: float,
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact discretisation of [x; track states] with the track noise (Van Loan).
 
     Returns:
         (F, Q, H) with H the sensor rows over the augmented state.
     """
-    n, k = model.a.shape[0], track.a.shape[0]
-    size = n + k
-    a_aug = np.zeros((size, size))
-    a_aug[:n, :n] = model.a
-    a_aug[:n, n:] = model.b @ track.c
-    a_aug[n:, n:] = track.a
-    g = np.concatenate([np.zeros(n), track.g])
-    f, q = van_loan_discretization(a_aug, track.noise_density * np.outer(g, g), dt)
+    g = np.concatenate([np.zeros(model.a.shape[0]), track.g])
+    f, q = van_loan_discretization(track_driven_matrix(model, track),
+                                   track.noise_density * np.outer(g, g), dt)
     return f, q, np.hstack([model.c, model.d @ track.c])
