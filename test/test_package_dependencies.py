@@ -29,8 +29,9 @@ ROSDEP_KEYS = {
     'pandas': 'python3-pandas',
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'builtin_interfaces', 'std_msgs', 'std_srvs',
-                'geometry_msgs', 'sensor_msgs', 'diagnostic_msgs', 'rosgraph_msgs', 'ament_index_python',
-                'vehicle_monitor_msgs', 'vehicle_monitor_common', 'tpms_ros', 'rail_monitor_ros'}
+                'geometry_msgs', 'sensor_msgs', 'diagnostic_msgs', 'rosgraph_msgs',
+                'ament_index_python', 'vehicle_monitor_msgs', 'vehicle_monitor_common',
+                'tpms_ros', 'rail_monitor_ros'}
 # Runtime dependencies that are not imports: bag_io reads the message definitions from
 # vehicle_monitor_msgs' share directory to build the rosbags typestore.
 DATA_DEPENDENCIES = {'vehicle_monitor_common': {'vehicle_monitor_msgs'}}

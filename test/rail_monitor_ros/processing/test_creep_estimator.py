@@ -244,7 +244,7 @@ def test_the_model_follows_the_published_speed() -> None:
 def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
     """A speed below min_speed_mps (a train standing) holds the estimate as an input fault
     (std widened, status WARN); a speed stream that stops leaves the model at its last speed,
-    reported stale; a negative speed is refused and counted."""
+    reported stale; a negative or absurd speed is refused and counted."""
     messages, _ = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
                                         '/rail/lateral_states'))
     processor = make_processor({'vehicle.speed': 30.0}, '/creep_estimator')
@@ -257,6 +257,8 @@ def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
             elif stamp_s >= 4.0:
                 if stamp_s < 4.01:
                     msg.twist.linear.x = -1.0            # refused
+                elif stamp_s < 4.06:
+                    msg.twist.linear.x = 1e6             # refused: beyond the models' range
                 else:
                     continue                             # the stream stops
         outputs = processor.process(topic, msg)
@@ -268,7 +270,7 @@ def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
                for s in standing)
     assert all(std >= UNKNOWN_STD for t, std in stds if 1.1 < t < 2.0)
     assert processor.counts['below_min_speed'] > 150
-    assert processor._rejections()['speed_invalid'] == 1
+    assert processor._rejections()['speed_invalid'] == 2
     last = statuses[-1][1]
     assert last.level == WARN and last.message.startswith('speed input stale')
     assert last.values['model_speed'] == pytest.approx(processor.ekf.speed)

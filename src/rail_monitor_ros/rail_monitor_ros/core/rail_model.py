@@ -48,6 +48,8 @@ from vehicle_monitor_common.parameters import param
 _MANCHESTER_BODY_MASS = 32000.0
 _MANCHESTER_BODY_YAW_INERTIA = 1.97e6
 _MANCHESTER_BOGIE_PIVOT_SEMI_SPACING = 9.5
+# The models' speed range, m/s (vehicle.speed's, and a published speed's: rail/speed).
+MAX_SPEED_MPS = 150.0
 _TABLE_1_BODY_MASS = 11000.0     # mv, the paper's body mass per bogie
 
 
@@ -111,7 +113,7 @@ class RailVehicleParams:
     wheel_radius: float = param(0.37, 'r0, wheel rolling radius, m', low=0.1, high=2.0,
                                 read_only=True)
     speed: float = param(40.0, 'v, forward speed, m/s (settable at runtime; the nodes follow '
-                         'rail/speed instead when it is published)', low=1.0, high=150.0)
+                         'rail/speed instead when it is published)', low=1.0, high=MAX_SPEED_MPS)
     bogie_pivot_semi_spacing: float = param(_MANCHESTER_BOGIE_PIVOT_SEMI_SPACING,
                                             'lv, body centre to bogie centre, m', low=0.1,
                                             high=50.0, read_only=True)

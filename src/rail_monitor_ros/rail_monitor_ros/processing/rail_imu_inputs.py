@@ -24,6 +24,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from rail_monitor_ros.core.rail_model import MAX_SPEED_MPS
 from vehicle_monitor_common.imu_pairing import ImuPairer
 from vehicle_monitor_common.input_health import RateMeter, StampCheck
 from vehicle_monitor_common.parameters import param
@@ -124,8 +125,9 @@ class SpeedInput:
     Per sample (:meth:`at`): a fresh speed is the model's; a stale one (older than
     ``speed_max_age_s``) leaves the model at the last speed (the status says so); a speed
     below ``min_speed_mps`` is an input fault, the estimates are held (standing at a station,
-    the models and their excitation mean nothing). A non-finite or negative speed is rejected
-    and counted (``speed_invalid``). Never heard: ``vehicle.speed`` is used as before.
+    the models and their excitation mean nothing). A non-finite or negative speed, or one
+    above ``MAX_SPEED_MPS``, is rejected and counted (``speed_invalid``). Never heard:
+    ``vehicle.speed`` is used as before.
     """
 
     def __init__(self) -> None:
@@ -138,7 +140,7 @@ class SpeedInput:
         """A speed message (its stamp already checked)."""
         self.held.seen(stamp_ns)
         speed = float(message.twist.linear.x)
-        if math.isfinite(speed) and speed >= 0.0:
+        if math.isfinite(speed) and 0.0 <= speed <= MAX_SPEED_MPS:
             self.held.add(stamp_ns, speed)
         else:
             self.invalid += 1
