@@ -3,7 +3,8 @@
 
 Subscribes, per the ``pattern`` parameter, ``rail/lateral_states`` (RailLateralStates; patterns
 A-C) or ``rail/bogie/imu`` + ``rail/body/imu`` (sensor_msgs/Imu; pattern D), and optionally
-``rail/track_irregularity`` (TrackIrregularity); publishes ``rail/creep_factor`` (CreepFactor)
+``rail/track_irregularity`` (TrackIrregularity) and ``rail/speed`` (geometry_msgs/TwistStamped:
+the model's speed); publishes ``rail/creep_factor`` (CreepFactor)
 for every processed sample, stamped with that sample's stamp, and ``/diagnostics``. Its logic
 (sample assembly, input checks, the EKF, outputs, status) is
 :class:`rail_monitor_ros.processing.creep_estimator.CreepEstimatorProcessor`, which the offline

@@ -2,8 +2,11 @@
 
 Inputs, per the ``pattern`` parameter: ``rail/lateral_states`` (RailLateralStates; patterns
 A-C) or ``rail/bogie/imu`` + ``rail/body/imu`` (sensor_msgs/Imu; pattern D), and optionally
-``rail/track_irregularity`` (TrackIrregularity). Output: ``rail/creep_factor`` (CreepFactor)
-for every processed sample, stamped with that sample's stamp. The estimator is
+``rail/track_irregularity`` (TrackIrregularity) and ``rail/speed`` (the train's speed, held per
+sample as the model's: :class:`~rail_monitor_ros.processing.rail_imu_inputs.SpeedInput`; a
+sample waits until the speed stream has reached its stamp or fallen silent). Output:
+``rail/creep_factor`` (CreepFactor) for every processed sample, stamped with that sample's
+stamp. The estimator is
 :class:`rail_monitor_ros.core.creep_ekf.CreepEkf`, given ``CreepEkfParams`` as they are; the
 node-only parameters are :class:`CreepEstimatorNodeParams`.
 

@@ -5,7 +5,8 @@ Inputs: ``rail/bogie/imu`` (sensor_msgs/Imu: linear_acceleration.y, angular_velo
 bogie) and, when enabled, ``rail/track_irregularity`` (TrackIrregularity: wheelsets front to
 rear, the monitored bogie's are indices 0 and 1; the full-car model takes the alignment under
 all four (or the first two) as measurements of its track model, the half-car model turns the
-first two into wheelset inputs) and ``rail/creep_factor`` (CreepFactor). Output:
+first two into wheelset inputs), ``rail/creep_factor`` (CreepFactor) and ``rail/speed`` (the
+train's speed: :class:`~rail_monitor_ros.processing.rail_imu_inputs.SpeedInput`). Output:
 ``rail/suspension/modes`` (ModeProbabilities), one per processed IMU pair. The estimator is
 :class:`rail_monitor_ros.core.suspension_imm.SuspensionImm`, given ``SuspensionImmParams`` as
 they are; the node-only parameters are :class:`SuspensionMonitorNodeParams`.
@@ -27,6 +28,9 @@ after a gap longer than ``max_gap_s`` (probabilities kept).
 * Creep factor (full car): the model follows the latest confident estimate not newer than the
   pair's stamp (re-discretised in steps of ``creep_resolution``, with hysteresis). Unmodelled,
   a creep change looks like a suspension fault.
+* Speed: the model runs at the latest published speed not newer than the pair's stamp (the
+  bank stepped to it, re-discretised every ``speed_resolution_mps``); stale, it keeps the last;
+  below ``min_speed_mps`` the pair is an input fault (the IMM held).
 
 Both are decided in data time, not by arrival: a pair waits until each of these streams has
 delivered its sample for the pair's stamp (or a later one), unless the stream is silent for
