@@ -1,17 +1,18 @@
 """The creep estimator on a car that accelerates or brakes: the family's runs are at constant
 speed, a train's are not.
 
-Each development car at its first family speed changes speed by ``--delta`` m/s over 20 s
-(from 2 s: 0.5 m/s^2 for 10 m/s), c 1 -> 0.5 at 12 s, the track exact (0.01 mm); the
-estimator of each pattern as the evaluation configures it (``eval_rail_family.creep_params``,
-``--creep-set`` for a setting). Per pattern: the relative error over 4-12 s (during the speed
-change, before the step) as rms median, the largest, and the range of its mean over the cars;
-the rms from 14 s (after the step); the filter's CPU time a sample (median). A negative
-``--delta`` brakes (the car starts ``-delta`` faster). ``--delta 0`` is the constant-speed
-reference. docs/methods/creep_estimator.md, "Speed that varies".
+Each car of the family (the development cars unless ``--seeds``) at its first family speed
+changes speed by ``--delta`` m/s over 20 s (from 2 s: 0.5 m/s^2 for 10 m/s), c 1 -> 0.5 at 12
+s, the track exact (0.01 mm); the estimator of each pattern as the evaluation configures it
+(``eval_rail_family.creep_params``, ``--creep-set`` for a setting). Per pattern: the relative
+error over 4-12 s (during the speed change, before the step) as rms median, the largest, and
+the range of its mean over the cars; the rms from 14 s (after the step); the filter's CPU time
+a sample (median). A negative ``--delta`` brakes (the car starts ``-delta`` faster). ``--delta
+0`` is the constant-speed reference. docs/methods/creep_estimator.md, "Speed that varies".
 
 Run: ``source tools/env.sh && python benchmarks/creep_speed_change.py [--delta 10]
-[--cars 12] [--patterns C-spec/exact,D/exact,D/none] [--creep-set NAME=VALUE ...]``.
+[--seeds development|held-out] [--cars 12] [--patterns C-spec/exact,D/exact,D/none]
+[--creep-set NAME=VALUE ...]``.
 """
 
 from __future__ import annotations
@@ -20,12 +21,11 @@ import argparse
 from collections.abc import Sequence
 import time
 
-from eval_rail_family import creep_inputs, creep_params, creep_track
+from eval_rail_family import SEED_SETS, creep_inputs, creep_params, creep_track
 import numpy as np
 
 from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams
 from rail_monitor_ros.simulation.rail_family import (
-    DEVELOPMENT_SEEDS,
     case_seed,
     sample_car,
     sample_speeds,
@@ -42,14 +42,16 @@ CHANGE_AT_S, CHANGE_S, STEP_AT_S, DURATION_S = 2.0, 20.0, 12.0, 24.0
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--delta', type=float, default=10.0, help='speed change, m/s')
-    parser.add_argument('--cars', type=int, default=12, help='first N development cars')
+    parser.add_argument('--seeds', choices=tuple(SEED_SETS), default='development',
+                        help='the family\'s cars to run (held-out: report only, tune nothing)')
+    parser.add_argument('--cars', type=int, default=12, help='the first N cars of the set')
     parser.add_argument('--patterns', default='C-spec/exact,D/exact,D/none')
     parser.add_argument('--creep-set', action='append', default=[], metavar='NAME=VALUE')
     args = parser.parse_args(argv)
     overrides = parse_assignments(args.creep_set, CreepEkfParams())
     patterns = args.patterns.split(',')
     rows: dict[str, list[tuple[float, float, float, float, float]]] = {p: [] for p in patterns}
-    for seed in DEVELOPMENT_SEEDS[:args.cars]:
+    for seed in SEED_SETS[args.seeds][:args.cars]:
         car = sample_car(seed)
         start = sample_speeds(car, 2)[0] + max(0.0, -args.delta)
         events = [{'time': STEP_AT_S, 'creep_factor': 0.5}]

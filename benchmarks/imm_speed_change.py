@@ -1,16 +1,16 @@
 """The suspension IMM on a healthy car that brakes and accelerates: does a speed change look
 like a suspension fault?
 
-Each development car at its first IMM family speed v (30-60 m/s, below 0.9 of its critical
-speed) runs 70 s healthy: v until 10 s, down to v - ``--delta`` over 20 s, back to v over
-20 s from 40 s (``--delta 0``: constant speed, the reference). The IMM as the evaluation
-configures it (``eval_rail_family.imm_params``, ``--imm-set`` for a setting), the speed given
-each sample (as a node is given ``vehicle.speed``). Per car: fault declarations, the share of
-time the normal hypothesis' smoothed probability is below 0.5, the IMM's CPU time.
-docs/methods/suspension_monitor.md, "Limits".
+Each car of the family (the development cars unless ``--seeds``) at its first IMM family speed
+v (30-60 m/s, below 0.9 of its critical speed) runs 70 s healthy: v until 10 s, down to v -
+``--delta`` over 20 s, back to v over 20 s from 40 s (``--delta 0``: constant speed, the
+reference). The IMM as the evaluation configures it (``eval_rail_family.imm_params``,
+``--imm-set`` for a setting), the speed given each sample (as a node is given ``rail/speed``).
+Per car: fault declarations, the share of time the normal hypothesis' smoothed probability is
+below 0.5, the IMM's CPU time. docs/methods/suspension_monitor.md, "Limits".
 
-Run: ``source tools/env.sh && python benchmarks/imm_speed_change.py [--delta 10] [--cars 12]
-[--imm-set speed_resolution_mps=0.1]``.
+Run: ``source tools/env.sh && python benchmarks/imm_speed_change.py [--delta 10]
+[--seeds development|held-out] [--cars 12] [--imm-set speed_resolution_mps=0.5]``.
 """
 
 from __future__ import annotations
@@ -19,12 +19,11 @@ import argparse
 from collections.abc import Sequence
 import time
 
-from eval_rail_family import HALF_STEP, IMM_SPEED_RANGE, imm_params
+from eval_rail_family import HALF_STEP, IMM_SPEED_RANGE, SEED_SETS, imm_params
 import numpy as np
 
 from rail_monitor_ros.core.suspension_imm import SuspensionImm, SuspensionImmParams
 from rail_monitor_ros.simulation.rail_family import (
-    DEVELOPMENT_SEEDS,
     case_seed,
     sample_car,
     sample_speeds,
@@ -40,13 +39,15 @@ DURATION_S = 70.0
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--delta', type=float, default=10.0, help='speed drop and rise, m/s')
-    parser.add_argument('--cars', type=int, default=12, help='first N development cars')
+    parser.add_argument('--seeds', choices=tuple(SEED_SETS), default='development',
+                        help='the family\'s cars to run (held-out: report only, tune nothing)')
+    parser.add_argument('--cars', type=int, default=12, help='the first N cars of the set')
     parser.add_argument('--imm-set', action='append', default=[], metavar='NAME=VALUE')
     args = parser.parse_args(argv)
     overrides = parse_assignments(args.imm_set, SuspensionImmParams())
     declared_total = 0
     print('| car | speed | declared | normal below 0.5 | CPU |\n| --- | --- | --- | --- | --- |')
-    for seed in DEVELOPMENT_SEEDS[:args.cars]:
+    for seed in SEED_SETS[args.seeds][:args.cars]:
         car = sample_car(seed)
         speed = sample_speeds(car, 1, *IMM_SPEED_RANGE)[0]
         events = [] if not args.delta else [
