@@ -37,6 +37,7 @@ SHIPPED = {
     'rail_imm_spring_damper_fault': (RAIL, 'rail_imm_spring_damper_fault'),
     'rail_creep_steps': (RAIL, 'rail_creep_steps'),
     'rail_healthy': (RAIL, 'rail_healthy'),
+    'rail_speed_change': (RAIL, 'rail_speed_change'),
 }
 EXTRA = {
     'road_nominal_drive': (ROAD, 'nominal_drive'),

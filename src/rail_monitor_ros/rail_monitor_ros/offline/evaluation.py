@@ -315,6 +315,10 @@ def domain() -> Domain:
                      'Chonan & Tsunashima run: 144 km/h, creep factor 1.0 -> 0.4 at 5 s -> 0.6 '
                      'at 10 s, 15 s; healthy suspension (the IMM must stay quiet).',
                      ('creep', 'imm')),
+            Scenario('rail_speed_change', bags / 'rail_speed_change',
+                     'A train braking 44 -> 36 m/s over 2-12 s (its speed on rail/speed), '
+                     'creep factor 1.0 -> 0.6 at 6 s, 14 s; healthy suspension.',
+                     ('creep', 'imm')),
         ),
         evaluate=evaluate,
         synthesize=scenario_topics,
