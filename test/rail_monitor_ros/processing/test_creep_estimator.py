@@ -244,7 +244,8 @@ def test_the_model_follows_the_published_speed() -> None:
 def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
     """A speed below min_speed_mps (a train standing) holds the estimate as an input fault
     (std widened, status WARN); a speed stream that stops leaves the model at its last speed,
-    reported stale; a negative or absurd speed is refused and counted."""
+    reported stale; a negative or absurd speed is refused and counted. Not subscribed
+    (use_speed_input false), the status says 'disabled'."""
     messages, _ = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
                                         '/rail/lateral_states'))
     processor = make_processor({'vehicle.speed': 30.0}, '/creep_estimator')
@@ -274,3 +275,6 @@ def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
     last = statuses[-1][1]
     assert last.level == WARN and last.message.startswith('speed input stale')
     assert last.values['model_speed'] == pytest.approx(processor.ekf.speed)
+    unsubscribed = make_processor({'use_speed_input': False}, '/creep_estimator')
+    assert 'rail/speed' not in unsubscribed.inputs
+    assert unsubscribed.status(0).values['speed_input'] == 'disabled'

@@ -181,7 +181,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
         self._handlers = {LATERAL_STATES: self._on_lateral_states, BOGIE_IMU: self._on_bogie,
                           BODY_IMU: self._on_body, TRACK: self._on_track,
                           SPEED: self._on_speed}
-        self._speed = SpeedInput()
+        self._speed = SpeedInput(node_params.use_speed_input)
         self._pending: list[_Pending] = []
         self._latest = {'main': -1, 'track': -1}
         self._stamp_rejected: dict[str, int] = {}

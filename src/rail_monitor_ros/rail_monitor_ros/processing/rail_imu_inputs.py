@@ -126,15 +126,16 @@ class SpeedInput:
     ``speed_max_age_s``) leaves the model at the last speed (the status says so); a speed
     below ``min_speed_mps`` is an input fault, the estimates are held (standing at a station,
     the models and their excitation mean nothing). A non-finite or negative speed, or one
-    above ``MAX_SPEED_MPS``, is rejected and counted (``speed_invalid``). Never heard:
-    ``vehicle.speed`` is used as before.
+    above ``MAX_SPEED_MPS``, is rejected and counted (``speed_invalid``). Never heard, or not
+    subscribed (``enabled`` false: ``use_speed_input``): ``vehicle.speed`` is used as before.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, enabled: bool) -> None:
         self.held = HeldStream()
         self.invalid = 0
         self.stale = False
-        self.state = 'not received: vehicle.speed used'
+        self._idle = 'not received: vehicle.speed used' if enabled else 'disabled'
+        self.state = self._idle
 
     def add(self, stamp_ns: int, message: Any) -> None:
         """A speed message (its stamp already checked)."""
@@ -170,7 +171,7 @@ class SpeedInput:
     def clear(self) -> None:
         self.held.clear()
         self.stale = False
-        self.state = 'not received: vehicle.speed used'
+        self.state = self._idle
 
 
 P = TypeVar('P', bound=RailImuNodeParams)

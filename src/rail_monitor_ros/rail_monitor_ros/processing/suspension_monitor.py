@@ -172,7 +172,7 @@ class SuspensionMonitorProcessor(RailImuInputs[SuspensionMonitorNodeParams]):
         self.time_jumps = 0
         self._track = HeldStream()
         self._creep = HeldStream()
-        self._speed = SpeedInput()
+        self._speed = SpeedInput(n.use_speed_input)
         # The held streams a pair waits for: those this node subscribes.
         self._awaited = tuple(held for held, used in ((self._track, n.use_track_irregularity),
                                                       (self._creep, n.use_creep_factor),
