@@ -178,6 +178,7 @@ from rail_monitor_ros.core.creep_kernel import (
 from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     OBSERVATION_PATTERNS,
+    SPEED_DIFFERENCE,
     RailVehicleParams,
     StateSpace,
     car_end_state_space,
@@ -261,9 +262,6 @@ def _channel_kind(channel: str) -> str:
 #: While the change's onsets are ranked, a cached discretisation up to this many grid points
 #: away stands in for a new one (first-order Taylor in c from it; 8 points: 8 % in c).
 ONSET_SEARCH_GRID_REACH = 8
-#: Relative speed step of the central differences of the model in speed (_SpeedModel).
-SPEED_DIFFERENCE = 1e-3
-
 
 @dataclass(frozen=True)
 class CreepEkfParams:

@@ -50,6 +50,11 @@ _MANCHESTER_BODY_YAW_INERTIA = 1.97e6
 _MANCHESTER_BOGIE_PIVOT_SEMI_SPACING = 9.5
 # The models' speed range, m/s (vehicle.speed's, and a published speed's: rail/speed).
 MAX_SPEED_MPS = 150.0
+# Relative speed step of the central differences of a model in speed (dA/dv: the creep EKF's
+# and the suspension IMM's transitions stepped to a sample's speed). A is smooth in v (the creep
+# coefficients' 1/v, the track's poles, the Pade sections), so the difference's error, ~1e-7 of
+# dA/dv, stays below the first-order step's own.
+SPEED_DIFFERENCE = 1e-3
 _TABLE_1_BODY_MASS = 11000.0     # mv, the paper's body mass per bogie
 
 

@@ -78,6 +78,7 @@ from rail_monitor_ros.core.rail_model import (
     MAX_CREEP_FACTOR,
     MAX_SUSPENSION_RATIO,
     SENSOR_OUTPUT_NAMES,
+    SPEED_DIFFERENCE,
     RailVehicleParams,
     StateSpace,
     full_car_state_space,
@@ -108,10 +109,6 @@ ESTIMATION_MODELS = ('full_car', 'half_car')
 # The steady-state kernel's measurement argument for a sample without one.
 _NO_MEASUREMENT = np.empty(0)
 
-
-# Relative speed step of the central differences for dA/dv (_speed_slopes): A is smooth in v,
-# so the difference's error (~1e-7 of dA/dv) stays below the first-order step's own.
-SPEED_DIFFERENCE = 1e-3
 
 @dataclass(frozen=True)
 class SteadyStateGain:
@@ -738,8 +735,9 @@ class SuspensionImm:
     def _step_transitions(self) -> None:
         """The bank's transitions at the samples' speed: each mode's F stepped from the
         bank's speed to first order, F + dv dF/dv (Q and the steady-state gains stay the
-        bank's: the track noise's density moves by dv / v, 1.2 % for 0.5 m/s at 40 m/s, a
-        covariance's share, where F carries the means the likelihoods are made of)."""
+        bank's: the track noise's density moves by dv / v, at most 5 % for the 2 m/s of
+        ``speed_resolution_mps`` at 40 m/s, a covariance's share, where F carries the means the
+        likelihoods are made of)."""
         if self._speed_offset == 0.0:
             self._set_transitions(self._f_bank)
         else:
