@@ -74,6 +74,9 @@ class SensorConfig:
         velocity_bias: of the lateral velocities, m/s.
         yaw_bias: of the yaw angles, rad.
         yaw_rate_bias: of the yaw rates, rad/s.
+        speed_noise: the forward speed on /rail/speed, m/s.
+        speed_scale_bias: its relative scale error, 1 (a tachometer on a wheel 0.2 % smaller
+            than it assumes reads 0.002 high).
     """
 
     bogie_accel_noise: float = 0.02
@@ -92,6 +95,8 @@ class SensorConfig:
     velocity_bias: float = 0.0
     yaw_bias: float = 0.0
     yaw_rate_bias: float = 0.0
+    speed_noise: float = 0.0
+    speed_scale_bias: float = 0.0
 
 
 @dataclass(frozen=True)

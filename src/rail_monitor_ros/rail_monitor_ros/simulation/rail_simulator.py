@@ -61,6 +61,8 @@ class RailSimulationResult:
             the map error when ``track.map_error_rms`` > 0) with measurement noise, m.
         measured_track_alignment_rate: (N, 4) its rate, likewise, m/s.
         speed: (N,) m/s.
+        measured_speed: (N,) as /rail/speed publishes it (``SensorConfig.speed_scale_bias``,
+            ``speed_noise``), m/s.
         creep_factor: (N,).
         spring_ratio: (N, 2) front, rear bogie.
         damper_ratio: (N, 2) front, rear bogie.
@@ -80,6 +82,7 @@ class RailSimulationResult:
     measured_track_alignment: np.ndarray
     measured_track_alignment_rate: np.ndarray
     speed: np.ndarray
+    measured_speed: np.ndarray
     creep_factor: np.ndarray
     spring_ratio: np.ndarray
     damper_ratio: np.ndarray
@@ -221,13 +224,17 @@ def simulate(scenario: RailScenario) -> RailSimulationResult:
 
     # Truth is the parameter set the model used from each sample on, as for sensor_truth.
     sample_params = unique_keys[sample_key]
+    measured_speed = sample_params[:, 0] * (1.0 + sensors.speed_scale_bias)
+    if sensors.speed_noise > 0.0:    # drawn last and only when asked: the rest stays the same
+        measured_speed = measured_speed + noise_rng.standard_normal(n) * sensors.speed_noise
     return RailSimulationResult(
         scenario=scenario, time=time, state=state, state_names=names,
         sensor_truth=sensor_truth, bogie_lateral_accel=imu[:, 0], bogie_yaw_rate=imu[:, 1],
         body_lateral_accel=imu[:, 2], measured_state=measured_state,
         track_alignment=u_samples, track_alignment_rate=u_rate,
         measured_track_alignment=measured_u, measured_track_alignment_rate=measured_u_rate,
-        speed=sample_params[:, 0], creep_factor=sample_params[:, 1],
+        speed=sample_params[:, 0], measured_speed=measured_speed,
+        creep_factor=sample_params[:, 1],
         spring_ratio=sample_params[:, 2:4], damper_ratio=sample_params[:, 4:6])
 
 
@@ -325,7 +332,7 @@ def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float 
     angular_velocity.z; no orientation, so orientation_covariance[0] = -1 per REP 145),
     ``/rail/lateral_states`` (measured, with noise) and ``/truth/lateral_states`` (true),
     ``/rail/track_irregularity`` (the four wheelsets, front to rear), ``/rail/speed``
-    (geometry_msgs/TwistStamped, twist.linear.x: the forward speed as simulated, every
+    (geometry_msgs/TwistStamped, twist.linear.x: the forward speed as measured, every
     ``SPEED_DECIMATION``-th sample), ``/truth/suspension``, ``/truth/creep_factor``.
 
     Args:
@@ -375,7 +382,7 @@ def to_topic_series(result: RailSimulationResult, low_adhesion_threshold: float 
         'low_adhesion': result.creep_factor < low_adhesion_threshold,
     })
     speed = TopicSeries(SPEED_TYPE, stamps[::SPEED_DECIMATION], {
-        'twist.linear.x': result.speed[::SPEED_DECIMATION]}, frame_id='front_bogie')
+        'twist.linear.x': result.measured_speed[::SPEED_DECIMATION]}, frame_id='front_bogie')
     return {
         '/rail/bogie/imu': bogie_imu,
         '/rail/body/imu': body_imu,
