@@ -263,6 +263,7 @@ def _channel_kind(channel: str) -> str:
 #: away stands in for a new one (first-order Taylor in c from it; 8 points: 8 % in c).
 ONSET_SEARCH_GRID_REACH = 8
 
+
 @dataclass(frozen=True)
 class CreepEkfParams:
     """Settings of the creep-factor EKF. Model parameters are the estimator's own (Table 1).

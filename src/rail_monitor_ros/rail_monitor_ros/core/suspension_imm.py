@@ -81,6 +81,7 @@ from rail_monitor_ros.core.rail_model import (
     SPEED_DIFFERENCE,
     RailVehicleParams,
     StateSpace,
+    discretize_zoh_sensitivity,
     full_car_state_space,
     reduced_bogie_body_model,
 )
@@ -635,12 +636,16 @@ class SuspensionImm:
         shipped fault bag, where the adaptive step makes about 100 banks)."""
         key = (self.vehicle.speed, tuple(self.vehicle.wheelset_offsets))
         if self._track_cache is None or self._track_cache[0] != key:
-            params = self.params
-            self._track_cache = (key, track_shaping_model(
-                params.track_roughness_m_rad, params.track_corner_wavenumber_rad_per_m,
-                params.track_long_wavenumber_rad_per_m,
-                self.vehicle.speed, self.vehicle.wheelset_offsets, params.delay_min_wavelength_m))
+            self._track_cache = (key, self._track_model_at(self.vehicle.speed))
         return self._track_cache[1]
+
+    def _track_model_at(self, speed: float) -> TrackShapingModel:
+        """The configured track spectrum and delays at ``speed`` (not cached)."""
+        params = self.params
+        return track_shaping_model(
+            params.track_roughness_m_rad, params.track_corner_wavenumber_rad_per_m,
+            params.track_long_wavenumber_rad_per_m, speed, self.vehicle.wheelset_offsets,
+            params.delay_min_wavelength_m)
 
     def _prior(self) -> np.ndarray:
         """Initial covariance: full car, the nominal model's stationary covariance on the
@@ -751,13 +756,10 @@ class SuspensionImm:
         sample at another speed first needs them (at constant speed never), kept per mode."""
         missing = [k for k, key in enumerate(self._mode_keys) if key not in self._slopes]
         if missing:
-            params, v = self.params, self.vehicle.speed
+            v = self.vehicle.speed
             step = SPEED_DIFFERENCE * v
-            beside = [(self.vehicle.with_speed(v + sign * step), track_shaping_model(
-                params.track_roughness_m_rad, params.track_corner_wavenumber_rad_per_m,
-                params.track_long_wavenumber_rad_per_m, v + sign * step,
-                self.vehicle.wheelset_offsets, params.delay_min_wavelength_m))
-                for sign in (1.0, -1.0)]
+            beside = [(self.vehicle.with_speed(v + sign * step),
+                       self._track_model_at(v + sign * step)) for sign in (1.0, -1.0)]
             track = self._track_model()
             for k in missing:
                 spring = float(self.mode_spring_ratio[k])
@@ -765,9 +767,9 @@ class SuspensionImm:
                 up, down = (track_driven_matrix(self._model(spring, damper, vehicle), shaping)
                             for vehicle, shaping in beside)
                 a = track_driven_matrix(self._model(spring, damper), track)
-                self._slopes[self._mode_keys[k]] = scipy.linalg.expm_frechet(
-                    a * params.dt, (up - down) * (params.dt / (2.0 * step)),
-                    compute_expm=False)
+                no_input = np.zeros((a.shape[0], 0))
+                self._slopes[self._mode_keys[k]] = discretize_zoh_sensitivity(
+                    a, no_input, (up - down) / (2.0 * step), no_input, self.params.dt)[2]
         return np.stack([self._slopes[key] for key in self._mode_keys])
 
     def set_creep_factor(self, creep_factor: float) -> None:

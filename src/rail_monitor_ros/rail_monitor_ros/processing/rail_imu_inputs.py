@@ -152,13 +152,14 @@ class SpeedInput:
         ``model_speed``; the input fault, '' or 'below_min_speed')."""
         n = node_params
         held = self.held.at(stamp_ns, round(n.pair_tolerance_s * 1e9))
-        self.stale = held is not None and (stamp_ns - held[0]) * 1e-9 > n.speed_max_age_s
         if held is None:
+            self.stale = False
             if self.held.latest is not None:
                 self.state = f'none yet for this sample: model keeps {model_speed:.2f} m/s'
             return None, ''
+        age_s = (stamp_ns - held[0]) * 1e-9
+        self.stale = age_s > n.speed_max_age_s
         if self.stale:
-            age_s = (stamp_ns - held[0]) * 1e-9
             self.state = f'stale ({age_s:.2f} s): model keeps {model_speed:.2f} m/s'
             return None, ''
         speed = held[1]
