@@ -278,3 +278,17 @@ def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:
     unsubscribed = make_processor({'use_speed_input': False}, '/creep_estimator')
     assert 'rail/speed' not in unsubscribed.inputs
     assert unsubscribed.status(0).values['speed_input'] == 'disabled'
+
+
+def test_the_published_speed_is_scaled_by_speed_scale() -> None:
+    """A tachometer's scale correction: the model runs at rail/speed x speed_scale, and the
+    standing check applies to the scaled speed."""
+    messages, _ = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
+                                        '/rail/lateral_states'))
+    processor = make_processor({'vehicle.speed': 30.0, 'speed_scale': 0.99,
+                                'min_speed_mps': 34.0}, '/creep_estimator')
+    for topic, msg in messages:
+        processor.process(topic, msg)
+    assert processor.ekf.speed == pytest.approx(0.99 * 35.0)
+    # 35 m/s published is 34.65 scaled: above the minimum; 34 published (33.66) was below.
+    assert processor.counts['below_min_speed'] > 0

@@ -927,6 +927,7 @@ class CreepEkf:
         self._stepped_f = np.empty((self.dim_x - 1, self.dim_x - 1))
         self._update_out = np.empty(4)      # ekf_update's NIS, ln c correction, spread, ln det S
         self._sample_log_likelihood = 0.0
+        self._first_pass_log_likelihood = 0.0
         self.rejected: dict[str, int] = {}
         self.resets: dict[str, int] = {}
         self.clipped = 0
@@ -1036,6 +1037,14 @@ class CreepEkf:
     def std_dev(self) -> float:
         """One-sigma uncertainty of c (delta method on ln c)."""
         return self.creep_factor * math.sqrt(max(self.P[self.i_theta, self.i_theta], 0.0))
+
+    @property
+    def sample_log_likelihood(self) -> float:
+        """The last sample's log-likelihood as first filtered, -(NIS + ln det S) / 2 (0 without
+        an update; a filtering again from a change's onset does not change it): summed over a
+        recording, how well a setting explains the data (the tachometer's scale:
+        benchmarks/creep_speed_scale.py)."""
+        return self._first_pass_log_likelihood
 
     @property
     def n_measurements(self) -> int:
@@ -1372,6 +1381,7 @@ class CreepEkf:
         self._sample_log_likelihood = 0.0
         estimate = self._filter(entry, status)
         self._rewind.record(entry, self._sample_log_likelihood)
+        self._first_pass_log_likelihood = self._sample_log_likelihood
         if self._alarm:
             estimate = self._rewind_to_onset(estimate)
         self._rewind.keep(self)

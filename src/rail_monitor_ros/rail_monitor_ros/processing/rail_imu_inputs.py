@@ -51,6 +51,9 @@ class RailImuNodeParams(ProcessorParams):
                                    low=0.001, high=60.0)
     min_speed_mps: float = param(5.0, 'below this speed (from rail/speed) nothing is estimated: '
                                  'the estimates are held, m/s', low=0.1, high=200.0)
+    speed_scale: float = param(1.0, 'the model\'s speed is rail/speed times this: the '
+                               'tachometer\'s scale correction (its wheel\'s true diameter over '
+                               'the one it assumes: a worn wheel reads high)', low=0.5, high=1.5)
 
     def imu_saturated(self, pair: np.ndarray) -> bool:
         """Whether an IMU pair (bogie ay, bogie yaw rate, body ay) reaches a sensor's limit."""
@@ -122,7 +125,12 @@ class SpeedInput:
     speed 0.2 % wrong reads the creep factor 1.6 % wrong: docs/methods/creep_estimator.md);
     the ``vehicle.speed`` parameter is for a constant speed.
 
-    Per sample (:meth:`at`): a fresh speed is the model's; a stale one (older than
+    A tachometer's scale error (a wheel worn smaller than the odometer assumes reads high)
+    moves the creep factor by several times as much (up to ten times at 20 m/s:
+    docs/methods/creep_estimator.md, "The tachometer's scale"), so the published speed is
+    multiplied by ``speed_scale``.
+
+    Per sample (:meth:`at`): a fresh speed (scaled) is the model's; a stale one (older than
     ``speed_max_age_s``) leaves the model at the last speed (the status says so); a speed
     below ``min_speed_mps`` is an input fault, the estimates are held (standing at a station,
     the models and their excitation mean nothing). A non-finite or negative speed, or one
@@ -162,7 +170,7 @@ class SpeedInput:
         if self.stale:
             self.state = f'stale ({age_s:.2f} s): model keeps {model_speed:.2f} m/s'
             return None, ''
-        speed = held[1]
+        speed = held[1] * n.speed_scale
         if speed < n.min_speed_mps:
             self.state = f'{speed:.2f} m/s, below min_speed_mps: estimates held'
             return None, 'below_min_speed'
