@@ -59,3 +59,17 @@ def test_clear_forgets_and_bad_arguments_are_refused() -> None:
         history.behind(-1.0)
     with pytest.raises(ValueError, match='capacity'):
         TrackHistory(1, 1)
+
+
+def test_between_samples_the_cubic_through_four_is_used() -> None:
+    """Values k^2 at samples 1 m apart: between two samples with a neighbour on each side the
+    lookup is the quadratic's value (Catmull-Rom reproduces it), where linear interpolation is
+    off by f (1 - f); next to the newest sample it is linear."""
+    history = TrackHistory(1, 10)
+    for k in range(8):
+        history.push(np.array([float(k * k)]), float(k))
+    # 3.75 m behind the last (7 m) is 3.25 m: between samples 3 and 4, neighbours 2 and 5.
+    assert history.behind(3.75) == pytest.approx([3.25 ** 2])
+    assert history.behind(2.5) == pytest.approx([4.5 ** 2])
+    # Between the two newest (6 and 7) no sample after: linear, 6.5 -> 42.5 against 42.25.
+    assert history.behind(0.5) == pytest.approx([42.5])
