@@ -124,3 +124,16 @@ def test_the_model_follows_the_published_speed() -> None:
     assert standing.rejected['below_min_speed'] > 100
     status = standing.status(0)
     assert status.level == 1 and 'input fault (below_min_speed)' in status.message
+
+
+def test_the_published_speed_is_scaled_by_speed_scale() -> None:
+    """The tachometer's scale correction reaches the IMM too: 40 m/s published x 0.75 is a
+    bank at 30 m/s (the node configured for 40)."""
+    topics = ['/rail/bogie/imu', '/rail/body/imu', '/rail/track_irregularity', '/rail/speed']
+    scaled = make_processor({'vehicle.speed': 40.0, 'speed_scale': 0.75}, '/suspension_monitor')
+    for topic, _, _, msg in read_messages(BAG, topics):
+        if msg.header.stamp.sec >= 1:
+            break
+        scaled.process(topic.lstrip('/'), msg)
+    assert scaled.imm.vehicle.speed == pytest.approx(30.0)
+    assert scaled.status(0).values['speed_input'] == 'following'
