@@ -3,16 +3,17 @@
 Each car of the set (the development cars unless ``--seeds``) at one of its family speeds
 (alternating between its first two), c = 1, 30 s, the track published with the given map
 error (``--map-errors``, metres rms; 0 = exact, as the survey's 0.01 mm); its tachometer reads
-high or low by a bias of the list (``--biases``, cycled over the cars). Pattern C (the contract's
-fields, the full model), configured as the family evaluation does, each speed filtered with a
-model built at it (``speed_tolerance_mps`` 1e-4: with the shipped 0.5 m/s the speeds near the
-configured one are first-order steps of its model, and the likelihood then peaks at the
-configured speed whatever the data say). The summed log-likelihood
-from 5 s on is taken over a grid of scales (+-2 % by 0.25 %) and fitted by
-:func:`fit_scale` (a parabola near the maximum; none when it is at the grid's edge or the
-sums are rugged there); printed per case: the learned scale's
-error, and the creep factor's rms error with the biased speed, the learned scale and the true
-speed. docs/methods/creep_estimator.md, "The tachometer's scale".
+high or low by a bias of the list (``--biases``, cycled over the cars). Pattern C (the
+contract's fields, the full model), configured as the family evaluation does, each speed
+filtered with a model built at it (``speed_tolerance_mps`` 1e-4: with the shipped 0.5 m/s the
+speeds near the configured one are first-order steps of its model, and the likelihood then
+peaks at the configured speed whatever the data say). The summed log-likelihood of the vehicle
+channels given the track rows (``CreepEkf.vehicle_likelihood``, as ``rail_speed_scale`` sums
+it) from 5 s on is taken over a grid of scales (+-2 % by 0.25 %) and fitted by the tool's
+``fit_scale``; printed per case: the learned scale's error, its spread, and the creep factor's
+rms error with the biased speed, the learned scale and the true speed. The benchmark runs the
+core directly (the tool runs the node's processor by the offline engine over a bag): the
+family's cases need no bag. docs/methods/creep_estimator.md, "The tachometer's scale".
 
 Run: ``source tools/env.sh && python benchmarks/creep_speed_scale.py [--seeds development]
 [--cars 6] [--map-errors 0,5e-5,1e-4,3e-4] [--biases 0.008,-0.013,0.004,-0.006]``.
@@ -22,12 +23,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
-import math
 
 from eval_rail_family import SEED_SETS, creep_inputs, creep_params, creep_track
 import numpy as np
 
 from rail_monitor_ros.core.creep_ekf import CreepEkf
+from rail_monitor_ros.offline.speed_scale import fit_scale
 from rail_monitor_ros.simulation.rail_family import (
     FamilyCar,
     case_seed,
@@ -40,29 +41,7 @@ from rail_monitor_ros.simulation.rail_simulator import RailSimulationResult, sim
 
 DURATION_S, SKIP_S = 30.0, 5.0
 GRID = 0.0025 * np.arange(-8, 9)
-#: Grid points within this of the best are fitted (nats); the parabola must explain this share
-#: of their variance, else no scale is read (the sums can be rugged around their maximum).
-FIT_WINDOW_NATS, MIN_FIT_R2 = 150.0, 0.9
 EXACT_MODEL_TOLERANCE_MPS = 1e-4
-
-
-def fit_scale(grid: np.ndarray, sums: list[float]) -> tuple[float, float, str]:
-    """(the vertex of the parabola through the points near the best, its spread from the
-    curvature, why none ('' if one))."""
-    ll = np.asarray(sums)
-    best = int(np.argmax(ll))
-    if best in (0, grid.size - 1):
-        return math.nan, math.nan, 'at the edge of the grid'
-    near = ll >= ll[best] - FIT_WINDOW_NATS
-    if np.count_nonzero(near) < 3:
-        return math.nan, math.nan, f'fewer than 3 points within {FIT_WINDOW_NATS:g} nats'
-    coefficients = np.polyfit(grid[near], ll[near], 2)
-    a, b = coefficients[:2]
-    residual = ll[near] - np.polyval(coefficients, grid[near])
-    r2 = 1.0 - np.sum(residual ** 2) / np.sum((ll[near] - ll[near].mean()) ** 2)
-    if not a < 0.0 or r2 < MIN_FIT_R2:
-        return math.nan, math.nan, f'rugged (a parabola explains {100 * r2:.0f} %)'
-    return float(-b / (2.0 * a)), float(1.0 / math.sqrt(-2.0 * a)), ''
 
 
 def run(car: FamilyCar, speed: float, result: RailSimulationResult, map_error: float,
@@ -78,6 +57,7 @@ def run(car: FamilyCar, speed: float, result: RailSimulationResult, map_error: f
     params = creep_params(car, speed, 'C-spec/map0.3' if map_error else 'C-spec/exact',
                           'spectrum', True, overrides)
     ekf = CreepEkf(params)
+    ekf.vehicle_likelihood = True
     z = creep_inputs(result, 'C', True)
     track = creep_track(result)
     total, errors = 0.0, []
@@ -112,7 +92,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             # The tachometer reads (1 + bias) v; the grid's scales multiply that reading.
             sums = [run(car, speed, result, map_error, (1.0 + bias) * (1.0 + g))[0]
                     for g in GRID]
-            scale, std, problem = fit_scale(1.0 + GRID, sums)
+            fit = fit_scale(1.0 + GRID, sums, 0)
+            scale, std, problem = fit.scale, fit.std, fit.problem
             biased = run(car, speed, result, map_error, 1.0 + bias)[1]
             truth = run(car, speed, result, map_error, 1.0)[1]
             if problem:
