@@ -21,8 +21,8 @@ predicts the published track and favours a slower car (0.13-0.47 % on the develo
 and a model not built at the scale's speed (within ``speed_tolerance_mps`` of the configured
 speed the filter steps that model to first order, which favours the configured speed): every
 run here rebuilds beyond ``CALIBRATION_SPEED_TOLERANCE_MPS``. Without a published track, or
-with a pattern-D (IMU) estimator, whose track delays are Pade cascades that bias its
-likelihood towards a speed 1-2 % low, the tool refuses.
+with a pattern-D (IMU) estimator, whose likelihood given the track still peaks some 0.35 %
+low (its track delays are Pade cascades; car 1001, exact track), the tool refuses.
 
 Measured (benchmarks/creep_speed_scale.py, 6 development cars, tachometers 0.4-1.3 % off, 30 s
 at constant speed): the scale within 0.02 % with the exact track, 0.063 % with a 0.1 mm map,
