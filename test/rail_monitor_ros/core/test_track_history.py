@@ -73,3 +73,12 @@ def test_between_samples_the_cubic_through_four_is_used() -> None:
     assert history.behind(2.5) == pytest.approx([4.5 ** 2])
     # Between the two newest (6 and 7) no sample after: linear, 6.5 -> 42.5 against 42.25.
     assert history.behind(0.5) == pytest.approx([42.5])
+
+
+def test_an_outer_sample_missing_leaves_the_lookup_linear() -> None:
+    history = TrackHistory(2, 10)
+    for k in range(8):
+        history.push(None if k == 2 else np.array([float(k * k), 1.0]), float(k))
+    # 3.75 m behind the last is 3.25 m: neighbours 3 and 4 known, the outer 2 missing.
+    assert history.behind(3.75) == pytest.approx([0.75 * 9.0 + 0.25 * 16.0, 1.0])
+    assert np.isnan(history.behind(4.5)).all()     # between 2 and 3: a neighbour missing

@@ -12,6 +12,8 @@ model) do not reproduce a measured track at the accuracy of a survey, the kept s
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -26,15 +28,15 @@ class TrackHistory:
 
     Between two samples the lookup interpolates by the cubic through the four samples around
     the distance (Catmull-Rom: a quadratic's values exactly; linear next to the newest or
-    oldest sample). Linearly, the interpolated track is smoothed by an amount that changes
-    with the distance's fraction between two samples, and the creep EKF's likelihood then had a
-    kink wherever the rear pair's distance crossed a sample: over a tachometer's scale it rose
-    and fell with a period of one sample's travel (development car 1003 at 31.0 m/s: kinks
-    0.85 % apart, up to 30 nats) and on the nominal car at 40 m/s, whose rear pair stands
-    87.5 samples behind, it was lowest at the true speed. With the cubic the rates at the rear
-    pair are closer to the true ones (1003: 2.6e-4 against 9.8e-5 m/s rms, the noise
-    1e-4) and the likelihood is smooth (docs/methods/creep_estimator.md, "The tachometer's
-    scale").
+    oldest sample, or where one of the outer two lacks a value). Linearly, the interpolated
+    track is smoothed by an amount that changes with the distance's fraction between two
+    samples, and the creep EKF's likelihood then had a kink wherever the rear pair's distance
+    crossed a sample: over a tachometer's scale it rose and fell with a period of one
+    sample's travel (development car 1003 at 31.0 m/s: kinks 0.85 % apart, some 20 nats deep)
+    and on the nominal car at 40 m/s, whose rear pair stands 87.5 samples behind, it was
+    lowest at the true speed. With the cubic the rates at the rear pair are closer to the true
+    ones (1003: 2.6e-4 against 9.8e-5 m/s rms, the noise 1e-4) and the likelihood is smooth
+    (docs/methods/creep_estimator.md, "The tachometer's scale").
 
     Args:
         width: values per sample (the front pair's alignment, and their rates).
@@ -75,7 +77,7 @@ class TrackHistory:
     def behind(self, metres: float) -> np.ndarray | None:
         """The samples where the car stood ``metres`` before the last one pushed, interpolated
         at that distance's fraction between two samples (class docstring); None when that is
-        older than what is kept. NaN where a sample used lacks a value."""
+        older than what is kept. NaN where either neighbour lacks a value."""
         if not metres >= 0.0:
             raise ValueError(f'distance behind must be >= 0, got {metres}')
         kept = min(self._count, self.capacity)
@@ -103,9 +105,17 @@ class TrackHistory:
             return older_row.copy()
         if low - 1 < oldest or low + 2 > newest:
             return (1.0 - fraction) * older_row + fraction * self._rows[(low + 1) % cap]
-        # Catmull-Rom through the four samples around the target, as one product.
+        # Catmull-Rom through the four samples around the target, as one product; linear where
+        # an outer one lacks a value.
         f = fraction
         f2, f3 = f * f, f * f * f
         weights = np.array([0.5 * (-f + 2.0 * f2 - f3), 1.0 - 2.5 * f2 + 1.5 * f3,
                             0.5 * (f + 4.0 * f2 - 3.0 * f3), 0.5 * (f3 - f2)])
-        return weights @ self._rows[np.arange(low - 1, low + 3) % cap]
+        first = (low - 1) % cap
+        block = (self._rows[first:first + 4] if first + 4 <= cap
+                 else self._rows[np.arange(low - 1, low + 3) % cap])
+        cubic = weights @ block
+        if math.isfinite(cubic.sum()):
+            return cubic
+        linear = (1.0 - fraction) * block[1] + fraction * block[2]
+        return np.where(np.isfinite(cubic), cubic, linear)

@@ -27,7 +27,7 @@ low (its track delays are Pade cascades; car 1001, exact track), the tool refuse
 Measured (benchmarks/creep_speed_scale.py, 6 development cars, tachometers 0.4-1.3 % off, 30 s
 at constant speed): the scale within 0.02 % with the exact track, 0.063 % with a 0.1 mm map,
 0.15 % with a 0.3 mm map; c's rms error then that of the true speed. A recording at steady speed
-is best: while the speed changes, every 0.01 m/s is a new model (about twice the cost a sample).
+is best: while the speed changes, every 0.01 m/s is a new model (not measured here).
 
 Run: ``ros2 run rail_monitor_ros rail_speed_scale BAG [--params PARAMS_FILE ...]
 [--node creep_estimator] [--span 0.02] [--step 0.0025] [--skip-s 5] [--out FILE]``.
