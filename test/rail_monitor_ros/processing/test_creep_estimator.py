@@ -290,5 +290,6 @@ def test_the_published_speed_is_scaled_by_speed_scale() -> None:
     for topic, msg in messages:
         processor.process(topic, msg)
     assert processor.ekf.speed == pytest.approx(0.99 * 35.0)
+    assert processor.status(0).values['speed_input'] == 'following x 0.99 (speed_scale)'
     # 35 m/s published is 34.65 scaled: above the minimum; 34 published (33.66) was below.
     assert processor.counts['below_min_speed'] > 0

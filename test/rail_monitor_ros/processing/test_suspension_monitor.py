@@ -136,4 +136,4 @@ def test_the_published_speed_is_scaled_by_speed_scale() -> None:
             break
         scaled.process(topic.lstrip('/'), msg)
     assert scaled.imm.vehicle.speed == pytest.approx(30.0)
-    assert scaled.status(0).values['speed_input'] == 'following'
+    assert scaled.status(0).values['speed_input'] == 'following x 0.75 (speed_scale)'

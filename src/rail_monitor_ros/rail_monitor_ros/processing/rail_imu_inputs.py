@@ -174,7 +174,9 @@ class SpeedInput:
         if speed < n.min_speed_mps:
             self.state = f'{speed:.2f} m/s, below min_speed_mps: estimates held'
             return None, 'below_min_speed'
-        self.state = 'following'
+        # The scale in the status, so a diagnostics reader sees which correction is applied.
+        self.state = ('following' if n.speed_scale == 1.0
+                      else f'following x {n.speed_scale:g} (speed_scale)')
         return speed, ''
 
     def clear(self) -> None:
