@@ -232,6 +232,8 @@ def params_yaml(scale: float) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # The command line's only: the rail domain (its graph) and the vehicle's params files come
+    # with the evaluation's plotting; the benchmark and the tests import the fit without them.
     from rail_monitor_ros.offline.evaluation import domain
     from vehicle_monitor_common.evaluate_cli import read_vehicle
 
