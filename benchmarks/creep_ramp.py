@@ -2,16 +2,19 @@
 gradual adhesion change.
 
 The family's creep runs (``eval_rail_family.py``) step c (1 -> 0.5 -> 0.75), which the CUSUM
-alarm and the onset search follow whatever the ln c walk; a gradual change (a rail getting wet
-or greasy over a few hundred metres) is followed by the walk alone. This runs each car of a
-development set once: c = 1 for 5 s, a ramp to ``--to`` over ``--ramp-s``, then 10 s at it
-(the simulator's ``ramp`` event), pattern C with the exact track, the car at its first family
-creep speed, and prints per setting of ``creep_walk_std_per_sqrt_s`` the relative error
-during the ramp (from 1 s after it begins: rms median, largest median and worst) and the
-largest error from 1 s after it ends. Never on held-out cars: settings are judged here.
+alarm and the onset search follow; a gradual change (a rail getting wet or greasy over a few
+hundred metres) is followed by the ln c walk, or by the rate of ln c where the state has one
+(``creep_rate_walk_std``). This runs each car of a development set once: c = 1 for 5 s, a ramp
+to ``--to`` over ``--ramp-s``, then 10 s at it (the simulator's ``ramp`` event), pattern C with
+the exact track or a 0.3 mm map (``--track``), the car at its first family creep speed, and
+prints per setting the relative error during the ramp (from 1 s after it begins: rms median,
+largest median and worst) and the largest error from 1 s after it ends. Never on held-out
+cars: settings are judged here.
 
 Run: ``source tools/env.sh && python benchmarks/creep_ramp.py [--seeds development]
-[--walks 0.05,0.03,0.02] [--ramp-s 15] [--to 0.5]``.
+[--settings shipped creep_walk_std_per_sqrt_s=0.02,creep_rate_walk_std=0.3] [--ramp-s 15]
+[--to 0.5] [--track exact]``: each setting is ``shipped`` or comma-separated creep estimator
+parameters over the shipped ones.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import argparse
 from collections.abc import Sequence
 
 from eval_rail_family import (
+    MAP_ERROR,
     case_seed,
     creep_inputs,
     creep_params,
@@ -44,26 +48,35 @@ SEED_SETS = {'development': DEVELOPMENT_SEEDS, 'development-wide': WIDE_DEVELOPM
 START, BEFORE_S, AFTER_S = 1.0, 5.0, 10.0
 
 
-def ramp_errors(car: FamilyCar, walks: Sequence[float], ramp_s: float, to: float,
-                ) -> dict[float, tuple[float, float, float]]:
-    """Per walk: (rms relative error during the ramp, its largest, the largest after it)."""
+def parse_setting(text: str) -> dict[str, float]:
+    """``shipped`` -> {}; ``name=value,name=value`` -> those parameters."""
+    if text == 'shipped':
+        return {}
+    pairs = (item.split('=', 1) for item in text.split(',') if item)
+    return {name: float(value) for name, value in pairs}
+
+
+def ramp_errors(car: FamilyCar, settings: Sequence[str], ramp_s: float, to: float,
+                track_kind: str) -> dict[str, tuple[float, float, float]]:
+    """Per setting: (rms relative error during the ramp, its largest, the largest after it)."""
     speed = sample_speeds(car, 2)[0]
     events = [{'time': BEFORE_S, 'creep_factor': to, 'ramp': ramp_s}]
+    map_error = MAP_ERROR if track_kind == 'map0.3' else 0.0
     result = simulate(rail_scenario_from_dict(scenario_mapping(
         car, f'family_{car.seed}_ramp_{speed:g}', speed, case_seed(car, 300),
-        BEFORE_S + ramp_s + AFTER_S, events, {'creep_factor': START}, 0.0)))
+        BEFORE_S + ramp_s + AFTER_S, events, {'creep_factor': START}, map_error)))
     z = creep_inputs(result, 'C', True)
     track = creep_track(result)
     during = (result.time >= BEFORE_S + 1.0) & (result.time <= BEFORE_S + ramp_s)
     after = result.time > BEFORE_S + ramp_s + 1.0
     out = {}
-    for walk in walks:
-        params = creep_params(car, speed, 'C-spec/exact', 'spectrum', True,
-                              {'creep_walk_std_per_sqrt_s': walk})
+    for setting in settings:
+        params = creep_params(car, speed, f'C-spec/{track_kind}', 'spectrum', True,
+                              parse_setting(setting))
         run = CreepEkf(params).run(z, track, result.speed)
         error = np.abs(run.creep_factor - result.creep_factor) / result.creep_factor
-        out[walk] = (float(np.sqrt(np.nanmean(error[during] ** 2))),
-                     float(np.nanmax(error[during])), float(np.nanmax(error[after])))
+        out[setting] = (float(np.sqrt(np.nanmean(error[during] ** 2))),
+                        float(np.nanmax(error[during])), float(np.nanmax(error[after])))
     return out
 
 
@@ -71,26 +84,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', choices=tuple(SEED_SETS), default='development')
     parser.add_argument('--cars', type=int, default=0, help='first N cars (0: all)')
-    parser.add_argument('--walks', default='0.05,0.03,0.02',
-                        help='creep_walk_std_per_sqrt_s values, comma-separated')
+    parser.add_argument('--settings', nargs='+', default=['shipped'],
+                        help="'shipped', or creep estimator parameters over the shipped "
+                             "ones: name=value,name=value")
     parser.add_argument('--ramp-s', type=float, default=15.0)
     parser.add_argument('--to', type=float, default=0.5, help='c at the end of the ramp')
+    parser.add_argument('--track', choices=('exact', 'map0.3'), default='exact')
     args = parser.parse_args(argv)
-    walks = [float(w) for w in args.walks.split(',') if w]
+    for setting in args.settings:
+        parse_setting(setting)          # refuse a malformed one before the runs
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]
-    rows: dict[float, list[tuple[float, float, float]]] = {w: [] for w in walks}
+    rows: dict[str, list[tuple[float, float, float]]] = {s: [] for s in args.settings}
     for car in cars:
-        for walk, errors in ramp_errors(car, walks, args.ramp_s, args.to).items():
-            rows[walk].append(errors)
+        errors = ramp_errors(car, args.settings, args.ramp_s, args.to, args.track)
+        for setting, figures in errors.items():
+            rows[setting].append(figures)
         print(f'car {car.seed} done', flush=True)
-    print(f'\n| walk | {args.ramp_s:g} s ramp {START:g} -> {args.to:g}: error during it, rms '
-          'median; largest, median / worst | largest from 1 s after it, worst |')
+    print(f'\n| setting | {args.ramp_s:g} s ramp {START:g} -> {args.to:g} ({args.track} track): '
+          'error during it, rms median; largest, median / worst | largest from 1 s after it, '
+          'worst |')
     print('| --- | --- | --- |')
-    for walk in walks:
-        table = 100.0 * np.array(rows[walk])
-        print(f'| {walk:g} | {np.median(table[:, 0]):.1f} %; {np.median(table[:, 1]):.1f} / '
+    for setting in args.settings:
+        table = 100.0 * np.array(rows[setting])
+        print(f'| {setting} | {np.median(table[:, 0]):.1f} %; {np.median(table[:, 1]):.1f} / '
               f'{table[:, 1].max():.1f} % | {table[:, 2].max():.1f} % |')
     return 0
 

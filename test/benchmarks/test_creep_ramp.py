@@ -18,7 +18,14 @@ def test_a_slower_walk_follows_a_ramp_late() -> None:
     shipped walk (0.05 / sqrt(s)) the largest error during the ramp is 5.3 %, with 0.02 it is
     15.8 % (measured); after the ramp both are within 2 %."""
     car = family(DEVELOPMENT_SEEDS)[0]
-    errors = creep_ramp.ramp_errors(car, [0.05, 0.02], 15.0, 0.5)
-    shipped, slow = errors[0.05], errors[0.02]
+    errors = creep_ramp.ramp_errors(car, ['shipped', 'creep_walk_std_per_sqrt_s=0.02'], 15.0,
+                                    0.5, 'exact')
+    shipped, slow = errors['shipped'], errors['creep_walk_std_per_sqrt_s=0.02']
     assert shipped[1] < 0.08 < 0.12 < slow[1]
     assert max(shipped[2], slow[2]) < 0.03
+
+
+def test_a_setting_is_shipped_or_parameters() -> None:
+    assert creep_ramp.parse_setting('shipped') == {}
+    assert creep_ramp.parse_setting('creep_walk_std_per_sqrt_s=0.02,change_log_std=0.8') == {
+        'creep_walk_std_per_sqrt_s': 0.02, 'change_log_std': 0.8}
