@@ -107,6 +107,24 @@ def test_backward_ros_time_jump_restarts_the_silence_watch(
     assert status.level != ERROR and float(values['imu.age_s']) == 0.0
 
 
+def test_arrivals_are_timed_on_the_node_clock_in_either_time(
+        make_node: Callable[..., Any], spin_until: Callable[..., bool],
+        publish_clock: Callable[[int], None]) -> None:
+    """On system time an arrival is timed without a Clock.now() call (time.time_ns: the same
+    clock); once use_sim_time is switched on, on /clock's time, and back again."""
+    node = make_node(EchoNode)
+    node.deliver('imu', _imu(0.1))
+    assert abs(node._last_arrival_ns['imu'] - node.get_clock().now().nanoseconds) < 10**9
+    node.set_parameters([Parameter('use_sim_time', value=True)])
+    assert spin_until(lambda: (publish_clock(100), node.get_clock().now().nanoseconds
+                               == 100 * 10**9)[1], 5.0)
+    node.deliver('imu', _imu(0.2))
+    assert node._last_arrival_ns['imu'] == 100 * 10**9
+    node.set_parameters([Parameter('use_sim_time', value=False)])
+    node.deliver('imu', _imu(0.3))
+    assert abs(node._last_arrival_ns['imu'] - node.get_clock().now().nanoseconds) < 10**9
+
+
 def _imu(ay: float) -> Any:
     msg = Imu()
     msg.linear_acceleration.y = ay

@@ -29,11 +29,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import importlib
+import time
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import JumpHandle, JumpThreshold, TimeJump
+from rclpy.clock import ClockType, JumpHandle, JumpThreshold, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -163,6 +164,7 @@ class ProcessorNode(Node):
         self.processor = processor
         self.silence_timeout_s = silence_timeout_s
         self._last_arrival_ns: dict[str, int] = {}
+        self._follow_ros_time()
         self._arrivals = dict.fromkeys(processor.inputs, 0)
         self.time_jumps = 0
         self._last_time_jump_s = 0.0
@@ -214,10 +216,22 @@ class ProcessorNode(Node):
     def _input_callback(self, topic: str) -> Callable[[Any], None]:
         return lambda message: self.deliver(topic, message)
 
+    def _follow_ros_time(self) -> None:
+        """Choose how arrivals are timed: the node's clock reads system time unless ROS time
+        (``/clock``) is active, and then ``time.time_ns`` (the same CLOCK_REALTIME as rcl's
+        system time) costs 0.05 us against 2.4 us for ``Clock.now()``, which the four road
+        nodes paid on each of the 1 kHz wheel speeds. Called again on every switch of ROS time
+        (the time-jump callback)."""
+        clock = self.get_clock()
+        self._arrival_ns: Callable[[], int] = (
+            (lambda: clock.now().nanoseconds)
+            if clock.clock_type != ClockType.ROS_TIME or clock.ros_time_is_active  # type: ignore[attr-defined]
+            else time.time_ns)
+
     def deliver(self, topic: str, message: Any) -> None:
         """Hand one input message to the processor and publish what it returns."""
         self._arrivals[topic] += 1
-        self._last_arrival_ns[topic] = self.get_clock().now().nanoseconds
+        self._last_arrival_ns[topic] = self._arrival_ns()
         for output in self.processor.process(topic, message):
             self.publish_output(output)
         self._log_calibration_events()
@@ -237,6 +251,7 @@ class ProcessorNode(Node):
         self._publishers_by_topic[output.topic].publish(message)
 
     def _on_time_jump(self, jump: TimeJump) -> None:
+        self._follow_ros_time()
         now_ns = self.get_clock().now().nanoseconds
         if now_ns == jump.delta.nanoseconds:
             return  # the first /clock message: simulated time starts, nothing jumped
