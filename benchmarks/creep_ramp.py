@@ -3,24 +3,24 @@ gradual adhesion change.
 
 The family's creep runs (``eval_rail_family.py``) step c (1 -> 0.5 -> 0.75), which the CUSUM
 alarm and the onset search follow; a gradual change (a rail getting wet or greasy over a few
-hundred metres) is followed by the ln c walk, or by the rate of ln c where the state has one
-(``creep_rate_walk_std``). This runs each car of a development set once: c = 1 for 5 s, a ramp
-to ``--to`` over ``--ramp-s``, then 10 s at it (the simulator's ``ramp`` event), pattern C with
-the exact track or a 0.3 mm map (``--track``), the car at its first family creep speed, and
-prints per setting the relative error during the ramp (from 1 s after it begins: rms median,
-largest median and worst) and the largest error from 1 s after it ends. Never on held-out
-cars: settings are judged here.
+hundred metres) is followed by the ln c walk alone. This runs each car of a development set
+once: c = 1 for 5 s, a ramp to ``--to`` over ``--ramp-s``, then 10 s at it (the simulator's
+``ramp`` event), pattern C with the exact track or a 0.3 mm map (``--track``), the car at its
+first family creep speed, and prints per setting the relative error during the ramp (from 1 s
+after it begins: rms median, largest median and worst) and the largest error from 1 s after it
+ends. Never on held-out cars: settings are judged here.
 
 Run: ``source tools/env.sh && python benchmarks/creep_ramp.py [--seeds development]
-[--settings shipped creep_walk_std_per_sqrt_s=0.02,creep_rate_walk_std=0.3] [--ramp-s 15]
+[--settings shipped creep_walk_std_per_sqrt_s=0.02,change_log_std=0.8] [--ramp-s 15]
 [--to 0.5] [--track exact]``: each setting is ``shipped`` or comma-separated creep estimator
-parameters over the shipped ones.
+parameters (``NAME=VALUE``, as ``eval_rail_family.py --creep-set``) over the shipped ones.
 """
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from typing import Any
 
 from eval_rail_family import (
     MAP_ERROR,
@@ -33,7 +33,7 @@ from eval_rail_family import (
 )
 import numpy as np
 
-from rail_monitor_ros.core.creep_ekf import CreepEkf
+from rail_monitor_ros.core.creep_ekf import CreepEkf, CreepEkfParams
 from rail_monitor_ros.simulation.rail_family import (
     DEVELOPMENT_SEEDS,
     WIDE_DEVELOPMENT_SEEDS,
@@ -42,18 +42,23 @@ from rail_monitor_ros.simulation.rail_family import (
     scenario_mapping,
 )
 from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
+from vehicle_monitor_common.parameters import ConfigurationError, parse_assignments
 
 SEED_SETS = {'development': DEVELOPMENT_SEEDS, 'development-wide': WIDE_DEVELOPMENT_SEEDS}
 #: c before the ramp, and how long it is held before and after it, s.
 START, BEFORE_S, AFTER_S = 1.0, 5.0, 10.0
 
 
-def parse_setting(text: str) -> dict[str, float]:
-    """``shipped`` -> {}; ``name=value,name=value`` -> those parameters."""
+def parse_setting(text: str) -> dict[str, Any]:
+    """``shipped`` -> {}; ``NAME=VALUE,NAME=VALUE`` -> those creep estimator parameters.
+
+    Raises:
+        ConfigurationError: a malformed assignment, a name that is not a parameter, or a value
+            its checks refuse.
+    """
     if text == 'shipped':
         return {}
-    pairs = (item.split('=', 1) for item in text.split(',') if item)
-    return {name: float(value) for name, value in pairs}
+    return parse_assignments(text.split(','), CreepEkfParams())
 
 
 def ramp_errors(car: FamilyCar, settings: Sequence[str], ramp_s: float, to: float,
@@ -92,7 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--track', choices=('exact', 'map0.3'), default='exact')
     args = parser.parse_args(argv)
     for setting in args.settings:
-        parse_setting(setting)          # refuse a malformed one before the runs
+        try:
+            parse_setting(setting)          # refuse a malformed one before the runs
+        except ConfigurationError as exc:
+            parser.error(f'--settings {setting}: {exc}')
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]

@@ -6,7 +6,10 @@ import importlib
 from pathlib import Path
 import sys
 
+import pytest
+
 from rail_monitor_ros.simulation.rail_family import DEVELOPMENT_SEEDS, family
+from vehicle_monitor_common.parameters import ConfigurationError
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / 'benchmarks'
 sys.path.insert(0, str(BENCHMARKS))    # the scripts import each other beside them
@@ -25,7 +28,11 @@ def test_a_slower_walk_follows_a_ramp_late() -> None:
     assert max(shipped[2], slow[2]) < 0.03
 
 
-def test_a_setting_is_shipped_or_parameters() -> None:
+def test_a_setting_is_shipped_or_checked_parameters() -> None:
+    """A name that is no parameter, or a value out of range, is refused, not run as shipped."""
     assert creep_ramp.parse_setting('shipped') == {}
     assert creep_ramp.parse_setting('creep_walk_std_per_sqrt_s=0.02,change_log_std=0.8') == {
         'creep_walk_std_per_sqrt_s': 0.02, 'change_log_std': 0.8}
+    for bad in ('creep_walk=0.02', 'creep_walk_std_per_sqrt_s=-1', 'change_log_std'):
+        with pytest.raises(ConfigurationError):
+            creep_ramp.parse_setting(bad)
