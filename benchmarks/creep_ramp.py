@@ -19,7 +19,7 @@ parameters (``NAME=VALUE``, as ``eval_rail_family.py --creep-set``) over the shi
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from eval_rail_family import (
@@ -61,9 +61,10 @@ def parse_setting(text: str) -> dict[str, Any]:
     return parse_assignments(text.split(','), CreepEkfParams())
 
 
-def ramp_errors(car: FamilyCar, settings: Sequence[str], ramp_s: float, to: float,
-                track_kind: str) -> dict[str, tuple[float, float, float]]:
-    """Per setting: (rms relative error during the ramp, its largest, the largest after it)."""
+def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_s: float,
+                to: float, track_kind: str) -> dict[str, tuple[float, float, float]]:
+    """Per setting (its name -> its parameters over the shipped ones, :func:`parse_setting`):
+    (rms relative error during the ramp, its largest, the largest after it)."""
     speed = sample_speeds(car, 2)[0]
     events = [{'time': BEFORE_S, 'creep_factor': to, 'ramp': ramp_s}]
     map_error = MAP_ERROR if track_kind == 'map0.3' else 0.0
@@ -75,9 +76,8 @@ def ramp_errors(car: FamilyCar, settings: Sequence[str], ramp_s: float, to: floa
     during = (result.time >= BEFORE_S + 1.0) & (result.time <= BEFORE_S + ramp_s)
     after = result.time > BEFORE_S + ramp_s + 1.0
     out = {}
-    for setting in settings:
-        params = creep_params(car, speed, f'C-spec/{track_kind}', 'spectrum', True,
-                              parse_setting(setting))
+    for setting, overrides in settings.items():
+        params = creep_params(car, speed, f'C-spec/{track_kind}', 'spectrum', True, overrides)
         run = CreepEkf(params).run(z, track, result.speed)
         error = np.abs(run.creep_factor - result.creep_factor) / result.creep_factor
         out[setting] = (float(np.sqrt(np.nanmean(error[during] ** 2))),
@@ -96,9 +96,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--to', type=float, default=0.5, help='c at the end of the ramp')
     parser.add_argument('--track', choices=('exact', 'map0.3'), default='exact')
     args = parser.parse_args(argv)
+    settings = {}
     for setting in args.settings:
         try:
-            parse_setting(setting)          # refuse a malformed one before the runs
+            settings[setting] = parse_setting(setting)     # refused before the runs
         except ConfigurationError as exc:
             parser.error(f'--settings {setting}: {exc}')
     cars = family(SEED_SETS[args.seeds])
@@ -106,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cars = cars[:args.cars]
     rows: dict[str, list[tuple[float, float, float]]] = {s: [] for s in args.settings}
     for car in cars:
-        errors = ramp_errors(car, args.settings, args.ramp_s, args.to, args.track)
+        errors = ramp_errors(car, settings, args.ramp_s, args.to, args.track)
         for setting, figures in errors.items():
             rows[setting].append(figures)
         print(f'car {car.seed} done', flush=True)

@@ -21,9 +21,9 @@ def test_a_slower_walk_follows_a_ramp_late() -> None:
     shipped walk (0.05 / sqrt(s)) the largest error during the ramp is 5.3 %, with 0.02 it is
     15.8 % (measured); after the ramp both are within 2 %."""
     car = family(DEVELOPMENT_SEEDS)[0]
-    errors = creep_ramp.ramp_errors(car, ['shipped', 'creep_walk_std_per_sqrt_s=0.02'], 15.0,
-                                    0.5, 'exact')
-    shipped, slow = errors['shipped'], errors['creep_walk_std_per_sqrt_s=0.02']
+    settings = {'shipped': {}, 'slow': creep_ramp.parse_setting('creep_walk_std_per_sqrt_s=0.02')}
+    errors = creep_ramp.ramp_errors(car, settings, 15.0, 0.5, 'exact')
+    shipped, slow = errors['shipped'], errors['slow']
     assert shipped[1] < 0.08 < 0.12 < slow[1]
     assert max(shipped[2], slow[2]) < 0.03
 
