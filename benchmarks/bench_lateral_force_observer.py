@@ -36,7 +36,7 @@ from tpms_ros.offline.lateral_force_tuning import (
     plot_relation_check,
     tune_gains,
 )
-from tpms_ros.simulation.road_scenario import load_scenario
+from tpms_ros.simulation.road_scenario import Scenario, load_scenario
 from tpms_ros.simulation.road_simulator import simulate_scenario
 from tpms_ros.simulation.vehicle_dynamics import (
     HandlingInputs,
@@ -67,9 +67,7 @@ def paper_case(friction_factor: float = 1.0, added_mass: float | None = None,
     """The paper's scenario from the shipped ``kim_huh_lateral.yaml`` (the one definition):
     70 km/h, steer 1 -> 2 deg, brakes 60/40 N m, friction 1.1 -> 0.2, truth mass +200 kg.
 
-    Run through the road simulator (14-DOF truth, encoder wheel speeds at 1 kHz, IMU at
-    100 Hz with its noise) and aligned as the node does: wheel speeds averaged over each IMU
-    interval, driver inputs and truth sampled at the IMU stamps.
+    Run as :func:`scenario_case` runs any scenario.
 
     Args:
         friction_factor: multiplies every friction event of the file (robustness runs).
@@ -79,10 +77,16 @@ def paper_case(friction_factor: float = 1.0, added_mass: float | None = None,
     scenario = load_scenario(SCENARIO)
     events = tuple(replace(ev, scale=ev.scale * friction_factor) if ev.kind == 'friction'
                    else ev for ev in scenario.events)
-    scenario = replace(scenario, events=events,
-                       added_mass_kg=scenario.added_mass_kg if added_mass is None
-                       else added_mass,
-                       seed=scenario.seed if seed is None else seed)
+    return scenario_case(replace(scenario, events=events,
+                                 added_mass_kg=scenario.added_mass_kg if added_mass is None
+                                 else added_mass,
+                                 seed=scenario.seed if seed is None else seed))
+
+
+def scenario_case(scenario: Scenario) -> TuningCase:
+    """A road scenario run through the road simulator (14-DOF truth, encoder wheel speeds at
+    1 kHz, IMU at 100 Hz with its noise) and aligned as the node does: wheel speeds averaged
+    over each IMU interval, driver inputs and truth sampled at the IMU stamps."""
     result = simulate_scenario(scenario)
     t = result.imu_t
     handling = result.handling

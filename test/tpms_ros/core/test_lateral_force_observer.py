@@ -16,8 +16,9 @@ from typing import Any
 import numpy as np
 import pytest
 from scipy import signal
+from scipy.stats import multivariate_normal
 
-from tpms_ros.core.lateral_force_kernel import G, derivative, filter_step
+from tpms_ros.core.lateral_force_kernel import G, derivative, filter_step, imm_step
 from tpms_ros.core.lateral_force_observer import (
     LateralForceObserver,
     ObserverTuningParams,
@@ -111,8 +112,8 @@ def test_zeta_is_the_model_steady_state() -> None:
 
 
 def _numpy_step(obs: LateralForceObserver, x: np.ndarray, p: np.ndarray, u: np.ndarray,
-                dt: float, z: np.ndarray, fx: np.ndarray, c: float, s: float,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                dt: float, z: np.ndarray, fx: np.ndarray, c: float, s: float, q: np.ndarray,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """One filter step written out with numpy, as the module docstring states it (the
     observer's numpy implementation before the kernel)."""
     v = obs.params
@@ -142,7 +143,7 @@ def _numpy_step(obs: LateralForceObserver, x: np.ndarray, p: np.ndarray, u: np.n
     a_dt = (obs._se_inv @ jac) * obs._s_inv[None, :] * dt
     x = x + dt * (g + 0.5 * (a_dt @ g))
     transition = np.eye(7) + a_dt + 0.5 * (a_dt @ a_dt)
-    p = transition @ p @ transition.T + obs._q * dt
+    p = transition @ p @ transition.T + q * dt
     xp = obs._s_inv * x
     h = np.zeros((5, 7))
     h[0, 5], h[1, 5], h[1, 6] = -2.0 * s / v.m, 2.0 * c / v.m, 2.0 / v.m
@@ -155,34 +156,97 @@ def _numpy_step(obs: LateralForceObserver, x: np.ndarray, p: np.ndarray, u: np.n
     pht = p @ h.T
     gain = np.linalg.solve(h @ pht + obs._r, pht.T).T
     y = z - z_hat
+    log_likelihood = multivariate_normal(np.zeros(5), h @ pht + obs._r).logpdf(y)
     i_kh = np.eye(7) - gain @ h
     p = i_kh @ p @ i_kh.T + gain @ obs._r @ gain.T
-    return x + gain @ y + (dt * y[2]) * obs._gp, 0.5 * (p + p.T), y
+    return x + gain @ y + (dt * y[2]) * obs._gp, 0.5 * (p + p.T), y, log_likelihood
+
+
+def _random_step_inputs(obs: LateralForceObserver, rng: np.random.Generator
+                        ) -> tuple[np.ndarray, ...]:
+    """A state, covariance, held inputs, measurement and Fx of a turn with braking."""
+    x = obs._s * np.array([25.0, 0.3, 0.2, 0.03, 0.05, 2500.0, 2200.0]) * (
+        1.0 + 0.2 * rng.standard_normal(7))
+    root = rng.standard_normal((7, 7))
+    p = 0.1 * root @ root.T + np.eye(7)
+    u = np.array([*rng.normal(-800.0, 200.0, 4), math.cos(0.05), math.sin(0.05), 0.12])
+    z = np.array([-2.0, 4.0, 0.2, 0.05, 25.0]) + 0.1 * rng.standard_normal(5)
+    fx = rng.normal(-800.0, 200.0, 4)
+    return x, p, u, z, fx
 
 
 def test_compiled_step_is_the_models_numpy_step() -> None:
-    """The compiled filter step equals the model's equations written with numpy, on seeded
+    """The compiled EKF step (lateral_force_kernel.filter_step) is the module docstring's
+    filter written with numpy: the same state, covariance, residual and its log-likelihood on
     random states in a turn with braking (every term of the model non-zero)."""
     obs = LateralForceObserver()
     rng = np.random.default_rng(17)
+    q = obs._qs[-1]
     for _ in range(20):
-        x = obs._s * np.array([25.0, 0.3, 0.2, 0.03, 0.05, 2500.0, 2200.0]) * (
-            1.0 + 0.2 * rng.standard_normal(7))
-        root = rng.standard_normal((7, 7))
-        p = 0.1 * root @ root.T + np.eye(7)
-        u = np.array([*rng.normal(-800.0, 200.0, 4), math.cos(0.05), math.sin(0.05), 0.12])
-        z = np.array([-2.0, 4.0, 0.2, 0.05, 25.0]) + 0.1 * rng.standard_normal(5)
-        fx = rng.normal(-800.0, 200.0, 4)
-        expected_x, expected_p, expected_y = _numpy_step(obs, x, p, u, 0.01, z, fx,
-                                                         math.cos(0.06), math.sin(0.06))
-        y = np.empty(5)
+        x, p, u, z, fx = _random_step_inputs(obs, rng)
+        expected_x, expected_p, expected_y, expected_ll = _numpy_step(
+            obs, x, p, u, 0.01, z, fx, math.cos(0.06), math.sin(0.06), q)
+        y, log_likelihood = np.empty(5), np.empty(1)
         restarted = filter_step(x, p, u, True, 0.01, z, fx, math.cos(0.06), math.sin(0.06),
-                                obs._model, obs._se_inv, obs._s, obs._s_inv, obs._q, obs._r,
-                                obs._gp, True, obs._p0, y)
+                                obs._model, obs._se_inv, obs._s, obs._s_inv, q, obs._r,
+                                obs._gp, True, obs._p0, y, log_likelihood)
         assert restarted == 0
         np.testing.assert_allclose(x, expected_x, rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(p, expected_p, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(y, expected_y, rtol=1e-10, atol=1e-12)
+        assert log_likelihood[0] == pytest.approx(expected_ll, rel=1e-9)
+
+
+def test_compiled_imm_cycle_is_the_textbook_one() -> None:
+    """lateral_force_kernel.imm_step against the IMM cycle written out with numpy (Blom and
+    Bar-Shalom: mix by the switching matrix, filter each mode, weigh by the residuals'
+    likelihood, combine), on two modes in random states; and with one mode it is filter_step
+    to the bit."""
+    obs = LateralForceObserver()
+    assert obs._qs.shape[0] == 2 and obs._qs[0, 5, 5] < obs._qs[1, 5, 5]
+    rng = np.random.default_rng(23)
+    switch = 0.1
+    c, s = math.cos(0.06), math.sin(0.06)
+    for _ in range(10):
+        x0, p0, u, z, fx = _random_step_inputs(obs, rng)
+        x1, p1, _, _, _ = _random_step_inputs(obs, rng)
+        mu = np.array([0.3, 0.7])
+        xs, ps = np.array([x0, x1]), np.array([p0, p1])
+        pi = np.array([[1.0 - switch, switch], [switch, 1.0 - switch]])
+        prior = pi.T @ mu
+        weights = pi * mu[:, None] / prior[None, :]          # [i, j]: mode i's share in j
+        expected_x, expected_y, likelihood = [], [], []
+        for j in range(2):
+            mixed_x = weights[:, j] @ xs
+            mixed_p = sum(weights[i, j] * (ps[i] + np.outer(xs[i] - mixed_x, xs[i] - mixed_x))
+                          for i in range(2))
+            xj, _, yj, llj = _numpy_step(obs, mixed_x, mixed_p, u, 0.01, z, fx, c, s,
+                                         obs._qs[j])
+            expected_x.append(xj)
+            expected_y.append(yj)
+            likelihood.append(math.exp(llj))
+        expected_mu = prior * np.array(likelihood) / (prior @ np.array(likelihood))
+        y, combined = np.empty(5), np.empty(7)
+        restarted = imm_step(xs, ps, mu, u, True, 0.01, z, fx, c, s, obs._model, obs._se_inv,
+                             obs._s, obs._s_inv, obs._qs, obs._r, obs._gp, True, obs._p0, y,
+                             switch, combined)
+        assert restarted == 0
+        np.testing.assert_allclose(mu, expected_mu, rtol=1e-8)
+        np.testing.assert_allclose(combined, expected_mu @ np.array(expected_x), rtol=1e-9)
+        np.testing.assert_allclose(y, expected_mu @ np.array(expected_y), rtol=1e-9,
+                                   atol=1e-12)
+    single = LateralForceObserver(tuning=ObserverTuningParams(quiet_force_q=0.0))
+    x, p, u, z, fx = _random_step_inputs(single, rng)
+    xs, ps, mu = x[None].copy(), p[None].copy(), np.ones(1)
+    y_imm, y_one, combined, log_likelihood = np.empty(5), np.empty(5), np.empty(7), np.empty(1)
+    imm_step(xs, ps, mu, u, True, 0.01, z, fx, c, s, single._model, single._se_inv, single._s,
+             single._s_inv, single._qs, single._r, single._gp, True, single._p0, y_imm, 0.5,
+             combined)
+    filter_step(x, p, u, True, 0.01, z, fx, c, s, single._model, single._se_inv, single._s,
+                single._s_inv, single._qs[0], single._r, single._gp, True, single._p0, y_one,
+                log_likelihood)
+    assert np.array_equal(combined, x) and np.array_equal(ps[0], p)
+    assert np.array_equal(y_imm, y_one) and mu[0] == 1.0
 
 
 def test_split_preserves_axle_sum() -> None:
@@ -229,30 +293,39 @@ def test_batch_equals_streaming(paper_case: TuningCase) -> None:
 
 def test_paper_scenario_accuracy(paper_case: TuningCase) -> None:
     """Paper case (mass +200 kg, friction 1.1 -> 0.2): every wheel under the 10 % target with
-    the load-sensitive split (measured 9.0 / 7.6 / 8.3 / 6.7 %), axle means under 7 % (6.3,
-    6.6). The paper's proportional split on the same filter misses it (12.4 / 12.9 % on the
-    inner wheels): relation 2 overstates the split on Magic Formula tires."""
+    the tire's load-sensitive split (measured 7.5 / 7.8 / 4.6 / 8.2 %), axle means under 7 %
+    (6.8, 5.7). The agile filter alone (``quiet_force_q`` 0, the paper's one filter) is within
+    the target too (worst 9.5 %): the quiet filter beside it costs this manoeuvre nothing and
+    keeps the gyro's noise out of ordinary driving (the family, docs/methods/
+    lateral_force_observer.md). The paper's proportional split on the same filter misses the
+    target (15.0 / 13.9 % on the inner wheels), and so does a passenger-car tire's 0.6 (11.1 %):
+    relation 2 overstates the split on Magic Formula tires."""
     track = paper_case.run()
     err = fy_error_percent(track, paper_case.fy_true)
-    assert np.all(err < 10.0), err
+    assert np.all(err < 9.0), err
     assert np.all(_axle_error_percent(track, paper_case.fy_true) < 7.0)
-    paper_split = paper_case.run(ObserverVehicleParams(split_exponent=1.0))
-    assert np.max(fy_error_percent(paper_split, paper_case.fy_true)) > 11.5
+    agile = paper_case.run(tuning=ObserverTuningParams(quiet_force_q=0.0))
+    assert np.all(fy_error_percent(agile, paper_case.fy_true) < 10.0)
+    for exponent in (1.0, 0.6):
+        other = paper_case.run(ObserverVehicleParams(split_exponent=exponent))
+        assert np.max(fy_error_percent(other, paper_case.fy_true)) > 10.5
 
 
 def test_skfmec_versus_plain_ekf(paper_case: TuningCase, nominal_mass_case: TuningCase) -> None:
-    """Measured, not assumed; each filter with its own tuning from the same search. Paper case:
-    a tie on the worst wheel (SKFMEC 9.0 %, plain EKF 8.8 %), the plain EKF is ~1 point better
-    on the axle means (5.5 vs 6.3 %); the compensator itself lowers the worst wheel against
-    the same scaled EKF without it. Model mass 20 % too high: the SKFMEC is far better (axle
-    16.5 vs 29.8 %), which is where the MEC earns its keep."""
+    """Measured, not assumed; each filter with its own tuning. Paper case: a tie on the worst
+    wheel (SKFMEC 8.2 %, plain EKF 8.0 %), the plain EKF is better on the axle means (5.5, 5.3
+    vs 6.8, 5.7 %). The compensator makes no measurable difference with these defaults (the
+    same filters without it: 8.26 % on the paper case, 14.46 % on the axles at +20 % model
+    mass against 14.44 %); with the paper's single filter and ay noise of 1 m/s^2 it had
+    lowered the worst wheel (9.0 vs 9.3 %). Model mass 20 % too high: the scaled filters are
+    far better than the plain EKF (axle 14.4 vs 29.8 %)."""
     skf = paper_case.run()
     plain = paper_case.run(tuning=ObserverTuningParams.plain())
     no_mec = paper_case.run(tuning=ObserverTuningParams(mec=False))
     skf_worst = np.max(fy_error_percent(skf, paper_case.fy_true))
     plain_worst = np.max(fy_error_percent(plain, paper_case.fy_true))
     assert abs(skf_worst - plain_worst) < 1.0, (skf_worst, plain_worst)
-    assert skf_worst < np.max(fy_error_percent(no_mec, paper_case.fy_true))
+    assert abs(skf_worst - np.max(fy_error_percent(no_mec, paper_case.fy_true))) < 0.5
     axle_skf = _axle_error_percent(skf, paper_case.fy_true)
     axle_plain = _axle_error_percent(plain, paper_case.fy_true)
     assert np.all(axle_plain < axle_skf) and np.all(axle_skf - axle_plain < 2.0)
@@ -284,7 +357,7 @@ def test_relations_on_truth(relation_truth) -> None:
 @pytest.mark.parametrize('factor', [0.7, 1.3])
 def test_robust_to_friction_error(factor: float) -> None:
     """+/-30 % road friction (the observer has no friction input): every wheel stays under
-    the 10 % target (measured worst 9.2 % at x0.7, 8.7 % at x1.3)."""
+    the 10 % target (measured worst 7.3 % at x0.7, 9.8 % at x1.3)."""
     case = bench.paper_case(friction_factor=factor)
     track = case.run()
     assert np.all(fy_error_percent(track, case.fy_true) < 10.0)
@@ -294,8 +367,8 @@ def test_robust_to_friction_error(factor: float) -> None:
 @pytest.mark.parametrize('factor', [0.8, 1.2])
 def test_mass_error_bias_is_bounded(factor: float, nominal_mass_case: TuningCase) -> None:
     """+/-20 % model mass (truth nominal): the force sum follows m_model ay, so the errors
-    grow with the mass error (measured worst wheel 14.1 % at x0.8, 21.1 % at x1.2; axles
-    12.2 %, 16.5 %); bounded at 23 % per wheel and 18 % per axle."""
+    grow with the mass error (measured worst wheel 14.7 % at x0.8, 20.4 % at x1.2; axles
+    12.5 %, 14.5 %); bounded at 23 % per wheel and 18 % per axle."""
     case = nominal_mass_case
     params = ObserverVehicleParams(m=1814.0 * factor, ms=1661.0 * factor)
     track = case.run(params)

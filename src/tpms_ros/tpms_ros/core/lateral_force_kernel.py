@@ -29,7 +29,7 @@ MODEL_FIELDS = ('m', 'mse', 'lf', 'lr', 'tf', 'tr', 'hf', 'hr', 'kphi', 'cphi', 
 #: Bits of the step's result: what had to restart (each counted by the observer).
 DIVERGED, SINGULAR = 1, 2
 
-_V, _M = types.float64[::1], types.float64[:, ::1]
+_V, _M, _A = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
 
 
 @njit(types.void(_V, _V, _V, _M, _V, _V, _M), cache=True)
@@ -130,13 +130,13 @@ def initial_state(ay: float, r: float, pr: float, vx: float, model: np.ndarray,
 
 
 @njit(types.int64(_V, _M, _V, types.boolean, types.float64, _V, _V, types.float64,
-                  types.float64, _V, _M, _V, _V, _M, _M, _V, types.boolean, _M, _V),
+                  types.float64, _V, _M, _V, _V, _M, _M, _V, types.boolean, _M, _V, _V),
       cache=True)
 def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool, dt: float,
                 z: np.ndarray, fx: np.ndarray, c: float, s: float, model: np.ndarray,
                 se_inv: np.ndarray, scaling: np.ndarray, s_inv: np.ndarray, q: np.ndarray,
                 r: np.ndarray, gp: np.ndarray, tilt: bool, p0: np.ndarray,
-                y: np.ndarray) -> int:
+                y: np.ndarray, log_likelihood: np.ndarray) -> int:
     """One step of the scaled EKF with the model error compensator, x* and P in place.
 
     Predict over ``dt`` with the held inputs ``u_prev`` (when ``predict``): x* += dt (g +
@@ -150,7 +150,8 @@ def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool,
 
     Returns:
         0, or the bits :data:`DIVERGED` and :data:`SINGULAR` of the restarts made. ``y`` holds
-        the residual z - h(x*-).
+        the residual z - h(x*-), ``log_likelihood[0]`` its Gaussian log density under the
+        residual covariance H P H^T + R (what an IMM weighs the modes by).
     """
     restarted = 0
     if predict:
@@ -172,8 +173,9 @@ def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool,
     h = np.empty((N_Z, N_X))
     measure(x * s_inv, fx, c, s, model[0], s_inv, z_hat, h, tilt)
     pht = p @ h.T
+    residual_cov = h @ pht + r
     try:
-        gain = np.linalg.solve(h @ pht + r, pht.T).T
+        gain = np.linalg.solve(residual_cov, pht.T).T
     except Exception:  # noqa: BLE001 - numba raises LinAlgError as a plain exception
         # Numerically singular residual covariance (P blown up): restart.
         initial_state(z[1], z[2], z[3], z[4], model, scaling, x)
@@ -181,9 +183,13 @@ def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool,
         restarted |= SINGULAR
         measure(x * s_inv, fx, c, s, model[0], s_inv, z_hat, h, tilt)
         pht = p @ h.T
-        gain = np.linalg.solve(h @ pht + r, pht.T).T
+        residual_cov = h @ pht + r
+        gain = np.linalg.solve(residual_cov, pht.T).T
     for i in range(N_Z):
         y[i] = z[i] - z_hat[i]
+    sign, log_det = np.linalg.slogdet(residual_cov)
+    log_likelihood[0] = -0.5 * (y @ np.linalg.solve(residual_cov, y) + log_det
+                                + N_Z * math.log(2.0 * math.pi)) if sign > 0 else -math.inf
     i_kh = np.eye(N_X) - gain @ h
     joseph = i_kh @ p @ i_kh.T + gain @ r @ gain.T
     for i in range(N_X):
@@ -192,4 +198,70 @@ def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool,
     correction = gain @ y
     for i in range(N_X):
         x[i] = x[i] + correction[i] + (dt * y[2]) * gp[i]
+    return restarted
+
+
+@njit(types.int64(_M, _A, _V, _V, types.boolean, types.float64, _V, _V, types.float64,
+                  types.float64, _V, _M, _V, _V, _A, _M, _V, types.boolean, _M, _V,
+                  types.float64, _V),
+      cache=True)
+def imm_step(xs: np.ndarray, ps: np.ndarray, mu: np.ndarray, u_prev: np.ndarray,
+             predict: bool, dt: float, z: np.ndarray, fx: np.ndarray, c: float, s: float,
+             model: np.ndarray, se_inv: np.ndarray, scaling: np.ndarray, s_inv: np.ndarray,
+             qs: np.ndarray, r: np.ndarray, gp: np.ndarray, tilt: bool, p0: np.ndarray,
+             y: np.ndarray, switch: float, x_out: np.ndarray) -> int:
+    """One interacting multiple model cycle (Blom and Bar-Shalom 1988) over filters that
+    differ only in their process noise ``qs[j]``: mix the modes' states and covariances by the
+    Markov switching probability ``switch`` (per step, to each other mode), run
+    :func:`filter_step` on each, weigh the modes by their residuals' likelihood, and combine.
+
+    ``xs`` (modes, 7), ``ps`` (modes, 7, 7) and the mode probabilities ``mu`` are updated in
+    place; ``x_out`` receives the combined state and ``y`` the probability-weighted residual.
+    Without ``predict`` (a start) nothing is mixed. With one mode this is :func:`filter_step`
+    to the bit (its weights are exactly 1).
+
+    Returns:
+        The restart bits of every mode's step, or-ed.
+    """
+    n_modes = xs.shape[0]
+    prior = mu.copy()
+    if predict and n_modes > 1:
+        stay = 1.0 - switch * (n_modes - 1)
+        for j in range(n_modes):
+            prior[j] = 0.0
+            for i in range(n_modes):
+                prior[j] += (stay if i == j else switch) * mu[i]
+        mixed_x = np.zeros((n_modes, N_X))
+        mixed_p = np.zeros((n_modes, N_X, N_X))
+        for j in range(n_modes):
+            for i in range(n_modes):
+                weight = (stay if i == j else switch) * mu[i] / prior[j]
+                mixed_x[j] += weight * xs[i]
+            for i in range(n_modes):
+                weight = (stay if i == j else switch) * mu[i] / prior[j]
+                spread = xs[i] - mixed_x[j]
+                mixed_p[j] += weight * (ps[i] + np.outer(spread, spread))
+        xs[:, :] = mixed_x
+        ps[:, :, :] = mixed_p
+    restarted = 0
+    log_likelihood = np.empty(n_modes)
+    one = np.empty(1)
+    residuals = np.empty((n_modes, N_Z))
+    for j in range(n_modes):
+        restarted |= filter_step(xs[j], ps[j], u_prev, predict, dt, z, fx, c, s, model,
+                                 se_inv, scaling, s_inv, qs[j], r, gp, tilt, p0, residuals[j],
+                                 one)
+        log_likelihood[j] = one[0]
+    best = log_likelihood.max()
+    total = 0.0
+    for j in range(n_modes):
+        mu[j] = prior[j] * (math.exp(log_likelihood[j] - best) if math.isfinite(best) else 1.0)
+        total += mu[j]
+    for j in range(n_modes):
+        mu[j] = mu[j] / total if total > 0.0 else 1.0 / n_modes
+    x_out[:] = 0.0
+    y[:] = 0.0
+    for j in range(n_modes):
+        x_out += mu[j] * xs[j]
+        y += mu[j] * residuals[j]
     return restarted

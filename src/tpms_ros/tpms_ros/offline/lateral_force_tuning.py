@@ -117,6 +117,32 @@ def calibrate_zeta(params: ObserverVehicleParams, dt: float, ay: np.ndarray, p: 
                            samples=int(np.count_nonzero(mask)), model_zeta=params.zeta)
 
 
+def split_exponent_from_tire(a4: float, a5: float, load_n: float) -> float:
+    """Relation 2's ``split_exponent`` from a tire's Magic Formula data at a wheel load.
+
+    The left/right split follows the cornering stiffness C(Fz), so its exponent is C's local
+    load exponent b = d ln C / d ln Fz at the axle's static wheel load. In the Bakker, Nyborg &
+    Pacejka (1987) form C = a3 sin(a4 atan(a5 Fz)) (Fz in kN)::
+
+        b = a4 a5 Fz cos(a4 atan(a5 Fz)) / ((1 + (a5 Fz)^2) sin(a4 atan(a5 Fz)))
+
+    (a3 cancels). Clipped to [0, 1], the parameter's range: past the load of C's maximum b is
+    negative, and there the split is taken as even. The same tire carries a heavier car with a
+    smaller b (a passenger-car tire: 0.5 at 3 kN, 0.1 at 5 kN, 0 from 5.6 kN), which is why
+    the exponent belongs to the car as much as to the tire: pass the mean static wheel load.
+
+    Raises:
+        ValueError: a non-positive or non-finite coefficient or load.
+    """
+    for name, value in (('a4', a4), ('a5', a5), ('load_n', load_n)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f'{name} must be finite and > 0, got {value}')
+    fz = load_n / 1000.0
+    angle = a4 * math.atan(a5 * fz)
+    b = a4 * a5 * fz * math.cos(angle) / ((1.0 + (a5 * fz) ** 2) * math.sin(angle))
+    return min(1.0, max(0.0, b))
+
+
 def fy_error_percent(track: LateralForceTrack, fy_true: np.ndarray) -> np.ndarray:
     """Per-wheel RMS error of Fy as a percentage of that wheel's peak |Fy| (the target figure)."""
     fy_true = np.asarray(fy_true, dtype=float)

@@ -383,8 +383,12 @@ class LateralForceObserverProcessor:
             'ay_mps2': self._last_ay,
             'time_jumps': self.time_jumps,
             'filter': ('SKFMEC' if tuning.scaled and tuning.mec else
-                       f'EKF (scaled={tuning.scaled}, mec={tuning.mec})'),
+                       f'EKF (scaled={tuning.scaled}, mec={tuning.mec})')
+                      + (', IMM quiet/agile' if tuning.quiet_force_q > 0.0 else ''),
         })
+        if tuning.quiet_force_q > 0.0:
+            # the share of the agile filter: near 0 in ordinary driving, up in a transient
+            values['agile_mode_probability'] = float(self.observer.mode_probabilities[-1])
         values.update({f'rejected_{k}': v for k, v in self.rejected.items()})
         values.update({f'rejected_by_filter_{k}': v for k, v in health.rejected.items()})
         values.update({f'skipped_{k}': v for k, v in self.skipped.items()})
