@@ -24,8 +24,15 @@ Cars: ``--seeds tuning`` (``TUNING_SEEDS``; every choice is made there) or ``hel
 ``--cache`` (a pickle per car and case) so that settings can be compared on the same drives;
 ``--set name=value`` overrides the observer's tuning (``ObserverTuningParams``).
 
+``--scoreboard PATH`` also writes one row per case (cars within 10 %, the worst) as the main
+job's scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
+``docs/results/lateral_force_family.json``); ``--report RUN.json`` writes it from a saved
+``--json`` run instead of running.
+
 Run under tools/env.sh from the repository root:
-``python benchmarks/eval_lateral_force_family.py --seeds tuning --cars 12 [--json F]``.
+``python benchmarks/eval_lateral_force_family.py --seeds tuning --cars 12 [--json F]``;
+``python benchmarks/eval_lateral_force_family.py --seeds held-out --json /tmp/lf.json
+--scoreboard docs/results/lateral_force_family.json``.
 """
 
 from __future__ import annotations
@@ -53,12 +60,24 @@ from tpms_ros.offline.lateral_force_tuning import (
 from tpms_ros.simulation import car_family
 from tpms_ros.simulation.car_family import FamilyCar
 from tpms_ros.simulation.road_scenario import load_scenario
+from vehicle_monitor_common.family_results import (
+    FamilyResults,
+    FamilyRow,
+    current_commit,
+    today,
+    write_family_results,
+)
 from vehicle_monitor_common.parameters import parse_assignments, with_values
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_lateral_force_observer import SCENARIO, scenario_case  # noqa: E402
 
 CASES = ('kim_huh', 'urban', 'rural', 'motorway')
+CASE_TEXT = {
+    'kim_huh': "the paper's manoeuvre (braking in a turn, friction 1.1 -> 0.2, model 200 kg "
+               'light)',
+    'urban': '60 s of urban driving', 'rural': '60 s of rural driving with curves',
+    'motorway': '60 s of motorway driving with lane changes'}
 DRIVE_S = 60.0
 TARGET_PERCENT = 10.0
 GRAVITY = 9.81
@@ -151,6 +170,37 @@ def per_car(rows: Sequence[Mapping[str, Any]]) -> str:
     return '\n'.join(lines)
 
 
+def scoreboard_rows(rows: Sequence[Mapping[str, Any]]) -> list[FamilyRow]:
+    """One row per case: every car's worst wheel within the paper's 10 %."""
+    out = []
+    for case in CASES:
+        picked = [r for r in rows if r['case'] == case]
+        if not picked:
+            continue
+        worst = max(picked, key=lambda r: r['worst_percent'])
+        passed = sum(r['worst_percent'] < TARGET_PERCENT for r in picked)
+        out.append(FamilyRow(
+            f'lateral force {case}',
+            f'lateral force observer, {CASE_TEXT[case]}: Fy RMS error of every wheel < 10 % of '
+            'its peak |Fy|', passed, len(picked), 'cars', 1.0,
+            float(worst['worst_percent']), '%', f'{worst["seed"]} {worst["body"]}',
+            passed == len(picked)))
+    return out
+
+
+def write_scoreboard(path: Path, run: Mapping[str, Any], commit: str) -> None:
+    """The committed result file the main job's scoreboard shows, from a ``--json`` run."""
+    seeds = tuple(int(s) for s in run['seeds'])
+    results = FamilyResults(
+        'benchmarks/eval_lateral_force_family.py', commit, str(run.get('date', today())),
+        seeds, all(s in car_family.HELD_OUT_SEEDS for s in seeds),
+        tuple(scoreboard_rows(run['rows'])),
+        {'split': run['split'], 'overrides': run['overrides'], 'drive_s': DRIVE_S})
+    write_family_results(path, results)
+    print(f'wrote {path}: {results.met_count()} of {len(results.rows)} rows met',
+          file=sys.stderr)
+
+
 def seeds_of(text: str, cars: int | None) -> list[int]:
     """``tuning``, ``held-out`` or a comma-separated list; the first ``cars`` of them."""
     if text == 'tuning':
@@ -182,7 +232,19 @@ def main() -> None:
                         help='where simulated cases are kept')
     parser.add_argument('--processes', type=int, default=2)
     parser.add_argument('--json', type=Path, default=None, help='write every row here')
+    parser.add_argument('--scoreboard', type=Path, default=None,
+                        help='also write the family result file the main job shows')
+    parser.add_argument('--report', type=Path, default=None, metavar='RUN.json',
+                        help='do not run: write --scoreboard from a saved --json run')
+    parser.add_argument('--commit', default=None,
+                        help='the commit the saved run was made at (default: HEAD)')
     args = parser.parse_args()
+    if args.report is not None:
+        if args.scoreboard is None:
+            parser.error('--report needs --scoreboard')
+        write_scoreboard(args.scoreboard, json.loads(args.report.read_text()),
+                         args.commit or current_commit())
+        return
     overrides = parse_assignments(args.set, ObserverTuningParams())
     tuning = with_values(ObserverTuningParams(), overrides)
     seeds = seeds_of(args.seeds, args.cars)
@@ -203,11 +265,12 @@ def main() -> None:
     print(summary(rows))
     print()
     print(per_car(rows))
+    run = {'seeds': seeds, 'split': args.split, 'date': today(),
+           'overrides': {k: repr(v) for k, v in overrides.items()}, 'rows': rows}
     if args.json is not None:
-        args.json.write_text(json.dumps({'seeds': seeds, 'split': args.split,
-                                         'overrides': {k: repr(v) for k, v in
-                                                       overrides.items()},
-                                         'rows': rows}, indent=1))
+        args.json.write_text(json.dumps(run, indent=1))
+    if args.scoreboard is not None:
+        write_scoreboard(args.scoreboard, run, current_commit())
     if not math.isfinite(sum(r['worst_percent'] for r in rows)):
         print('\nsome case produced no finite estimate', file=sys.stderr)
 

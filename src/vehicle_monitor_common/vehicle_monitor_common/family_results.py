@@ -1,7 +1,8 @@
 """Held-out family results: one row per target, committed, shown under the main job's scoreboard.
 
-The family evaluations (``benchmarks/eval_tpms_family.py``, ``benchmarks/eval_rail_family.py``)
-take 15-40 minutes each, too long for the main job. Each writes its figures against the issue's
+The family evaluations (``benchmarks/eval_tpms_family.py``, ``benchmarks/eval_rail_family.py``,
+``benchmarks/eval_lateral_force_family.py``) take 10-40 minutes each, too long for the main
+job. Each writes its figures against the issue's
 targets into a small JSON file committed under ``docs/results/`` (``--scoreboard PATH``); the
 main job reads those files and prints them as a second table, headed with the commit and date
 they were measured at. This module is the one definition of that file: the row, the file, where
@@ -51,6 +52,11 @@ FAMILY_FILES = (
                'python benchmarks/eval_rail_family.py --creep-track-model spectrum '
                '--healthy-s 900 --json /tmp/rail_family.json '
                '--scoreboard docs/results/rail_family.json'),
+    FamilyFile('Lateral force observer on the held-out cars (the family of issue 21)',
+               'lateral_force_family.json',
+               'python benchmarks/eval_lateral_force_family.py --seeds held-out '
+               '--json /tmp/lateral_force_family.json '
+               '--scoreboard docs/results/lateral_force_family.json'),
 )
 
 
