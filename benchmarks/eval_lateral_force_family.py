@@ -13,7 +13,8 @@ heights, wheel radii, IMU noise) runs four cases through the road simulator:
 
 The observer gets what a user of the car can know: its body as measured (every
 ``ObserverVehicleParams`` field from the car: mass, inertias, geometry, roll stiffness and
-damping, as the method's page asks) and, with ``--split tire``, relation 2's
+damping, as the method's page asks; ``--body datasheet``: only mass, axle positions, tracks,
+CG height and wheel, the rest at the defaults) and, with ``--split tire``, relation 2's
 ``split_exponent`` from the tire's Magic Formula data at the car's mean static wheel load
 (``split_exponent_from_tire``; ``--split 0.6`` gives every car that number instead). The
 figure is the paper's:
@@ -107,13 +108,23 @@ def cached_case(car: FamilyCar, case: str, cache: Path | None) -> TuningCase:
     return made
 
 
-def user_parameters(car: FamilyCar, split: str) -> ObserverVehicleParams:
-    """What the car's user gives the observer: the body as measured and relation 2's exponent
-    (``tire``: from the tire's data at the mean static wheel load; else the number given)."""
+#: What a data sheet gives without measuring the car: mass, axle positions, tracks, CG height,
+#: wheel; the rest (inertias, sprung mass, roll centres, roll stiffness and damping) is left at
+#: the observer's defaults (``--body datasheet``).
+DATASHEET = ('m', 'lf', 'lr', 'h', 'rw', 'iw', 'tf', 'tr')
+
+
+def user_parameters(car: FamilyCar, split: str, body: str = 'measured'
+                    ) -> ObserverVehicleParams:
+    """What the car's user gives the observer: the body as measured (``measured``) or its data
+    sheet's part (``datasheet``), and relation 2's exponent (``tire``: from the tire's data at
+    the mean static wheel load; else the number given)."""
     v = car.vehicle
     names = [f.name for f in dataclasses.fields(ObserverVehicleParams)
-             if f.name != 'split_exponent']
+             if f.name != 'split_exponent' and (body == 'measured' or f.name in DATASHEET)]
     values = {name: float(getattr(v, name)) for name in names}
+    if body != 'measured':
+        values['ms'] = min(ObserverVehicleParams().ms, values['m'])
     if split == 'tire':
         mean_load = v.m * GRAVITY / 4.0
         values['split_exponent'] = split_exponent_from_tire(v.tire.a4, v.tire.a5, mean_load)
@@ -122,11 +133,11 @@ def user_parameters(car: FamilyCar, split: str) -> ObserverVehicleParams:
     return ObserverVehicleParams(**values)
 
 
-def run_car(seed: int, split: str, tuning: ObserverTuningParams,
+def run_car(seed: int, split: str, body: str, tuning: ObserverTuningParams,
             cache: Path | None) -> list[dict[str, Any]]:
     """Every case of one car: per-wheel error, worst wheel, peak force."""
     car = car_family.sample_car(seed)
-    params = user_parameters(car, split)
+    params = user_parameters(car, split, body)
     rows = []
     for case in CASES:
         data = cached_case(car, case, cache)
@@ -195,7 +206,8 @@ def write_scoreboard(path: Path, run: Mapping[str, Any], commit: str) -> None:
         'benchmarks/eval_lateral_force_family.py', commit, str(run.get('date', today())),
         seeds, all(s in car_family.HELD_OUT_SEEDS for s in seeds),
         tuple(scoreboard_rows(run['rows'])),
-        {'split': run['split'], 'overrides': run['overrides'], 'drive_s': DRIVE_S})
+        {'split': run['split'], 'body': run.get('body', 'measured'),
+         'overrides': run['overrides'], 'drive_s': DRIVE_S})
     write_family_results(path, results)
     print(f'wrote {path}: {results.met_count()} of {len(results.rows)} rows met',
           file=sys.stderr)
@@ -212,7 +224,7 @@ def seeds_of(text: str, cars: int | None) -> list[int]:
     return seeds[:cars] if cars else seeds
 
 
-def _job(arguments: tuple[int, str, ObserverTuningParams, Path | None]
+def _job(arguments: tuple[int, str, str, ObserverTuningParams, Path | None]
          ) -> list[dict[str, Any]]:
     return run_car(*arguments)
 
@@ -226,6 +238,9 @@ def main() -> None:
     parser.add_argument('--split', default='tire',
                         help="relation 2's exponent: 'tire' (from the tire's data at the car's "
                         'load) or a number for every car')
+    parser.add_argument('--body', choices=('measured', 'datasheet'), default='measured',
+                        help="the car's body as measured, or only its data sheet's part "
+                        '(mass, axles, tracks, CG height, wheel; the rest at the defaults)')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='an ObserverTuningParams override (repeatable)')
     parser.add_argument('--cache', type=Path, default=Path('/tmp/lateral_force_family'),
@@ -250,7 +265,7 @@ def main() -> None:
     seeds = seeds_of(args.seeds, args.cars)
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    jobs = [(seed, args.split, tuning, args.cache) for seed in seeds]
+    jobs = [(seed, args.split, args.body, tuning, args.cache) for seed in seeds]
     with multiprocessing.get_context('spawn').Pool(max(1, args.processes)) as pool:
         for done, car_rows in enumerate(pool.imap(_job, jobs), start=1):
             rows += car_rows
@@ -259,13 +274,13 @@ def main() -> None:
             print(f'[{done}/{len(jobs)}] car {car_rows[0]["seed"]}: '
                   + ', '.join(f'{r["case"]} {r["worst_percent"]:.1f} %' for r in car_rows)
                   + f' ({elapsed:.0f} s, ETA {eta:.0f} s)', file=sys.stderr, flush=True)
-    print(f'Lateral force observer on {len(seeds)} cars ({args.seeds}), split '
-          f'{args.split}, overrides {overrides or "none"}: worst wheel\'s Fy RMS error in % '
-          'of its peak\n')
+    print(f'Lateral force observer on {len(seeds)} cars ({args.seeds}), body {args.body}, '
+          f'split {args.split}, overrides {overrides or "none"}: worst wheel\'s Fy RMS error '
+          'in % of its peak\n')
     print(summary(rows))
     print()
     print(per_car(rows))
-    run = {'seeds': seeds, 'split': args.split, 'date': today(),
+    run = {'seeds': seeds, 'split': args.split, 'body': args.body, 'date': today(),
            'overrides': {k: repr(v) for k, v in overrides.items()}, 'rows': rows}
     if args.json is not None:
         args.json.write_text(json.dumps(run, indent=1))
