@@ -28,7 +28,8 @@ Cars: ``--seeds tuning`` (``TUNING_SEEDS``; every choice is made there) or ``hel
 ``--scoreboard PATH`` also writes one row per case (cars within 10 %, the worst) as the main
 job's scoreboard shows them (``vehicle_monitor_common.family_results``; committed as
 ``docs/results/lateral_force_family.json``); ``--report RUN.json`` writes it from a saved
-``--json`` run instead of running.
+``--json`` run instead of running. ``--plot PNG RUN.json [RUN.json ...]`` draws saved runs
+against each other: per case, each car's worst wheel against its mass, with the 10 % target.
 
 Run under tools/env.sh from the repository root:
 ``python benchmarks/eval_lateral_force_family.py --seeds tuning --cars 12 [--json F]``;
@@ -39,7 +40,7 @@ Run under tools/env.sh from the repository root:
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 import dataclasses
 import json
 import math
@@ -68,6 +69,7 @@ from vehicle_monitor_common.family_results import (
     today,
     write_family_results,
 )
+from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.parameters import parse_assignments, with_values
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -82,6 +84,26 @@ CASE_TEXT = {
 DRIVE_S = 60.0
 TARGET_PERCENT = 10.0
 GRAVITY = 9.81
+DEFAULT_MASS_KG = 1814.0   # the simulator's default car, whose wheels the tire is rated for
+
+
+def with_varied_tire(car: FamilyCar) -> FamilyCar:
+    """The car on a tire of its own (``--tires varied``): the simulator's Magic Formula tire
+    rated for the car's wheel load (every load coefficient scaled so the tire at s times the
+    load behaves as the original at the load, s = the car's mean wheel load over the default
+    car's times 0.85-1.15: a light truck gets a truck tire), its cornering stiffness 0.85-1.15
+    times, its curve's shape (a4) 0.9-1.1 times and its shape factor C 0.93-1.07 times, drawn
+    from a stream of the car's seed apart from the family's (the car itself is unchanged)."""
+    rng = np.random.default_rng(np.random.SeedSequence([21, car.seed, 7]))
+    v, base = car.vehicle, car.vehicle.tire
+    scale = v.m / DEFAULT_MASS_KG * float(rng.uniform(0.85, 1.15))
+    tire = dataclasses.replace(
+        base, a1=base.a1 / scale, a3=base.a3 * scale * float(rng.uniform(0.85, 1.15)),
+        a4=base.a4 * float(rng.uniform(0.9, 1.1)), a5=base.a5 / scale,
+        a6=base.a6 / scale ** 2, a7=base.a7 / scale, c_y=base.c_y * float(rng.uniform(0.93, 1.07)),
+        b1=base.b1 / scale, b3=base.b3 / scale, b5=base.b5 / scale, b6=base.b6 / scale ** 2,
+        b7=base.b7 / scale)
+    return dataclasses.replace(car, vehicle=dataclasses.replace(v, tire=tire))
 
 
 def simulate(car: FamilyCar, case: str) -> TuningCase:
@@ -93,9 +115,11 @@ def simulate(car: FamilyCar, case: str) -> TuningCase:
     return scenario_case(scenario)
 
 
-def cached_case(car: FamilyCar, case: str, cache: Path | None) -> TuningCase:
+def cached_case(car: FamilyCar, case: str, cache: Path | None, tires: str = 'simulator'
+                ) -> TuningCase:
     """The case from the cache, or simulated (and kept there)."""
-    path = None if cache is None else cache / f'{car.seed}_{case}.pkl'
+    suffix = '' if tires == 'simulator' else f'_{tires}'
+    path = None if cache is None else cache / f'{car.seed}_{case}{suffix}.pkl'
     if path is not None and path.is_file():
         with path.open('rb') as handle:
             kept: TuningCase = pickle.load(handle)
@@ -133,14 +157,16 @@ def user_parameters(car: FamilyCar, split: str, body: str = 'measured'
     return ObserverVehicleParams(**values)
 
 
-def run_car(seed: int, split: str, body: str, tuning: ObserverTuningParams,
+def run_car(seed: int, split: str, body: str, tires: str, tuning: ObserverTuningParams,
             cache: Path | None) -> list[dict[str, Any]]:
     """Every case of one car: per-wheel error, worst wheel, peak force."""
     car = car_family.sample_car(seed)
+    if tires == 'varied':
+        car = with_varied_tire(car)
     params = user_parameters(car, split, body)
     rows = []
     for case in CASES:
-        data = cached_case(car, case, cache)
+        data = cached_case(car, case, cache, tires)
         errors = fy_error_percent(data.run(params, tuning), data.fy_true)
         rows.append({'seed': seed, 'body': car.body, 'mass_kg': round(car.vehicle.m),
                      'case': case, 'split_exponent': params.split_exponent,
@@ -151,16 +177,21 @@ def run_car(seed: int, split: str, body: str, tuning: ObserverTuningParams,
     return rows
 
 
+def by_case(rows: Sequence[Mapping[str, Any]]
+            ) -> Iterator[tuple[str, list[Mapping[str, Any]], Mapping[str, Any], int]]:
+    """Per case that has rows: its rows, the worst car's row, and the cars within 10 %."""
+    for case in CASES:
+        picked = [r for r in rows if r['case'] == case]
+        if picked:
+            worst = max(picked, key=lambda r: r['worst_percent'])
+            yield case, picked, worst, sum(r['worst_percent'] < TARGET_PERCENT for r in picked)
+
+
 def summary(rows: Sequence[Mapping[str, Any]]) -> str:
     """Per case: cars within the target, median and worst (Markdown)."""
     lines = ['| case | within 10 % | median worst wheel, % | worst, % (car) |',
              '| --- | --- | --- | --- |']
-    for case in CASES:
-        picked = [r for r in rows if r['case'] == case]
-        if not picked:
-            continue
-        worst = max(picked, key=lambda r: r['worst_percent'])
-        passed = sum(r['worst_percent'] < TARGET_PERCENT for r in picked)
+    for case, picked, worst, passed in by_case(rows):
         lines.append(f'| {case} | {passed} / {len(picked)} | '
                      f'{np.median([r["worst_percent"] for r in picked]):.1f} | '
                      f'{worst["worst_percent"]:.1f} ({worst["seed"]}) |')
@@ -183,20 +214,12 @@ def per_car(rows: Sequence[Mapping[str, Any]]) -> str:
 
 def scoreboard_rows(rows: Sequence[Mapping[str, Any]]) -> list[FamilyRow]:
     """One row per case: every car's worst wheel within the paper's 10 %."""
-    out = []
-    for case in CASES:
-        picked = [r for r in rows if r['case'] == case]
-        if not picked:
-            continue
-        worst = max(picked, key=lambda r: r['worst_percent'])
-        passed = sum(r['worst_percent'] < TARGET_PERCENT for r in picked)
-        out.append(FamilyRow(
-            f'lateral force {case}',
-            f'lateral force observer, {CASE_TEXT[case]}: Fy RMS error of every wheel < 10 % of '
-            'its peak |Fy|', passed, len(picked), 'cars', 1.0,
-            float(worst['worst_percent']), '%', f'{worst["seed"]} {worst["body"]}',
-            passed == len(picked)))
-    return out
+    return [FamilyRow(f'lateral force {case}',
+                      f'lateral force observer, {CASE_TEXT[case]}: Fy RMS error of every wheel '
+                      '< 10 % of its peak |Fy|', passed, len(picked), 'cars', 1.0,
+                      float(worst['worst_percent']), '%', f'{worst["seed"]} {worst["body"]}',
+                      passed == len(picked))
+            for case, picked, worst, passed in by_case(rows)]
 
 
 def write_scoreboard(path: Path, run: Mapping[str, Any], commit: str) -> None:
@@ -207,10 +230,31 @@ def write_scoreboard(path: Path, run: Mapping[str, Any], commit: str) -> None:
         seeds, all(s in car_family.HELD_OUT_SEEDS for s in seeds),
         tuple(scoreboard_rows(run['rows'])),
         {'split': run['split'], 'body': run.get('body', 'measured'),
+         'tires': run.get('tires', 'simulator'),
          'overrides': run['overrides'], 'drive_s': DRIVE_S})
     write_family_results(path, results)
     print(f'wrote {path}: {results.met_count()} of {len(results.rows)} rows met',
           file=sys.stderr)
+
+
+def plot_runs(path: Path, runs: Sequence[tuple[str, Mapping[str, Any]]]) -> Path:
+    """Per case a panel: each car's worst wheel (%) against its mass, one marker per run."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(CASES), figsize=(4.2 * len(CASES), 3.8), sharey=True)
+    markers = 'os^dv'
+    for axis, case in zip(axes, CASES, strict=True):
+        for index, (label, run) in enumerate(runs):
+            picked = [r for r in run['rows'] if r['case'] == case]
+            axis.scatter([r['mass_kg'] for r in picked], [r['worst_percent'] for r in picked],
+                         marker=markers[index % len(markers)], s=22, alpha=0.8, label=label)
+        axis.axhline(TARGET_PERCENT, color='k', linewidth=0.8, linestyle='--')
+        axis.set_title(case)
+        axis.set_xlabel('car mass, kg')
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("worst wheel's Fy RMS error, % of peak")
+    axes[0].legend(fontsize=7)
+    fig.suptitle('Lateral force observer on the family of cars (target < 10 %)')
+    return save_figure(fig, path)
 
 
 def seeds_of(text: str, cars: int | None) -> list[int]:
@@ -224,7 +268,7 @@ def seeds_of(text: str, cars: int | None) -> list[int]:
     return seeds[:cars] if cars else seeds
 
 
-def _job(arguments: tuple[int, str, str, ObserverTuningParams, Path | None]
+def _job(arguments: tuple[int, str, str, str, ObserverTuningParams, Path | None]
          ) -> list[dict[str, Any]]:
     return run_car(*arguments)
 
@@ -241,6 +285,9 @@ def main() -> None:
     parser.add_argument('--body', choices=('measured', 'datasheet'), default='measured',
                         help="the car's body as measured, or only its data sheet's part "
                         '(mass, axles, tracks, CG height, wheel; the rest at the defaults)')
+    parser.add_argument('--tires', choices=('simulator', 'varied'), default='simulator',
+                        help="every car on the simulator's tire, or each on a tire of its own "
+                        '(rated for its load, other stiffness and shape)')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='an ObserverTuningParams override (repeatable)')
     parser.add_argument('--cache', type=Path, default=Path('/tmp/lateral_force_family'),
@@ -253,7 +300,18 @@ def main() -> None:
                         help='do not run: write --scoreboard from a saved --json run')
     parser.add_argument('--commit', default=None,
                         help='the commit the saved run was made at (default: HEAD)')
+    parser.add_argument('--plot', nargs='+', default=None, metavar=('PNG', 'RUN.json'),
+                        help='do not run: draw saved --json runs (label=path or path) to PNG')
     args = parser.parse_args()
+    if args.plot is not None:
+        if len(args.plot) < 2:
+            parser.error('--plot needs a PNG path and at least one saved run')
+        runs = []
+        for given in args.plot[1:]:
+            label, _, name = given.rpartition('=')
+            runs.append((label or Path(name).stem, json.loads(Path(name).read_text())))
+        print(f'wrote {plot_runs(Path(args.plot[0]), runs)}')
+        return
     if args.report is not None:
         if args.scoreboard is None:
             parser.error('--report needs --scoreboard')
@@ -265,7 +323,7 @@ def main() -> None:
     seeds = seeds_of(args.seeds, args.cars)
     started = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    jobs = [(seed, args.split, args.body, tuning, args.cache) for seed in seeds]
+    jobs = [(seed, args.split, args.body, args.tires, tuning, args.cache) for seed in seeds]
     with multiprocessing.get_context('spawn').Pool(max(1, args.processes)) as pool:
         for done, car_rows in enumerate(pool.imap(_job, jobs), start=1):
             rows += car_rows
@@ -275,12 +333,13 @@ def main() -> None:
                   + ', '.join(f'{r["case"]} {r["worst_percent"]:.1f} %' for r in car_rows)
                   + f' ({elapsed:.0f} s, ETA {eta:.0f} s)', file=sys.stderr, flush=True)
     print(f'Lateral force observer on {len(seeds)} cars ({args.seeds}), body {args.body}, '
-          f'split {args.split}, overrides {overrides or "none"}: worst wheel\'s Fy RMS error '
-          'in % of its peak\n')
+          f'tires {args.tires}, split {args.split}, overrides {overrides or "none"}: '
+          'worst wheel\'s Fy RMS error in % of its peak\n')
     print(summary(rows))
     print()
     print(per_car(rows))
-    run = {'seeds': seeds, 'split': args.split, 'body': args.body, 'date': today(),
+    run = {'seeds': seeds, 'split': args.split, 'body': args.body, 'tires': args.tires,
+           'date': today(),
            'overrides': {k: repr(v) for k, v in overrides.items()}, 'rows': rows}
     if args.json is not None:
         args.json.write_text(json.dumps(run, indent=1))

@@ -238,3 +238,41 @@ def test_beat_table_counts_held_period_cars_by_edge_beat(tmp_path: Path,
     # 3 healthy tires x 10 ticks in the 0-10 Hz band and in the 80-100 Hz band
     assert [int(n) for n in ticks] == [30, 0, 0, 0, 0, 0, 0, 30, 0, 0]
     assert shares[0].strip() == '13.3 %' and shares[7].strip() == '0.0 %'
+
+
+lateral = _load('eval_lateral_force_family')
+
+
+def test_lateral_force_rows_count_cars_within_ten_percent(tmp_path: Path) -> None:
+    """One row per case with rows: the cars whose worst wheel is under 10 %, the worst car; the
+    row is met only when every car is; the file the main job reads round-trips."""
+    rows = [{'seed': 21000, 'body': 'passenger', 'case': 'kim_huh', 'worst_percent': 9.9},
+            {'seed': 21001, 'body': 'light_truck', 'case': 'kim_huh', 'worst_percent': 10.4},
+            {'seed': 21000, 'body': 'passenger', 'case': 'rural', 'worst_percent': 3.0},
+            {'seed': 21001, 'body': 'light_truck', 'case': 'rural', 'worst_percent': 6.8}]
+    made = {row.target: row for row in lateral.scoreboard_rows(rows)}
+    assert set(made) == {'lateral force kim_huh', 'lateral force rural'}
+    kim = made['lateral force kim_huh']
+    assert (kim.passed, kim.cases, kim.met) == (1, 2, False)
+    assert kim.worst_value == 10.4 and kim.worst_case == '21001 light_truck'
+    assert made['lateral force rural'].met
+    path = tmp_path / 'lateral_force_family.json'
+    lateral.write_scoreboard(path, {'seeds': [21000, 21001], 'split': 'tire', 'overrides': {},
+                                    'date': '2026-12-06', 'rows': rows}, 'abc123')
+    loaded = load_family_results(path)
+    assert loaded.held_out and loaded.met_count() == 1 and loaded.commit == 'abc123'
+
+
+def test_lateral_force_user_parameters() -> None:
+    """The measured body is the car's; the data sheet keeps the defaults for what a data sheet
+    does not give; the tire's split is its cornering stiffness exponent at the car's load."""
+    car = lateral.car_family.sample_car(21500)
+    measured = lateral.user_parameters(car, 'tire', 'measured')
+    datasheet = lateral.user_parameters(car, '0.6', 'datasheet')
+    default = lateral.ObserverVehicleParams()
+    assert measured.iz == pytest.approx(car.vehicle.iz) and measured.m == pytest.approx(
+        car.vehicle.m)
+    assert datasheet.iz == default.iz and datasheet.kphi_f == default.kphi_f
+    assert datasheet.m == pytest.approx(car.vehicle.m) and datasheet.split_exponent == 0.6
+    assert measured.split_exponent == pytest.approx(lateral.split_exponent_from_tire(
+        car.vehicle.tire.a4, car.vehicle.tire.a5, car.vehicle.m * 9.81 / 4.0))
