@@ -111,6 +111,10 @@ class LateralForceObserverNodeParams(ProcessorParams):
     imu_frozen_s: float = param(0.5, 'an IMU whose ax, ay, roll and yaw rates all repeat '
                                 'their exact values this long is frozen: its samples are '
                                 'skipped until it moves again, s', low=0.01, high=60.0)
+    gyro_noise_warn_ratio: float = param(2.0, 'a yaw-rate or roll-rate residual whose RMS over '
+                                         'the last 10 s exceeds this many r_std is a gyro '
+                                         'noisier than r_std says (WARN: set r_std)', low=1.0,
+                                         high=100.0)
 
 
 class LateralForceObserverProcessor:
@@ -425,6 +429,13 @@ class LateralForceObserverProcessor:
             problems.warn(f'{filter_rejected - self._filter_rejected_seen} samples rejected by '
                           'the filter (non-finite or saturated)')
             self._filter_rejected_seen = filter_rejected
+        ratio = self.observer.gyro_residual_ratio
+        if ratio is not None:
+            values['gyro_residual_ratio'] = [float(ratio[0]), float(ratio[1])]
+            if max(ratio) > self.node_params.gyro_noise_warn_ratio:
+                problems.warn(f'yaw/roll-rate residuals {ratio[0]:.1f} / {ratio[1]:.1f} x r_std '
+                              'over 10 s: the gyro is noisier than r_std says and the forces '
+                              "follow its noise (set r_std's r and p to the IMU's noise)")
         if health.covariance_resets:
             values['note'] = 'covariance lost positive definiteness: filter reset (counted)'
         return problems.status(values, 'estimating tire forces')
