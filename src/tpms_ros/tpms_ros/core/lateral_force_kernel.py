@@ -129,6 +129,27 @@ def initial_state(ay: float, r: float, pr: float, vx: float, model: np.ndarray,
     x[6] = scaling[6] * fyr
 
 
+@njit(types.float64(_V, _M), cache=True)
+def gaussian_log_density(y: np.ndarray, cov: np.ndarray) -> float:
+    """log N(y; 0, cov) from one Cholesky factor L of ``cov`` (y^T cov^-1 y = |L^-1 y|^2,
+    log det cov = 2 sum log L_ii); -inf when ``cov`` is not positive definite."""
+    try:
+        lower = np.linalg.cholesky(cov)
+    except Exception:  # noqa: BLE001 - numba raises LinAlgError as a plain exception
+        return -math.inf
+    n = y.size
+    whitened = np.empty(n)
+    quadratic = log_det = 0.0
+    for i in range(n):
+        acc = y[i]
+        for k in range(i):
+            acc -= lower[i, k] * whitened[k]
+        whitened[i] = acc / lower[i, i]
+        quadratic += whitened[i] * whitened[i]
+        log_det += 2.0 * math.log(lower[i, i])
+    return -0.5 * (quadratic + log_det + n * math.log(2.0 * math.pi))
+
+
 @njit(types.int64(_V, _M, _V, types.boolean, types.float64, _V, _V, types.float64,
                   types.float64, _V, _M, _V, _V, _M, _M, _V, types.boolean, _M, _V, _V),
       cache=True)
@@ -187,9 +208,7 @@ def filter_step(x: np.ndarray, p: np.ndarray, u_prev: np.ndarray, predict: bool,
         gain = np.linalg.solve(residual_cov, pht.T).T
     for i in range(N_Z):
         y[i] = z[i] - z_hat[i]
-    sign, log_det = np.linalg.slogdet(residual_cov)
-    log_likelihood[0] = -0.5 * (y @ np.linalg.solve(residual_cov, y) + log_det
-                                + N_Z * math.log(2.0 * math.pi)) if sign > 0 else -math.inf
+    log_likelihood[0] = gaussian_log_density(y, residual_cov)
     i_kh = np.eye(N_X) - gain @ h
     joseph = i_kh @ p @ i_kh.T + gain @ r @ gain.T
     for i in range(N_X):
@@ -227,20 +246,23 @@ def imm_step(xs: np.ndarray, ps: np.ndarray, mu: np.ndarray, u_prev: np.ndarray,
     prior = mu.copy()
     if predict and n_modes > 1:
         stay = 1.0 - switch * (n_modes - 1)
+        # share[i, j]: the probability of mode i before and j now, then as a weight of j's mix
+        share = np.empty((n_modes, n_modes))
         for j in range(n_modes):
             prior[j] = 0.0
             for i in range(n_modes):
-                prior[j] += (stay if i == j else switch) * mu[i]
+                share[i, j] = (stay if i == j else switch) * mu[i]
+                prior[j] += share[i, j]
+            for i in range(n_modes):
+                share[i, j] /= prior[j]
         mixed_x = np.zeros((n_modes, N_X))
         mixed_p = np.zeros((n_modes, N_X, N_X))
         for j in range(n_modes):
             for i in range(n_modes):
-                weight = (stay if i == j else switch) * mu[i] / prior[j]
-                mixed_x[j] += weight * xs[i]
+                mixed_x[j] += share[i, j] * xs[i]
             for i in range(n_modes):
-                weight = (stay if i == j else switch) * mu[i] / prior[j]
                 spread = xs[i] - mixed_x[j]
-                mixed_p[j] += weight * (ps[i] + np.outer(spread, spread))
+                mixed_p[j] += share[i, j] * (ps[i] + np.outer(spread, spread))
         xs[:, :] = mixed_x
         ps[:, :, :] = mixed_p
     restarted = 0

@@ -462,9 +462,10 @@ class LateralForceObserver:
         x)."""
         c, s = math.cos(steer), math.sin(steer)
         z = np.array([ax, ay, r, pr, vx_wheel])
-        predict = self._x is not None and self._u_prev is not None
-        held = self._u_prev if self._u_prev is not None else self._no_inputs
-        if not predict:
+        # a start (first sample, or after a gap restart) predicts nothing
+        held = self._u_prev if self._x is not None else None
+        predict = held is not None
+        if held is None:
             held = self._no_inputs
             initial_state(ay, r, pr, vx_wheel, self._model, self._s, self._xs[0])
             self._xs[:] = self._xs[0]
