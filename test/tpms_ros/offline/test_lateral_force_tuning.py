@@ -8,7 +8,7 @@ builders of ``benchmarks/bench_lateral_force_observer.py``.
 from __future__ import annotations
 
 from dataclasses import replace
-import importlib.util
+import importlib
 from pathlib import Path
 import sys
 
@@ -32,12 +32,11 @@ from tpms_ros.offline.lateral_force_tuning import (
 from tpms_ros.simulation import car_family
 from tpms_ros.simulation.vehicle_dynamics import VehicleParams
 
-_BENCH = Path(__file__).resolve().parents[3] / 'benchmarks' / 'bench_lateral_force_observer.py'
-_spec = importlib.util.spec_from_file_location('bench_lateral_force_observer', _BENCH)
-assert _spec is not None and _spec.loader is not None
-bench = importlib.util.module_from_spec(_spec)
-sys.modules['bench_lateral_force_observer'] = bench
-_spec.loader.exec_module(bench)
+BENCHMARKS = Path(__file__).resolve().parents[3] / 'benchmarks'
+sys.path.insert(0, str(BENCHMARKS))    # the scripts import each other beside them
+bench = importlib.import_module('bench_lateral_force_observer')
+# the family evaluation's user parameters: a car's body as measured, its tire's split
+family = importlib.import_module('eval_lateral_force_family')
 
 
 @pytest.fixture(scope='module')
@@ -132,12 +131,7 @@ def test_quiet_filter_keeps_the_gyro_noise_out_of_a_family_drive() -> None:
     of a quiet and that agile filter does not (5.8 %); bounded at 10 % and above 20 %."""
     car = car_family.sample_car(21501)
     case = bench.scenario_case(car_family.car_scenario(car, 'rural', 60.0))
-    v = car.vehicle
-    params = ObserverVehicleParams(
-        m=v.m, ms=v.ms, iz=v.iz, ix=v.ix, iw=v.iw, lf=v.lf, lr=v.lr, h=v.h, hf=v.hf, hr=v.hr,
-        e=v.e, rw=v.rw, tf=v.tf, tr=v.tr, kphi_f=v.kphi_f, kphi_r=v.kphi_r, cphi_f=v.cphi_f,
-        cphi_r=v.cphi_r,
-        split_exponent=split_exponent_from_tire(v.tire.a4, v.tire.a5, v.m * 9.81 / 4.0))
+    params = family.user_parameters(car, 'tire')
     imm = np.max(fy_error_percent(case.run(params), case.fy_true))
     single = np.max(fy_error_percent(
         case.run(params, ObserverTuningParams(quiet_force_q=0.0,
@@ -152,11 +146,7 @@ def test_gyro_residual_ratio_tells_a_gyro_noisier_than_r_std() -> None:
     sample (measured 0.60-0.68); with a 10 mrad/s gyro it reads above 2, the processor's WARN
     level, from 20 s on (measured 2.33-2.49)."""
     car = car_family.sample_car(21507)
-    v = car.vehicle
-    params = ObserverVehicleParams(
-        m=v.m, ms=v.ms, iz=v.iz, ix=v.ix, iw=v.iw, lf=v.lf, lr=v.lr, h=v.h, hf=v.hf, hr=v.hr,
-        e=v.e, rw=v.rw, tf=v.tf, tr=v.tr, kphi_f=v.kphi_f, kphi_r=v.kphi_r, cphi_f=v.cphi_f,
-        cphi_r=v.cphi_r)
+    params = family.user_parameters(car, str(ObserverVehicleParams().split_exponent))
     ratios = {}
     for noise in (car.sensors.gyro_noise_rad_s, 0.01):
         noisy = replace(car, sensors=replace(car.sensors, gyro_noise_rad_s=noise))
