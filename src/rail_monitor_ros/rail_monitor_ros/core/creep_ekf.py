@@ -88,6 +88,15 @@ Choices and why:
   cached (``ONSET_SEARCH_GRID_REACH``), as new ones were most of an alarm's cost, and the one
   kept is filtered again exactly (the same onsets and estimates on rail_creep_steps, half the
   discretisations).
+* **Ramps by the rate of ln c**: a gradual change (a rail getting wet over a few hundred
+  metres) is no step. A walk quiet enough for steps (0.02 / sqrt(s): a 0.3 mm track map biases
+  c less than with 0.05) lags a ramp; the rate of ln c is a state instead (integrated random
+  walk, ``creep_trend_walk_std``), which follows a ramp without lag and without an alarm
+  (restarting the rate at 0 on each alarm changed nothing measurable). Development-wide against
+  the walk of 0.05 alone: steps with a 0.3 mm map 3 -> 24 of 72 within 5 % in 1 s, pattern D
+  without a track 45 -> 48, the others as they were; a 15 s ramp from 1 to 0.5 followed as
+  well (rms 2.6 %); a 3 s one, followed as steps, later (rms 10.7 -> 13.5 %;
+  docs/methods/rail_family_evaluation.md, "The rate of ln c").
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
   the track), so the discretisation sees the track move within a sample (a first-order hold).
@@ -273,8 +282,9 @@ class CreepEkfParams:
     ``vehicle.*``). All are read-only on a running node but the vehicle speed and the
     low-adhesion flag's threshold and hysteresis. Why some values are what they are:
 
-    * creep_walk_std_per_sqrt_s: how fast c drifts between detected changes (slow ramps); steps are
-      caught by the change detector (change_drift, change_threshold, change_log_std).
+    * creep_walk_std_per_sqrt_s, creep_trend_walk_std: how fast c and its rate drift between
+      detected changes; steps are caught by the change detector (change_drift,
+      change_threshold, change_log_std).
     * body_accel_process_std_mps2: the half car's body ignores the other bogie and the body yaw of
       the real car, its largest model error: give it several m/s^2 there.
     * max_outlier_run_s: more than half of the samples outliers over about this long counts as
@@ -304,8 +314,12 @@ class CreepEkfParams:
                                         high=2.0, read_only=True)
     initial_log_creep_std: float = param(0.3, 'initial standard deviation of ln c, 1',
                                          low=1e-4, high=10.0, read_only=True)
-    creep_walk_std_per_sqrt_s: float = param(0.05, 'random walk of ln c between detected changes, '
+    creep_walk_std_per_sqrt_s: float = param(0.02, 'random walk of ln c between detected changes, '
                                              '1/sqrt(s)', low=1e-6, high=10.0, read_only=True)
+    creep_trend_walk_std: float = param(0.003, 'random walk of the rate of ln c between detected '
+                                        'changes (a state when above 0: a gradual change '
+                                        'followed without lag), 1/(s sqrt(s))', low=0.0,
+                                        high=10.0, read_only=True)
     min_creep_factor: float = param(0.05, 'lower bound of c (clip, counted), 1', low=1e-3,
                                     high=2.0, read_only=True)
     max_creep_factor: float = param(MAX_CREEP_FACTOR, "upper bound of c (clip, counted), at "
@@ -496,7 +510,8 @@ class CreepEkfParams:
                     'bound_hold_s', 'max_gap_s', 'change_drift', 'change_threshold',
                     'change_log_std', 'change_onset_step_s', 'low_adhesion_threshold')
         require_positive(self, positive)
-        require_positive(self, ('change_rewind_s', 'change_onset_search_s',
+        require_positive(self, ('creep_trend_walk_std', 'change_rewind_s',
+                                'change_onset_search_s',
                                 'low_adhesion_hysteresis', 'track_delay_min_wavelength_m'),
                          allow_zero=True)
         if self.track_delay_min_wavelength_m > 0.0 and (self.model != 'full'
@@ -855,10 +870,11 @@ class _Rewind:
 
     def starts(self, side: str) -> list[int]:
         """The onsets to try for an alarm of ``side``: the kept states from ``search`` before
-        where it last left zero up to now; none if that is older than the inputs kept."""
+        where it last left zero up to now; if that is older than the inputs kept (a gradual
+        change builds the statistic slowly), the oldest kept states, ``search`` of them."""
         zero = self.zero.get(side)
         if zero is None or zero < self.first:
-            return []
+            return sorted(i for i in self.states if i <= self.first + self.search)
         return sorted(i for i in self.states if i >= zero - self.search)
 
     def since(self, start: int) -> Iterator[_Input]:
@@ -878,8 +894,10 @@ class CreepEkf:
     bogie's spring and damper ratio less 1, random walks, or for pattern D a force and a
     moment per bogie, Gauss-Markov; none in the half car), the track map's error under each
     wheelset (the 'spectrum' track model), the sensor offsets, the log creep factor (random
-    walk). A suspension ratio at or below 0 is divergence (reset, reason
-    'suspension_ratio_impossible'): the ratios took up data that are no vehicle.
+    walk) and, when ``creep_trend_walk_std`` > 0, its rate (ln c integrates it: a gradual
+    change of adhesion is followed without the lag a random walk alone leaves). A suspension
+    ratio at or below 0 is divergence (reset, reason 'suspension_ratio_impossible'): the
+    ratios took up data that are no vehicle.
 
     Args:
         params: filter settings.
@@ -920,11 +938,16 @@ class CreepEkf:
         self.n_map_error = self._model.n_map_error
         self.n_offsets = self._model.n_offsets
         self.i_theta = self._model.i_offset + self.n_offsets
-        self.dim_x = self.i_theta + 1
+        #: The rate of ln c (per s) when the filter carries it (creep_trend_walk_std > 0).
+        self.i_trend = self.i_theta + 1 if p.creep_trend_walk_std > 0.0 else None
+        self.dim_x = self.i_theta + 1 + (self.i_trend is not None)
         self._build_observation()
         self._q_x = self._state_process_noise()
+        # Its rows from ln c on are the constant transition of ln c and its rate.
         self._jacobian = np.eye(self.dim_x)
-        self._stepped_f = np.empty((self.dim_x - 1, self.dim_x - 1))
+        if self.i_trend is not None:
+            self._jacobian[self.i_theta, self.i_trend] = self._dt
+        self._stepped_f = np.empty((self.i_theta, self.i_theta))
         self._update_out = np.empty(4)      # ekf_update's NIS, ln c correction, spread, ln det S
         self._sample_log_likelihood = 0.0
         self._first_pass_log_likelihood = 0.0
@@ -1020,7 +1043,9 @@ class CreepEkf:
             track = [np.zeros(shaping.a.shape[0])]
         self.P = np.diag(np.concatenate([
             scale ** 2, *track, self._disturbance_std() ** 2, *error, offsets,
-            [p.initial_log_creep_std ** 2]]))
+            [p.initial_log_creep_std ** 2],
+            # The rate starts at 0 with the spread its walk reaches in a second.
+            [p.creep_trend_walk_std ** 2] if self.i_trend is not None else []]))
         if shaping is not None:
             # The shaped track and its delayed copies start with their stationary covariance.
             states = self._model.track_states
@@ -1040,6 +1065,11 @@ class CreepEkf:
     def creep_factor(self) -> float:
         """Current estimate of c."""
         return math.exp(self.x[self.i_theta])
+
+    @property
+    def log_creep_rate_per_s(self) -> float:
+        """The rate of ln c, 1/s (c falling by 3 % a second: -0.03), NaN without that state."""
+        return math.nan if self.i_trend is None else float(self.x[self.i_trend])
 
     @property
     def std_dev(self) -> float:
@@ -1237,6 +1267,11 @@ class CreepEkf:
             decay = math.exp(-dt / p.other_bogie_correlation_s)
             q[dist, dist] = np.diag(self._disturbance_std() ** 2 * (1.0 - decay ** 2))
         q[i_theta, i_theta] = p.creep_walk_std_per_sqrt_s ** 2 * dt
+        if self.i_trend is not None:
+            # ln c integrates its rate, a random walk (integrated random walk, exact).
+            idx = [i_theta, self.i_trend]
+            q[np.ix_(idx, idx)] += p.creep_trend_walk_std ** 2 * np.array(
+                [[dt ** 3 / 3.0, dt ** 2 / 2.0], [dt ** 2 / 2.0, dt]])
         return q
 
     def discretization(self, creep_factor: float, exact: bool = False) -> Discretization:
@@ -1275,7 +1310,7 @@ class CreepEkf:
         """The augmented transition x -> f(x) and its Jacobian df/dx at x.
 
         Args:
-            x: (dim_x,) augmented state [q, y_r1, y_r2, y_r1', y_r2', d, ln c].
+            x: (dim_x,) augmented state [q, y_r1, y_r2, y_r1', y_r2', d, ln c(, its rate)].
             exact: discretise exactly at c (no grid, no Taylor step), for checks.
 
         Returns:
@@ -1456,7 +1491,7 @@ class CreepEkf:
         side, self._alarm = self._alarm, ''
         starts = self._rewind.starts(side)
         if not starts:
-            return estimate         # the onset is beyond change_rewind_s: widened at the alarm
+            return estimate         # nothing kept (change_rewind_s 0): widened at the alarm
         at_alarm = _Kept(self)
         counts = (dict(self.rejected), self.clipped)
         # The change is the one detected: no CUSUM while filtering again, and both sides

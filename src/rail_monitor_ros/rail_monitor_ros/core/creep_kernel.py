@@ -40,15 +40,19 @@ def augmented_transition(x: np.ndarray, fg: np.ndarray, dfg: np.ndarray, c: floa
     delta_j = x[i_sens[j]] are parameters carried in the state (the full model's suspension
     ratio errors): first order in each, as in c.
 
+    The states from ln c on (ln c, and its rate when the filter carries one) step linearly
+    with a constant matrix: the rows from ``i_theta`` on of ``jac``, which the caller's buffer
+    holds.
+
     Args:
-        x: (n,) state, ln c last (index ``i_theta`` = n - 1).
-        fg, dfg: (n - 1, n - 1) F and dF/dc at the grid point ``c_grid``.
+        x: (n,) state, the model's states before ln c (index ``i_theta``).
+        fg, dfg: (i_theta, i_theta) F and dF/dc at the grid point ``c_grid``.
         c: e^(x[i_theta]).
         sens: (k, n - 1, n - 1) dF/d delta_j at the grid point (k may be 0).
         i_sens: (k,) the states delta_j.
-        x_next: (n,) output: [F(c, delta) x_q, ln c].
-        jac: (n, n) output, its last row the unit row of ln c (left as it is: the caller's
-            buffer holds it).
+        x_next: (n,) output: [F(c, delta) x_q, the rows of ln c and its rate].
+        jac: (n, n) output, its rows from ``i_theta`` on left as they are (the caller's buffer
+            holds them).
     """
     dc = c - c_grid
     n = i_theta
@@ -62,7 +66,11 @@ def augmented_transition(x: np.ndarray, fg: np.ndarray, dfg: np.ndarray, c: floa
     jac[:n, i_theta] = c * np.dot(dfg, x_q)
     for j in range(i_sens.shape[0]):
         jac[:n, i_sens[j]] += np.dot(sens[j], x_q)
-    x_next[i_theta] = x[i_theta]
+    for r in range(n, x.shape[0]):
+        acc = 0.0
+        for col in range(n, x.shape[0]):
+            acc += jac[r, col] * x[col]
+        x_next[r] = acc
 
 
 @njit(types.void(VECTOR, MATRIX, MATRIX, MATRIX, types.float64, types.float64, TENSOR,

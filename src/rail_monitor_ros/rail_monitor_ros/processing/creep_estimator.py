@@ -523,6 +523,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             **{f'rejected_{k}': v for k, v in ekf.rejected.items()},
             'clipped_at_bound': ekf.clipped,
             'changes_detected': ekf.changes_detected,
+            'log_creep_rate_per_s': ekf.log_creep_rate_per_s,
             **{f'resets_{k}': v for k, v in ekf.resets.items()},
             'discretizations': ekf.discretizations,
             'track_input': 'stale' if self._track_stale else 'known',
