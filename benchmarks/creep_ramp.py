@@ -12,8 +12,9 @@ ends. Never on held-out cars: settings are judged here.
 
 Run: ``source tools/env.sh && python benchmarks/creep_ramp.py [--seeds development]
 [--settings shipped creep_walk_std_per_sqrt_s=0.02,change_log_std=0.8] [--ramp-s 15]
-[--to 0.5] [--track exact]``: each setting is ``shipped`` or comma-separated creep estimator
-parameters (``NAME=VALUE``, as ``eval_rail_family.py --creep-set``) over the shipped ones.
+[--to 0.5] [--track exact] [--plot ramp.png]``: each setting is ``shipped`` or comma-separated
+creep estimator parameters (``NAME=VALUE``, as ``eval_rail_family.py --creep-set``) over the
+shipped ones; ``--plot`` draws the first car's run per setting.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from rail_monitor_ros.simulation.rail_family import (
     scenario_mapping,
 )
 from rail_monitor_ros.simulation.rail_scenario import rail_scenario_from_dict
+from vehicle_monitor_common.figures import pyplot, save_figure
 from vehicle_monitor_common.parameters import ConfigurationError, parse_assignments
 
 SEED_SETS = {'development': DEVELOPMENT_SEEDS, 'development-wide': WIDE_DEVELOPMENT_SEEDS}
@@ -61,10 +63,10 @@ def parse_setting(text: str) -> dict[str, Any]:
     return parse_assignments(text.split(','), CreepEkfParams())
 
 
-def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_s: float,
-                to: float, track_kind: str) -> dict[str, tuple[float, float, float]]:
-    """Per setting (its name -> its parameters over the shipped ones, :func:`parse_setting`):
-    (rms relative error during the ramp, its largest, the largest after it)."""
+def ramp_runs(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_s: float,
+              to: float, track_kind: str) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """The car's ramp once simulated, filtered per setting (its name -> its parameters over the
+    shipped ones, :func:`parse_setting`): (time, the true c, per setting the estimate)."""
     speed = sample_speeds(car, 2)[0]
     events = [{'time': BEFORE_S, 'creep_factor': to, 'ramp': ramp_s}]
     map_error = MAP_ERROR if track_kind == 'map0.3' else 0.0
@@ -73,16 +75,45 @@ def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_
         BEFORE_S + ramp_s + AFTER_S, events, {'creep_factor': START}, map_error)))
     z = creep_inputs(result, 'C', True)
     track = creep_track(result)
-    during = (result.time >= BEFORE_S + 1.0) & (result.time <= BEFORE_S + ramp_s)
-    after = result.time > BEFORE_S + ramp_s + 1.0
-    out = {}
+    estimates = {}
     for setting, overrides in settings.items():
         params = creep_params(car, speed, f'C-spec/{track_kind}', 'spectrum', True, overrides)
-        run = CreepEkf(params).run(z, track, result.speed)
-        error = np.abs(run.creep_factor - result.creep_factor) / result.creep_factor
+        estimates[setting] = CreepEkf(params).run(z, track, result.speed).creep_factor
+    return result.time, result.creep_factor, estimates
+
+
+def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_s: float,
+                to: float, track_kind: str) -> dict[str, tuple[float, float, float]]:
+    """Per setting (:func:`ramp_runs`): (rms relative error during the ramp, its largest, the
+    largest after it)."""
+    time, truth, estimates = ramp_runs(car, settings, ramp_s, to, track_kind)
+    during = (time >= BEFORE_S + 1.0) & (time <= BEFORE_S + ramp_s)
+    after = time > BEFORE_S + ramp_s + 1.0
+    out = {}
+    for setting, estimate in estimates.items():
+        error = np.abs(estimate - truth) / truth
         out[setting] = (float(np.sqrt(np.nanmean(error[during] ** 2))),
                         float(np.nanmax(error[during])), float(np.nanmax(error[after])))
     return out
+
+
+def plot_ramp(path: str, car: FamilyCar, settings: Mapping[str, Mapping[str, Any]],
+              ramp_s: float, to: float, track_kind: str) -> None:
+    """The true c and each setting's estimate on one car's ramp, one line per setting."""
+    time, truth, estimates = ramp_runs(car, settings, ramp_s, to, track_kind)
+    plt = pyplot()
+    fig, axis = plt.subplots(figsize=(8.0, 4.0))
+    axis.plot(time, truth, color='k', linewidth=1.5, label='true c')
+    for setting, estimate in estimates.items():
+        axis.plot(time, estimate, linewidth=0.9, label=setting)
+    axis.set_xlabel('time, s')
+    axis.set_ylabel('creep factor c')
+    axis.set_ylim(0.3, 1.3)
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=7)
+    axis.set_title(f'Creep estimator, pattern C ({track_kind} track), car {car.seed}: '
+                   f'c {START:g} -> {to:g} over {ramp_s:g} s')
+    print(f'wrote {save_figure(fig, path)}')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -95,6 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--ramp-s', type=float, default=15.0)
     parser.add_argument('--to', type=float, default=0.5, help='c at the end of the ramp')
     parser.add_argument('--track', choices=('exact', 'map0.3'), default='exact')
+    parser.add_argument('--plot', metavar='PNG',
+                        help="also draw the first car's run per setting into this file")
     args = parser.parse_args(argv)
     settings = {}
     for setting in args.settings:
@@ -105,6 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]
+    if args.plot:
+        plot_ramp(args.plot, cars[0], settings, args.ramp_s, args.to, args.track)
     rows: dict[str, list[tuple[float, float, float]]] = {s: [] for s in args.settings}
     for car in cars:
         errors = ramp_errors(car, settings, args.ramp_s, args.to, args.track)

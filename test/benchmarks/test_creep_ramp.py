@@ -36,3 +36,11 @@ def test_a_setting_is_shipped_or_checked_parameters() -> None:
     for bad in ('creep_walk=0.02', 'creep_walk_std_per_sqrt_s=-1', 'change_log_std'):
         with pytest.raises(ConfigurationError):
             creep_ramp.parse_setting(bad)
+
+
+def test_the_plot_draws_each_setting(tmp_path: Path) -> None:
+    """``--plot``: the first car's run per setting drawn into a PNG."""
+    out = tmp_path / 'ramp.png'
+    assert creep_ramp.main(['--cars', '1', '--ramp-s', '1', '--settings', 'shipped',
+                            'creep_trend_walk_std=0', '--plot', str(out)]) == 0
+    assert out.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
