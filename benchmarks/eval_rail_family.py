@@ -99,7 +99,6 @@ from vehicle_monitor_common.family_results import (  # noqa: E402
     FamilyResults,
     FamilyRow,
     current_commit,
-    load_family_results,
     today,
     write_family_results,
 )
@@ -592,33 +591,16 @@ def scoreboard_rows(creep: Sequence[CreepCase], imm: Sequence[ImmCase], healthy_
     return [row for row in rows if row is not None]
 
 
-def write_scoreboard(path: str, out: dict[str, Any], commit: str, keep: str | None = None,
-                     ) -> None:
-    """The committed result file the main job's scoreboard shows, from the ``--json`` dict.
-
-    ``keep``: an earlier result file of the same seeds whose rows this run did not measure
-    (a section skipped: the IMM's 30 healthy minutes per car take hours) are carried over,
-    each saying where it was measured.
-    """
+def write_scoreboard(path: str, out: dict[str, Any], commit: str) -> None:
+    """The committed result file the main job's scoreboard shows, from the ``--json`` dict."""
     settings = out.get('settings', {})
     creep = [CreepCase(**c) for c in out.get('creep', [])]
     imm = [ImmCase(**c) for c in out.get('imm', [])]
     seeds = tuple(int(s) for s in out['seeds'])
-    rows = scoreboard_rows(creep, imm, float(settings['healthy_s']))
-    if keep:
-        earlier = load_family_results(keep)
-        if earlier.seeds != seeds:
-            raise SystemExit(f'--keep-rows {keep}: other seeds than this run')
-        measured = {row.target for row in rows}
-        order = [row.target for row in earlier.rows]
-        carried = [replace(row, detail='; '.join(filter(None, (
-            f'carried from the run at {earlier.commit[:7]} on {earlier.date}', row.detail))))
-            for row in earlier.rows if row.target not in measured]
-        rows = sorted(rows + carried, key=lambda row: order.index(row.target)
-                      if row.target in order else len(order))
     results = FamilyResults(
         'benchmarks/eval_rail_family.py', commit, out.get('date', today()), seeds,
-        all(s in HELD_OUT_SEEDS for s in seeds), tuple(rows), settings)
+        all(s in HELD_OUT_SEEDS for s in seeds),
+        tuple(scoreboard_rows(creep, imm, float(settings['healthy_s']))), settings)
     write_family_results(path, results)
     _say(f'wrote {path}: {results.met_count()} of {len(results.rows)} targets met')
 
@@ -656,11 +638,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--scoreboard', default=None,
                         help='also write the per-target result file the main job shows '
                              '(docs/results/rail_family.json)')
-    parser.add_argument('--keep-rows', default=None, metavar='RESULTS',
-                        help='with --scoreboard: carry the rows this run did not measure from '
-                             'this earlier result file of the same seeds (e.g. the IMM rows '
-                             'when only the creep section was run), each marked with its '
-                             'commit and date')
     parser.add_argument('--report', default=None, metavar='JSON',
                         help='do not run: write --scoreboard from a saved --json file')
     parser.add_argument('--commit', default='',
@@ -678,7 +655,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         commit = args.commit or saved.get('commit', '')
         if not commit:
             parser.error('the --json file does not say its commit: give --commit')
-        write_scoreboard(args.scoreboard, saved, commit, args.keep_rows)
+        write_scoreboard(args.scoreboard, saved, commit)
         return 0
     try:
         imm_overrides = parse_assignments(args.imm_set, SuspensionImmParams())
@@ -726,7 +703,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with open(args.json, 'w', encoding='utf-8') as handle:
             json.dump(out, handle, indent=1, default=str)
     if args.scoreboard:
-        write_scoreboard(args.scoreboard, out, out['commit'], args.keep_rows)
+        write_scoreboard(args.scoreboard, out, out['commit'])
     return 0
 
 

@@ -132,35 +132,6 @@ def test_rail_rows() -> None:
     assert end.worst_case == 'damper at 190001 at 35.0 m/s: ended none'
 
 
-def test_rail_rows_not_run_are_carried_with_their_commit(tmp_path: Path) -> None:
-    """A creep-only run (--skip-imm) with --keep-rows: its creep rows are new, the earlier
-    file's IMM rows are kept in their order and say where they were measured; a file of other
-    seeds is refused."""
-    creep = [rail.CreepCase(190001, 30.0, 'C-spec/exact', settle_5=[0.3, 0.4, 0.9])]
-    imm = [rail.ImmCase(190001, 35.0, 'spring', 1.4, delay=0.1, end_component='spring')]
-    earlier = tmp_path / 'earlier.json'
-    rail.write_scoreboard(str(earlier), {
-        'seeds': [190001], 'date': '2026-12-05', 'settings': {'healthy_s': 900.0},
-        'creep': [dataclasses.asdict(c) for c in creep] + [dataclasses.asdict(
-            rail.CreepCase(190001, 30.0, 'D/none', settle_10=[0.5, 0.5, 0.5]))],
-        'imm': [dataclasses.asdict(c) for c in imm]}, 'a' * 40)
-    slower = [rail.CreepCase(190001, 30.0, 'C-spec/exact', settle_5=[0.3, 1.2, 0.2])]
-    now = tmp_path / 'now.json'
-    out = {'seeds': [190001], 'date': '2026-12-06', 'settings': {'healthy_s': 900.0},
-           'creep': [dataclasses.asdict(c) for c in slower]}
-    rail.write_scoreboard(str(now), out, 'b' * 40, keep=str(earlier))
-    rows = load_family_results(now).rows
-    assert [r.target for r in rows] == ['creep D/none', 'creep C-spec/exact', 'IMM spring',
-                                        'IMM component at the end']
-    new = {r.target: r for r in rows}
-    assert new['creep C-spec/exact'].worst_value == 1.2 and not new['creep C-spec/exact'].met
-    assert new['creep C-spec/exact'].detail == ''
-    assert new['creep D/none'].detail == 'carried from the run at aaaaaaa on 2026-12-05'
-    assert new['IMM spring'].detail.startswith('carried from the run at aaaaaaa')
-    with pytest.raises(SystemExit, match='other seeds'):
-        rail.write_scoreboard(str(now), out | {'seeds': [190002]}, 'b' * 40, keep=str(earlier))
-
-
 def test_scoreboard_of_files_run_with_other_settings_keeps_each(tmp_path: Path) -> None:
     """Fault runs and long nominal drives run with other timing: the merged header keeps each
     file's settings by the cases it ran (not the last file's for all), without the settings
