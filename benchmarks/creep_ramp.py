@@ -86,7 +86,12 @@ def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_
                 to: float, track_kind: str) -> dict[str, tuple[float, float, float]]:
     """Per setting (:func:`ramp_runs`): (rms relative error during the ramp, its largest, the
     largest after it)."""
-    time, truth, estimates = ramp_runs(car, settings, ramp_s, to, track_kind)
+    return run_errors(*ramp_runs(car, settings, ramp_s, to, track_kind), ramp_s)
+
+
+def run_errors(time: np.ndarray, truth: np.ndarray, estimates: Mapping[str, np.ndarray],
+               ramp_s: float) -> dict[str, tuple[float, float, float]]:
+    """:func:`ramp_errors` of runs already made."""
     during = (time >= BEFORE_S + 1.0) & (time <= BEFORE_S + ramp_s)
     after = time > BEFORE_S + ramp_s + 1.0
     out = {}
@@ -97,10 +102,11 @@ def ramp_errors(car: FamilyCar, settings: Mapping[str, Mapping[str, Any]], ramp_
     return out
 
 
-def plot_ramp(path: str, car: FamilyCar, settings: Mapping[str, Mapping[str, Any]],
-              ramp_s: float, to: float, track_kind: str) -> None:
-    """The true c and each setting's estimate on one car's ramp, one line per setting."""
-    time, truth, estimates = ramp_runs(car, settings, ramp_s, to, track_kind)
+def plot_ramp(path: str, car: FamilyCar, time: np.ndarray, truth: np.ndarray,
+              estimates: Mapping[str, np.ndarray], ramp_s: float, to: float,
+              track_kind: str) -> None:
+    """The true c and each setting's estimate on one car's ramp (:func:`ramp_runs`), one line
+    per setting."""
     plt = pyplot()
     fig, axis = plt.subplots(figsize=(8.0, 4.0))
     axis.plot(time, truth, color='k', linewidth=1.5, label='true c')
@@ -138,11 +144,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     cars = family(SEED_SETS[args.seeds])
     if args.cars:
         cars = cars[:args.cars]
-    if args.plot:
-        plot_ramp(args.plot, cars[0], settings, args.ramp_s, args.to, args.track)
     rows: dict[str, list[tuple[float, float, float]]] = {s: [] for s in args.settings}
     for car in cars:
-        errors = ramp_errors(car, settings, args.ramp_s, args.to, args.track)
+        runs = ramp_runs(car, settings, args.ramp_s, args.to, args.track)
+        if args.plot and car is cars[0]:
+            plot_ramp(args.plot, car, *runs, args.ramp_s, args.to, args.track)
+        errors = run_errors(*runs, args.ramp_s)
         for setting, figures in errors.items():
             rows[setting].append(figures)
         print(f'car {car.seed} done', flush=True)

@@ -93,9 +93,9 @@ Choices and why:
   c less than with 0.05) lags a ramp; the rate of ln c is a state instead (integrated random
   walk, ``creep_trend_walk_std``), which follows a ramp without lag and without an alarm
   (restarting the rate at 0 on each alarm changed nothing measurable). Development-wide against
-  the walk of 0.05 alone: steps with a 0.3 mm map 3 -> 24 of 72 within 5 % in 1 s, pattern D
+  the walk of 0.05 alone: steps with a 0.3 mm map 3 -> 23 of 72 within 5 % in 1 s, pattern D
   without a track 45 -> 48, the others as they were; a 15 s ramp from 1 to 0.5 followed as
-  well (rms 2.6 %); a 3 s one, followed as steps, later (rms 10.7 -> 13.5 %;
+  well (rms 2.6 %); a 3 s one, followed as steps, later (rms 10.7 -> 13.3 %;
   docs/methods/rail_family_evaluation.md, "The rate of ln c").
 * **Track input as states, with its rate**: the track alignment at the two wheelsets and its
   rate are states (integrated random walk: the rate wanders as the track's slope does along
