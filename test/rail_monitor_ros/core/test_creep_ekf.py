@@ -306,7 +306,7 @@ def test_rewinding_without_widening_reproduces_the_first_pass(
     but off (1e-4), the run that goes back at the first alarm and filters again (over a gap
     of missing samples between the step and the alarm) gives the estimates of the run that
     does not, up to its second alarm (after which a threshold crossing may move by a
-    sample)."""
+    sample). The onsets are tried ``change_confirm_s`` after the alarm."""
     y, track, _ = simulation_inputs(creep_steps, 'C')
     period = round(1e9 / 200.0)
     missing = set(range(1010, 1014))      # the step is at sample 1000, the alarm after 1020
@@ -326,7 +326,9 @@ def test_rewinding_without_widening_reproduces_the_first_pass(
             rewinds.append(ekf.rewinds)
         runs[rewind] = (np.array(estimates), alarms, rewinds)
     (with_rewind, alarms, rewinds), (plain, plain_alarms, _) = runs[2.0], runs[0.0]
-    assert alarms[0] == plain_alarms[0] and rewinds[alarms[0]] == 1
+    confirm = round(CreepEkfParams().change_confirm_s * 200.0)
+    assert alarms[0] == plain_alarms[0]
+    assert rewinds[alarms[0] + confirm - 1] == 0 and rewinds[alarms[0] + confirm] == 1
     until = plain_alarms[1]
     np.testing.assert_allclose(with_rewind[:until], plain[:until], rtol=1e-5)
 
@@ -340,9 +342,9 @@ def test_a_change_begins_at_its_most_likely_onset(creep_steps: RailSimulationRes
     ekf = CreepEkf(CreepEkfParams(pattern=pattern, **SURVEYED_TRACK))
     onsets = []
     for k in range(y.shape[0]):
-        alarms = ekf.changes_detected
+        rewinds = ekf.rewinds
         ekf.step(y[k], track[k])
-        if ekf.changes_detected > alarms:
+        if ekf.rewinds > rewinds:
             onsets.append(k * ekf.params.dt - ekf.last_change_lead_s)
     np.testing.assert_allclose(onsets, [5.0, 10.0], atol=1e-9)
     assert ekf.rewinds == 2 and ekf.refiltered < 1000
@@ -371,7 +373,8 @@ def test_an_onset_the_filter_diverges_from_is_not_kept(creep_steps: RailSimulati
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """A divergence while the onsets are tried does not reset the filter (that would drop the
     kept samples and the track history): the onset is out, and when every onset is, the
-    change is widened at the alarm, exactly as without going back."""
+    change is widened where they were tried, as without going back but change_confirm_s
+    later."""
     reason = CreepEkf._divergence_reason                       # noqa: SLF001
 
     def diverged_while_replaying(ekf: CreepEkf) -> str:
@@ -380,14 +383,19 @@ def test_an_onset_the_filter_diverges_from_is_not_kept(creep_steps: RailSimulati
     monkeypatch.setattr(CreepEkf, '_divergence_reason', diverged_while_replaying)
     y, track, _ = simulation_inputs(creep_steps, 'C')
     runs = {}
-    for rewind in (2.0, 0.0):
-        ekf = CreepEkf(CreepEkfParams(pattern='C', change_rewind_s=rewind, **SURVEYED_TRACK))
+    for rewind, confirm in ((2.0, 0.0), (0.0, 0.0), (2.0, 0.05)):
+        ekf = CreepEkf(CreepEkfParams(pattern='C', change_rewind_s=rewind,
+                                      change_confirm_s=confirm, **SURVEYED_TRACK))
         estimates = [ekf.step(y[k], track[k]).creep_factor for k in range(y.shape[0])]
-        runs[rewind] = (np.array(estimates), ekf.changes_detected, ekf.rewinds, ekf.resets)
-    (tried, alarms, rewinds, resets), (at_alarm, plain_alarms, _, _) = runs[2.0], runs[0.0]
+        runs[rewind, confirm] = (np.array(estimates), ekf.changes_detected, ekf.rewinds,
+                                 ekf.resets)
+    (tried, alarms, rewinds, resets), (at_alarm, plain_alarms, _, _), confirmed = runs.values()
     # Two steps; widened at the alarm, the first step raises a second alarm (measured: 3).
     assert alarms == plain_alarms >= 2 and rewinds == 0 and resets == {}
     np.testing.assert_allclose(tried, at_alarm, rtol=1e-12)
+    later, later_alarms, later_rewinds, later_resets = confirmed
+    assert later_alarms >= 2 and later_rewinds == 0 and later_resets == {}
+    assert np.all(np.abs(later[-200:] / creep_steps.creep_factor[-200:] - 1.0) < 0.05)
 
 
 def test_low_adhesion_hysteresis() -> None:

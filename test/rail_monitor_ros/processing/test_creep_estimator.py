@@ -207,7 +207,8 @@ def test_the_model_follows_the_published_speed() -> None:
     """rail/speed (20 Hz) on a car accelerating by 5 m/s: the processor gives the core each
     sample's held speed (outputs equal to the core's, set_speed per sample), and its estimate
     stays right where the same processor without the speed topic, its model at the
-    configured 30 m/s, reads the creep factor wrong by the speed's share and more."""
+    configured 30 m/s, reads the creep factor wrong by the speed's share and more (on nine
+    samples in ten at least: its alarms move it across the truth)."""
     messages, result = _speed_ramp_messages(('/rail/speed', '/rail/track_irregularity',
                                              '/rail/lateral_states'))
     config = {'vehicle.speed': 30.0, 'track_map_error_m': 1.0e-5}
@@ -238,7 +239,7 @@ def test_the_model_follows_the_published_speed() -> None:
     late = result.time[:c.size] > 5.0          # the speed 33-35 m/s, the estimates settled
     c_fixed = np.array([o.fields['creep_factor'] for o in fixed_outputs])
     assert np.abs(c[late] - 1.0).max() < 0.05
-    assert np.abs(c_fixed[late] - 1.0).min() > 0.08
+    assert np.mean(np.abs(c_fixed[late] - 1.0) > 0.08) > 0.9
 
 
 def test_speed_below_the_minimum_holds_and_a_stale_speed_is_reported() -> None:

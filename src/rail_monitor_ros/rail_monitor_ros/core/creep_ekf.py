@@ -470,6 +470,10 @@ class CreepEkfParams:
         'likelihood change time), s', low=0.0, high=60.0, read_only=True)
     change_onset_step_s: float = param(0.05, 'spacing of the onsets tried (a filter state is '
                                        'kept at each), s', low=1e-3, high=10.0, read_only=True)
+    change_confirm_s: float = param(
+        0.05, 'after an alarm the first pass runs on this long before the onsets are tried, so '
+        'that every onset has at least these samples after it to place c on; s', low=0.0,
+        high=1.0, read_only=True)
     low_adhesion_threshold: float = param(0.5, 'low_adhesion turns on when c falls below this',
                                           low=0.01, high=2.0)
     low_adhesion_hysteresis: float = param(0.05, 'and off when c rises above threshold + this',
@@ -511,7 +515,7 @@ class CreepEkfParams:
                     'change_log_std', 'change_onset_step_s', 'low_adhesion_threshold')
         require_positive(self, positive)
         require_positive(self, ('creep_trend_walk_std', 'change_rewind_s',
-                                'change_onset_search_s',
+                                'change_onset_search_s', 'change_confirm_s',
                                 'low_adhesion_hysteresis', 'track_delay_min_wavelength_m'),
                          allow_zero=True)
         if self.track_delay_min_wavelength_m > 0.0 and (self.model != 'full'
@@ -924,6 +928,7 @@ class CreepEkf:
         #: dF/dv at the current model's speed, per c of a discretisation (CreepEkf._at_speed).
         self._speed_derivatives: dict[float, np.ndarray] = {}
         self._grid_reach = 0        # grid points a cached one may stand in for (onset search)
+        self._confirm_samples = round(p.change_confirm_s / self._dt)
         self.discretizations = 0
         self._model = _SpeedModel(p, p.vehicle.speed)
         self._speed = self._model.speed
@@ -964,8 +969,8 @@ class CreepEkf:
         self.clipped = 0
         self.changes_detected = 0
         #: Alarms followed by filtering again from the change's onset (change_rewind_s), the
-        #: samples filtered again for them (every onset tried) and how long before its alarm
-        #: the last one began, s.
+        #: samples filtered again for them (every onset tried) and how long before the sample
+        #: its onsets were tried at (change_confirm_s after its alarm) the last one began, s.
         self.rewinds = 0
         self.refiltered = 0
         self.last_change_lead_s = math.nan
@@ -1055,6 +1060,9 @@ class CreepEkf:
         self._outlier_fraction = 0.0
         self._pinned_run = 0
         self._cusum_up = self._cusum_down = 0.0
+        # An alarm's onsets (kept-state indices) and the samples still to filter before they
+        # are tried (change_confirm_s).
+        self._confirm: tuple[list[int], int] | None = None
         # The kept track belongs to data before the reset (a gap, a time jump, divergence).
         self._history.clear()
         self._rewind = _Rewind(math.floor(p.change_rewind_s / self._dt),
@@ -1427,7 +1435,16 @@ class CreepEkf:
         self._rewind.record(entry, self._sample_log_likelihood)
         self._first_pass_log_likelihood = self._sample_log_likelihood
         if self._alarm:
-            estimate = self._rewind_to_onset(estimate)
+            side, self._alarm = self._alarm, ''
+            if self._rewind.max_inputs:
+                self._confirm = (self._rewind.starts(side), self._confirm_samples)
+            else:
+                estimate = self._widen_here(estimate)
+        if self._confirm is not None:
+            starts, left = self._confirm
+            self._confirm = (starts, left - 1) if left else None
+            if not left:
+                estimate = self._rewind_to_onset(starts, estimate)
         self._rewind.keep(self)
         return estimate
 
@@ -1474,7 +1491,7 @@ class CreepEkf:
         self._predict()
         return estimate
 
-    def _rewind_to_onset(self, estimate: CreepEstimate) -> CreepEstimate:
+    def _rewind_to_onset(self, starts: list[int], estimate: CreepEstimate) -> CreepEstimate:
         """A change was detected: find where it began and filter again from there, ln c widened.
 
         Where the alarm side's CUSUM statistic last left zero is the usual estimate of the
@@ -1487,11 +1504,16 @@ class CreepEkf:
         before it, the new ones after) is kept, with its state at the alarm's sample. The
         published estimates of those samples stay as they were. Counters are those of the
         first pass.
+
+        The onsets are tried ``change_confirm_s`` after the alarm (``starts`` were taken at
+        the alarm): a widened ln c moves on the first samples it is filtered with, and an
+        onset just before the alarm would otherwise have only a few samples to place c on
+        (development car 1011, c = 1 with a 0.3 mm map: an alarm's onset 0.06 s before it put
+        c at 1.58 for 0.1 s).
         """
-        side, self._alarm = self._alarm, ''
-        starts = self._rewind.starts(side)
+        starts = [start for start in starts if start in self._rewind.states]
         if not starts:
-            return estimate         # nothing kept (change_rewind_s 0): widened at the alarm
+            return self._widen_here(estimate)
         at_alarm = _Kept(self)
         counts = (dict(self.rejected), self.clipped)
         # The change is the one detected: no CUSUM while filtering again, and both sides
@@ -1510,12 +1532,19 @@ class CreepEkf:
         self._cusum_up = self._cusum_down = 0.0
         self.rejected, self.clipped = counts
         if not math.isfinite(log_likelihood):
-            # The filter diverged from every onset: widened at the alarm, as without going back.
+            # The filter diverged from every onset: widened here, as without going back (but
+            # change_confirm_s after the alarm).
             at_alarm.restore(self)
-            return estimate
+            return self._widen_here(estimate)
         self.last_change_lead_s = (samples - 1) * self._dt
         self.rewinds += 1
         return refiltered
+
+    def _widen_here(self, estimate: CreepEstimate) -> CreepEstimate:
+        """An alarm with no onset to go back to (change_rewind_s 0, none kept, or the filter
+        diverged from every one): ln c widened at the current sample."""
+        self.P[self.i_theta, self.i_theta] += self.params.change_log_std ** 2
+        return estimate
 
     def _reject(self, reason: str) -> str:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
@@ -1559,7 +1588,8 @@ class CreepEkf:
                        + 2.0 * float(np.sum(np.log(np.diag(factor)))))
 
     def _detect_change(self, normalised_correction: float) -> None:
-        """Two-sided CUSUM on the normalised ln c corrections; on alarm, widen P_theta.
+        """Two-sided CUSUM on the normalised ln c corrections; an alarm widens P_theta
+        (:meth:`step`: at the change's onset, or at the alarm).
 
         While c is right, the corrections K_theta nu are zero-mean with variance
         (K S K^T)_theta; after a change of c they keep one sign. An alarm adds
@@ -1568,13 +1598,12 @@ class CreepEkf:
         follows a step fast while a slow random walk keeps the estimate quiet in between.
         """
         p = self.params
-        if self._replaying:
+        if self._replaying or self._confirm is not None:    # no new alarm before it is placed
             return
         self._cusum_up = max(0.0, self._cusum_up + normalised_correction - p.change_drift)
         self._cusum_down = max(0.0, self._cusum_down - normalised_correction - p.change_drift)
         if max(self._cusum_up, self._cusum_down) > self._change_threshold:
             self._alarm = 'up' if self._cusum_up > self._cusum_down else 'down'
-            self.P[self.i_theta, self.i_theta] += p.change_log_std ** 2
             self._cusum_up = self._cusum_down = 0.0
             self.changes_detected += 1
 
