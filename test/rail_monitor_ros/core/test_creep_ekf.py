@@ -306,14 +306,15 @@ def test_rewinding_without_widening_reproduces_the_first_pass(
     but off (1e-4), the run that goes back at the first alarm and filters again (over a gap
     of missing samples between the step and the alarm) gives the estimates of the run that
     does not, up to its second alarm (after which a threshold crossing may move by a
-    sample). The onsets are tried ``change_confirm_s`` after the alarm."""
+    sample). The onsets are tried ``change_confirm_s`` after the alarm; the alarm is kept
+    whatever the onset's gain (without a widening it has none)."""
     y, track, _ = simulation_inputs(creep_steps, 'C')
     period = round(1e9 / 200.0)
     missing = set(range(1010, 1014))      # the step is at sample 1000, the alarm after 1020
     runs = {}
     for rewind in (2.0, 0.0):
         ekf = CreepEkf(CreepEkfParams(pattern='C', change_log_std=1e-4, change_rewind_s=rewind,
-                                      **SURVEYED_TRACK))
+                                      change_confirm_gain=-1e9, **SURVEYED_TRACK))
         estimates, alarms, rewinds = [], [], []
         for k in range(1200):
             if k in missing:
