@@ -65,7 +65,7 @@ def test_an_alarm_s_onsets_are_tried_after_samples_to_place_c_on() -> None:
                                                overrides=overrides))
         run = ekf.run(z, track, result.speed, result.time, result.creep_factor)
         largest[name] = float(np.max(np.abs(run.creep_factor[result.time >= 2.0] - 1.0)))
-        runs[name] = (ekf.changes_detected, ekf.rewinds, ekf.alarms_dropped)
+        runs[name] = (ekf.changes_detected, ekf.rewinds, ekf.changes_dropped)
     assert largest['at the alarm'] > 0.4 and largest['later'] < 0.2
     assert largest['shipped'] < 0.1
     assert runs['later'][1] >= 1 and runs['shipped'][2] >= 1

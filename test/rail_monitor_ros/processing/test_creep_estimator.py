@@ -70,7 +70,10 @@ def test_processor_is_the_core_on_the_recorded_samples() -> None:
                                rtol=1e-12)
     counts = processor.counts
     assert counts['known_input'] == len(lateral) and counts['unpaired'] == 0
-    assert processor.status(0).values['track_input'] == 'known'
+    values = processor.status(0).values
+    assert values['track_input'] == 'known'
+    assert (values['changes_detected'], values['changes_dropped']) == (ekf.changes_detected,
+                                                                       ekf.changes_dropped)
 
 
 def test_pattern_d_pairs_the_imus() -> None:

@@ -980,7 +980,7 @@ class CreepEkf:
         self.refiltered = 0
         #: Alarms whose most likely onset did not explain the samples better than no change
         #: by change_confirm_gain: dropped, the filter as if none had been raised.
-        self.alarms_dropped = 0
+        self.changes_dropped = 0
         self.last_change_lead_s = math.nan
         self._alarm = ''
         self._replaying = False
@@ -1548,7 +1548,7 @@ class CreepEkf:
             self._replaying = False
             self._cusum_up = self._cusum_down = 0.0
             self.rejected, self.clipped = counts
-            self.alarms_dropped += 1
+            self.changes_dropped += 1
             return estimate
         log_likelihood, refiltered, samples = self._try_onset(starts, best, estimate)
         self._replaying = False

@@ -523,6 +523,7 @@ class CreepEstimatorProcessor(RailImuInputs[CreepEstimatorNodeParams]):
             **{f'rejected_{k}': v for k, v in ekf.rejected.items()},
             'clipped_at_bound': ekf.clipped,
             'changes_detected': ekf.changes_detected,
+            'changes_dropped': ekf.changes_dropped,
             'log_creep_rate_per_s': ekf.log_creep_rate_per_s,
             **{f'resets_{k}': v for k, v in ekf.resets.items()},
             'discretizations': ekf.discretizations,
