@@ -1544,19 +1544,18 @@ class CreepEkf:
         best = max(range(len(starts)), key=likelihoods.__getitem__)
         gain = likelihoods[best] - self._rewind.first_pass_log_likelihood(starts[0],
                                                                           self._rewind.count)
-        if math.isfinite(gain) and gain < self.params.change_confirm_gain:
-            # A generalised likelihood ratio test of the alarm (Willsky and Jones 1976): the
-            # first pass, unwidened, explains the samples nearly as well as any onset.
-            at_alarm.restore(self)
-            self._replaying = False
-            self._cusum_up = self._cusum_down = 0.0
-            self.rejected, self.clipped = counts
-            self.changes_dropped += 1
-            return estimate
-        log_likelihood, refiltered, samples = self._try_onset(starts, best, estimate)
+        # A generalised likelihood ratio test of the alarm (Willsky and Jones 1976): dropped
+        # if the first pass, unwidened, explains the samples nearly as well as any onset.
+        dropped = math.isfinite(gain) and gain < self.params.change_confirm_gain
+        if not dropped:
+            log_likelihood, refiltered, samples = self._try_onset(starts, best, estimate)
         self._replaying = False
         self._cusum_up = self._cusum_down = 0.0
         self.rejected, self.clipped = counts
+        if dropped:
+            at_alarm.restore(self)
+            self.changes_dropped += 1
+            return estimate
         if not math.isfinite(log_likelihood):
             # The filter diverged from every onset: widened here, as without going back (but
             # change_confirm_s after the alarm).
