@@ -8,8 +8,10 @@ is one block. RLS keeps the information form ``P_k = rho P_(k-1) + sum zeta zeta
 covariance recursion with ``Gamma = P^-1`` but exact for a block of samples. Forgetting per
 update ``rho`` gives a memory time constant ``tau = block_s / (1 - rho)`` (0.25 s blocks:
 rho = 0.98 -> 12.5 s, 0.95 -> 5 s, 0.99 -> 25 s) and an averaging equivalent to
-``(1 + rho) / (1 - rho)`` blocks. Batch LS (eq. 10) uses the last ``batch_window_blocks``
-valid blocks instead.
+``(1 + rho) / (1 - rho)`` blocks. The sums can be kept with several forgetting factors at
+once (one per *memory*: the stiffness observer warns from the paper's and reads the pressure
+from a longer one). Batch LS (eq. 10) uses the last ``batch_window_blocks`` valid blocks
+instead.
 
 No ROS import.
 """
@@ -62,21 +64,24 @@ class BlockLeastSquares:
     Args:
         n_problems: number of independent problems.
         n_params: regressors per problem.
-        forgetting_factor: RLS forgetting factor rho per block.
+        forgetting_factors: RLS forgetting factor rho per block of each memory.
         window_blocks: window of the batch LS, in valid blocks.
         min_count: valid samples a block needs to count.
     """
 
-    def __init__(self, n_problems: int, n_params: int, forgetting_factor: float,
+    def __init__(self, n_problems: int, n_params: int, forgetting_factors: Sequence[float],
                  window_blocks: int, min_count: float) -> None:
         self.n_params = n_params
-        self._rho = forgetting_factor
+        self._rhos = tuple(forgetting_factors)
         self._window = window_blocks
         self._min_count = min_count
-        shape = (n_problems, n_params)
+        shape = (len(self._rhos), n_problems, n_params)
         self.info = np.zeros(shape + (n_params,))
         self.rhs = np.zeros(shape)
-        self.n_eff = np.zeros(n_problems)
+        self.n_eff = np.zeros(shape[:2])
+        # Blocks during which the later memories of a problem still forget like the first
+        # (after a restart, :meth:`restart`).
+        self.hold = np.zeros(n_problems, dtype=np.int64)
         self.window_gram = np.zeros((self._window, n_problems, n_params, n_params))
         self.window_rhs = np.zeros((self._window, n_problems, n_params))
         self.window_fill = np.zeros(n_problems, dtype=int)
@@ -92,12 +97,15 @@ class BlockLeastSquares:
 
     def update(self, gram: np.ndarray, rhs: np.ndarray, good: np.ndarray) -> None:
         """One update per block (axis 0); a bad block is skipped (estimate held, no forgetting)."""
-        rho = self._rho
         for b in range(gram.shape[0]):
             g = good[b]
-            self.info[g] = rho * self.info[g] + gram[b, g]
-            self.rhs[g] = rho * self.rhs[g] + rhs[b, g]
-            self.n_eff[g] = rho * self.n_eff[g] + 1.0
+            held = self.hold[g] > 0
+            for m, rho in enumerate(self._rhos):
+                r = np.where(held, self._rhos[0], rho)
+                self.info[m, g] = r[:, None, None] * self.info[m, g] + gram[b, g]
+                self.rhs[m, g] = r[:, None] * self.rhs[m, g] + rhs[b, g]
+                self.n_eff[m, g] = r * self.n_eff[m, g] + 1.0
+            self.hold[g] = np.maximum(self.hold[g] - 1, 0)
             idx = np.flatnonzero(g)
             pos = self._window_pos[idx]
             self.window_gram[pos, idx] = gram[b, idx]
@@ -105,12 +113,21 @@ class BlockLeastSquares:
             self._window_pos[idx] = (pos + 1) % self._window
             self.window_fill[idx] = np.minimum(self.window_fill[idx] + 1, self._window)
 
+    def restart(self, problems: np.ndarray, hold_blocks: int) -> None:
+        """Restart the later memories of the given problems (bool (n,)) from the first one's
+        sums; they forget like it for the next ``hold_blocks`` good blocks (so they are equal
+        to it until then)."""
+        self.info[1:, problems] = self.info[0, problems]
+        self.rhs[1:, problems] = self.rhs[0, problems]
+        self.n_eff[1:, problems] = self.n_eff[0, problems]
+        self.hold[problems] = hold_blocks
+
     def good_blocks(self, count: np.ndarray) -> np.ndarray:
         """Blocks with enough valid samples."""
         return count >= self._min_count
 
     def rls(self) -> np.ndarray:
-        """Current RLS coefficients (n, p)."""
+        """Current RLS coefficients (memories, n, p)."""
         return solve_normal(self.info, self.rhs)
 
     def batch(self) -> np.ndarray:
