@@ -228,6 +228,21 @@ def test_uncertain_tires_are_unknown_and_named_on_the_status(short_bag: Path) ->
     assert len(values['trust_spread_ratio']) == 4 and len(values['trust_blocks']) == 4
 
 
+def test_status_names_the_stiffness_pressure_law(short_bag: Path) -> None:
+    """Issue 21: away from placard the pressure is the law's; the status says which law is in
+    use and, for the default, that it is the paper's tire, not this one's."""
+    for settings, expected in (({}, "line, slope 0.586 (the default, the paper's tire"),
+                               ({'pressure_relation.law': 'power',
+                                 'pressure_relation.exponent': 0.62}, 'power, exponent 0.62')):
+        processor = make_processor({**FAST, **settings}, '/tire_stiffness_observer')
+        for _topic, _, _, data in iter_raw(short_bag, ['/vehicle/wheel_speeds']):
+            processor.process('vehicle/wheel_speeds', data)
+            break
+        law = processor.status(0).values['pressure_relation']
+        assert law.startswith(expected), law
+        assert ('set pressure_relation' in law) == (not settings)
+
+
 def test_calibration_from_other_tires_is_refused_on_the_status(short_bag: Path,
                                                              tmp_path: Path) -> None:
     """A calibration file whose stiffness is twice these tires' (other tires, resonance ratio

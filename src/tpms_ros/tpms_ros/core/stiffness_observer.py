@@ -136,6 +136,16 @@ class PressureRelation:
             raise ValueError("PressureRelation.law must be 'line' or 'power', "
                              f'got {self.law!r}')
 
+    def describe(self) -> str:
+        """The law in words, and whether it is the default (the paper's tire), for
+        ``/diagnostics``: away from placard the absolute pressure is only as right as the law."""
+        law = (f'power, exponent {self.exponent:.3g}' if self.law == 'power'
+               else f'line, slope {self.slope:.3g}')
+        if self == PressureRelation():
+            return (f"{law} (the default, the paper's tire: pressures away from placard need "
+                    "this tire's law, set pressure_relation)")
+        return law
+
     def pressure_ratio(self, stiffness_ratio: np.ndarray) -> np.ndarray:
         """p / p0 for the given K / K0."""
         ratio = np.asarray(stiffness_ratio, dtype=float)

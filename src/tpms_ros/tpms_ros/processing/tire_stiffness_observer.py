@@ -451,6 +451,7 @@ class TireStiffnessObserverProcessor:
             'driven_axle': p.driven_axle,
             'drive_compensation': p.drive_compensation,
             'speed_band_kmh': [p.speed_min_kmh, p.speed_max_kmh],
+            'pressure_relation': p.pressure_relation.describe(),
             'time_jumps': self.time_jumps,
             'recovery_s': recovery_s(p),
             'encoder_noise': self.observer.encoder_noise,
