@@ -52,7 +52,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 import math
-from statistics import median
 from typing import Any, Literal
 
 from numba import njit, types
@@ -827,14 +826,22 @@ def sensor_checks(p: StiffnessObserverParams, omega: np.ndarray, timing_break: n
     return code, good, reset, filled, counts
 
 
+def _robust_spread(values: np.ndarray) -> float:
+    """1.4826 times the median absolute deviation: the std of normal data, robust to the odd
+    poorly excited block."""
+    return 1.4826 * float(np.median(np.abs(values - np.median(values))))
+
+
 class _TrustWindow:
     """The last ``size`` counted block stiffnesses of each wheel, for the trust measure (how
-    the blocks behind the estimate compare with the calibration's)."""
+    the blocks behind the estimate compare with the calibration's) and the reading's restart
+    (how far the warning's estimate may be from the reading's)."""
 
     def __init__(self, size: int) -> None:
         self.size = size
         self.k = np.full((size, N_WHEELS), np.nan)
         self.count = np.zeros(N_WHEELS, dtype=np.int64)   # blocks ever added per wheel
+        self._spread: np.ndarray | None = None            # :meth:`spread` until the next add
 
     def add(self, block_k: np.ndarray, usable: np.ndarray) -> None:
         """Append each wheel's usable blocks (B, 4) in order."""
@@ -843,6 +850,19 @@ class _TrustWindow:
             slots = (self.count[w] + np.arange(rows.size)) % self.size
             self.k[slots, w] = block_k[rows, w]
             self.count[w] += rows.size
+        self._spread = None
+
+    def held(self) -> np.ndarray:
+        """(4,) blocks held per wheel (up to ``size``)."""
+        return np.minimum(self.count, self.size)
+
+    def spread(self) -> np.ndarray:
+        """(4,) robust spread of each wheel's held blocks (NaN with fewer than 4)."""
+        if self._spread is None:
+            self._spread = np.array([
+                _robust_spread(self.last(w, self.size)) if held >= 4 else np.nan
+                for w, held in enumerate(self.held())])
+        return self._spread
 
     def last(self, wheel: int, n: int) -> np.ndarray:
         """The wheel's last min(n, held) block stiffnesses, oldest first."""
@@ -1255,8 +1275,7 @@ class TireStiffnessObserver:
                 for w in wheels:
                     ks = np.asarray(cal.block_k[w])
                     self._k_nominal[w] = float(k_pooled[w])
-                    # Median absolute deviation: robust to the odd poorly excited block.
-                    self._k_block_std[w] = 1.4826 * float(np.median(np.abs(ks - np.median(ks))))
+                    self._k_block_std[w] = _robust_spread(ks)
                     self._wheel_calibrated[w] = bool(np.isfinite(k_pooled[w]))
         if np.all(self._wheel_calibrated):
             self._calibration = None
@@ -1616,12 +1635,7 @@ class TireStiffnessObserver:
             return
         coef = self.raw_coefficients()
         stiffness = self._stiffness_from_raw(coef[..., 0])
-        spread = np.full(N_WHEELS, np.nan)
-        for w in range(N_WHEELS):
-            k = self._trust.last(w, self._trust.size)
-            if k.size >= 4:
-                spread[w] = 1.4826 * np.median(np.abs(k - np.median(k)))
-        sigma = spread / math.sqrt(p.effective_blocks[0])
+        sigma = self._trust.spread() / math.sqrt(p.effective_blocks[0])
         with np.errstate(invalid='ignore'):
             parted = np.abs(stiffness[1] - stiffness[0]) > p.steady_max_sigmas * sigma
         for family, ls in zip(self._families, self._ls, strict=True):
@@ -1662,16 +1676,10 @@ class TireStiffnessObserver:
         """Per tire: ``blocks``, the counted blocks behind the trust measure (up to one RLS
         memory, or the batch window), and ``spread_ratio``, their robust spread of block
         stiffness over the calibration's (NaN until calibrated)."""
-        blocks = np.zeros(N_WHEELS)
-        spread_ratio = np.full(N_WHEELS, np.nan)
-        for w in range(N_WHEELS):
-            k = self._trust.last(w, self._trust.size).tolist()
-            blocks[w] = len(k)
-            if len(k) >= 4 and self._wheel_calibrated[w] and self._k_block_std[w] > 0:
-                centre = median(k)
-                spread_ratio[w] = 1.4826 * median([abs(v - centre) for v in k]) \
-                    / self._k_block_std[w]
-        return {'blocks': blocks, 'spread_ratio': spread_ratio}
+        known = self._wheel_calibrated & (self._k_block_std > 0)
+        spread_ratio = np.where(known, self._trust.spread()
+                                / np.where(known, self._k_block_std, 1.0), np.nan)
+        return {'blocks': self._trust.held().astype(float), 'spread_ratio': spread_ratio}
 
     def _untrusted(self, calibrated: np.ndarray, features: dict[str, np.ndarray]) -> list[str]:
         """Per tire: the 'uncertain_*' reason its estimate is not trusted, or ''.
