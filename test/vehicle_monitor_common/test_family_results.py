@@ -16,6 +16,7 @@ from vehicle_monitor_common.evaluation import (
     write_results,
 )
 from vehicle_monitor_common.family_results import (
+    FAMILY_FILES,
     FamilyFile,
     FamilyResults,
     FamilyRow,
@@ -26,7 +27,8 @@ from vehicle_monitor_common.family_results import (
     write_family_results,
 )
 
-FILES = (FamilyFile('TPMS on held-out cars', 'tpms_family.json', 'python eval_tpms.py'),
+FILES = (FamilyFile('TPMS on held-out cars', 'tpms_family.json', 'python eval_tpms.py',
+                    'docs/tpms_why.md'),
          FamilyFile('Rail on held-out cars', 'rail_family.json', 'python eval_rail.py'))
 
 RESULTS = FamilyResults(
@@ -71,8 +73,8 @@ def test_table_from_fixture_and_missing_file(tmp_path: Path) -> None:
     tables = load_family_tables(tmp_path, FILES)
     text = render_family_markdown(tables)
     assert ('TPMS on held-out cars: held-out cars 21000-21002, 21005 (4 cars), measured at '
-            'commit 3835691 on 2026-11-29; 1 of 3 targets met. Regenerate: '
-            '`python eval_tpms.py`') in text
+            'commit 3835691 on 2026-11-29; 1 of 3 targets met. Why, per car: '
+            'docs/tpms_why.md. Regenerate: `python eval_tpms.py`') in text
     assert ('| fused warning names a 25 % puncture within 60 s | every | 23 / 24 runs (96 %) '
             '| missed: 21004 puncture25 motorway | **FAIL** | - |') in text
     assert ('| \\|mean error\\| < 10 kPa | >= 95 % | 40 / 72 runs (56 %) '
@@ -81,6 +83,14 @@ def test_table_from_fixture_and_missing_file(tmp_path: Path) -> None:
     assert '| a 15 % loss within 60 s | >= 90 % | 22 / 24 runs (92 %) | 46.4 s' in text
     assert (f'Rail on held-out cars: not measured yet: no {tmp_path / "rail_family.json"}. '
             'Regenerate: `python eval_rail.py`') in text
+
+
+def test_each_shipped_family_names_a_page_of_this_repository() -> None:
+    """The scoreboard's pointer from each family table to its analysis is a page that exists."""
+    root = Path(__file__).resolve().parents[2]
+    for source in FAMILY_FILES:
+        assert source.analysis, source.title
+        assert (root / source.analysis).is_file(), source.analysis
 
 
 def test_unreadable_file_is_reported_not_raised(tmp_path: Path) -> None:

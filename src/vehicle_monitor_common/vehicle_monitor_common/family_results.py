@@ -33,11 +33,14 @@ class FamilyFile:
         title: what the table's heading calls it.
         name: file name under ``docs/results/``.
         command: the command that regenerates the file (a full run of the evaluation).
+        analysis: the page that explains the figures: per car, why a target is missed, what
+            was tried ('' for none).
     """
 
     title: str
     name: str
     command: str
+    analysis: str = ''
 
 
 FAMILY_FILES = (
@@ -47,16 +50,19 @@ FAMILY_FILES = (
                'python benchmarks/eval_tpms_family.py --cases nominal --fault-s 1890 '
                '--observe-s 0 --out /tmp/tpms_nominal.json && '
                'python benchmarks/eval_tpms_family.py --report /tmp/tpms_family.json '
-               '/tmp/tpms_nominal.json --scoreboard docs/results/tpms_family.json'),
+               '/tmp/tpms_nominal.json --scoreboard docs/results/tpms_family.json',
+               'docs/methods/tpms_family_evaluation.md'),
     FamilyFile('Rail estimators on the held-out cars and tracks (issue 19)', 'rail_family.json',
                'python benchmarks/eval_rail_family.py --creep-track-model spectrum '
                '--healthy-s 900 --json /tmp/rail_family.json '
-               '--scoreboard docs/results/rail_family.json'),
+               '--scoreboard docs/results/rail_family.json',
+               'docs/methods/rail_family_evaluation.md'),
     FamilyFile('Lateral force observer on the held-out cars (the family of issue 21)',
                'lateral_force_family.json',
                'python benchmarks/eval_lateral_force_family.py --seeds held-out '
                '--json /tmp/lateral_force_family.json '
-               '--scoreboard docs/results/lateral_force_family.json'),
+               '--scoreboard docs/results/lateral_force_family.json',
+               'docs/methods/lateral_force_observer.md'),
 )
 
 
@@ -237,14 +243,17 @@ def seeds_text(seeds: Sequence[int]) -> str:
 
 
 def heading_text(table: FamilyTable) -> str:
-    """The line above a family's rows: what, on which cars, measured when, regenerated how."""
+    """The line above a family's rows: what, on which cars, measured when, where it is
+    explained, regenerated how."""
+    source = table.source
     results = table.results
+    analysis = f' Why, per car: {source.analysis}.' if source.analysis else ''
     if results is None:
-        return f'{table.source.title}: {table.problem}. Regenerate: `{table.source.command}`'
+        return f'{source.title}: {table.problem}.{analysis} Regenerate: `{source.command}`'
     cars = ('held-out cars' if results.held_out else 'cars (not all held out)')
-    return (f'{table.source.title}: {cars} {seeds_text(results.seeds)}, measured at commit '
+    return (f'{source.title}: {cars} {seeds_text(results.seeds)}, measured at commit '
             f'{results.commit[:7]} on {results.date}; {results.met_count()} of '
-            f'{len(results.rows)} targets met. Regenerate: `{table.source.command}`')
+            f'{len(results.rows)} targets met.{analysis} Regenerate: `{source.command}`')
 
 
 def _cell(text: str) -> str:
